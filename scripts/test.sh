@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# Install studyctl with its test extras into a fresh virtual environment and run the whole test suite.
+# PostgreSQL's server binaries (initdb, pg_ctl) are installed from Debian when missing: the store
+# tests start a throwaway server of their own and are never skipped.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/ensure-postgres.sh
+venv="${STUDYCTL_TEST_VENV:-.venv-test}"
+python3 -m venv "$venv"
+# shellcheck disable=SC1091
+. "$venv/bin/activate"
+python -m pip install --quiet --upgrade pip
+python -m pip install --quiet '.[test]'
+pytest "$@"

@@ -1,0 +1,3 @@
+from studyctl.cli.app import console_main
+
+console_main()

@@ -1,0 +1,74 @@
+"""Assemble the ``studyctl`` command from one module per command group.
+
+Each module in :data:`COMMAND_MODULES` exposes ``register(app: typer.Typer) -> None``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import typer
+
+from studyctl import __version__
+from studyctl.errors import StudyctlError
+
+COMMAND_MODULES = (
+    "studyctl.cli.bench",
+)
+
+app = typer.Typer(
+    name="studyctl",
+    help="Run human-subject studies of haptic feedback, from the protocol to the published statistics.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        typer.echo(f"studyctl {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_version_callback, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    """Run human-subject studies of haptic feedback, from the protocol to the published statistics."""
+
+
+for _module in COMMAND_MODULES:
+    importlib.import_module(_module).register(app)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point: run the CLI and turn any StudyctlError into one ``Error:`` line."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except StudyctlError as exc:
+        typer.echo(f"Error: {exc}", err=True)
+        return exc.exit_code
+    except typer.Abort:
+        typer.echo("Aborted.", err=True)
+        return 130
+    except KeyboardInterrupt:
+        typer.echo("Interrupted.", err=True)
+        return 130
+    except typer.Exit as exc:
+        return exc.exit_code
+    except Exception as exc:
+        # Usage errors of the underlying click layer (typer may vendor it) arrive here in
+        # non-standalone mode; anything else is a bug and keeps its traceback.
+        if hasattr(exc, "show") and hasattr(exc, "exit_code"):
+            exc.show()
+            return int(exc.exit_code)
+        raise
+    return 0
+
+
+def console_main() -> None:
+    sys.exit(main())

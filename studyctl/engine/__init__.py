@@ -1,0 +1,1 @@
+"""Session engine: clocks, the trial loop, timers, prompts, questionnaires and resume."""

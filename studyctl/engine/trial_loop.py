@@ -1,0 +1,124 @@
+"""The per-trial feedback loop, shared by people and virtual participants.
+
+Persistence is the caller's: samples and events leave through the ``sink`` callbacks so that the
+loop stays free of I/O and the session engine decides when to commit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from studyctl.engine.clock import Clock
+from studyctl.plugins.interfaces import Controller, Device, Participant, TrialInfo
+from studyctl.plugins.safety import SafetyLayer
+
+
+@dataclass
+class TrialOutcome:
+    """What happened in one trial, as the loop saw it."""
+
+    ended_by: str  # "finish", "time_limit", "abort", "fault"
+    duration_s: float
+    ticks: int
+    scans: int
+    reports: list[dict[str, Any]] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+
+
+EventSink = Callable[[float, str, Mapping[str, Any]], None]
+SampleSink = Callable[[float, Mapping[str, float]], None]
+
+
+def run_trial(
+    *,
+    info: TrialInfo,
+    controller: Controller | None,
+    device: Device,
+    participant: Participant,
+    clock: Clock,
+    rng: np.random.Generator,
+    on_event: EventSink | None = None,
+    on_sample: SampleSink | None = None,
+    view: Callable[[Mapping[str, float]], Mapping[str, Any] | None] | None = None,
+    should_stop: Callable[[], str | None] | None = None,
+) -> TrialOutcome:
+    """Run one trial to its end: the participant finishes, the time limit passes, or it is stopped.
+
+    ``view`` renders a visual frame from the device inputs (the scene's CT slice or cursor view); it is
+    called on each scan request (counted) or every tick in real-time visual conditions.
+    ``should_stop`` is polled every tick and returns a reason ("abort", "pause") to end the trial.
+    """
+    events: list[dict[str, Any]] = []
+
+    def emit(t: float, kind: str, payload: Mapping[str, Any]) -> None:
+        events.append({"t": t, "kind": kind, **payload})
+        if on_event is not None:
+            on_event(t, kind, payload)
+
+    safety = SafetyLayer(device.limits)
+    period = 1.0 / info.rate_hz
+    participant.begin_trial(info, rng)
+    if controller is not None:
+        controller.reset()
+    start = clock.now()
+    percept: dict[str, Any] = {}
+    scans = 0
+    reports: list[dict[str, Any]] = []
+    ticks = 0
+    ended_by = "time_limit"
+    last_inputs: Mapping[str, float] = {}
+    emit(0.0, "trial_loop_start", {"rate_hz": info.rate_hz})
+    try:
+        while True:
+            t = clock.now() - start
+            if t >= info.time_limit_s:
+                ended_by = "time_limit"
+                break
+            if should_stop is not None:
+                reason = should_stop()
+                if reason:
+                    ended_by = reason
+                    break
+            action = participant.act(t, percept)
+            if action.inputs:
+                device.apply_input(action.inputs)
+                last_inputs = action.inputs
+            obs = device.read(t)
+            command = controller.step(obs) if controller is not None else {}
+            device.write(safety.filter(command, t))
+            for ev in safety.events:
+                emit(t, "safety", ev)
+            safety.events.clear()
+            percept = dict(device.feedback())
+            finished = False
+            for request in action.requests:
+                if request.kind == "scan":
+                    if info.visual == "on_request":
+                        scans += 1
+                        frame = view(last_inputs) if view is not None else None
+                        percept["scan"] = frame
+                        emit(t, "scan", {"count": scans, "pose": dict(last_inputs)})
+                elif request.kind == "report":
+                    report = {"t": t, **request.payload}
+                    reports.append(report)
+                    emit(t, "report", dict(request.payload))
+                elif request.kind == "finish":
+                    finished = True
+            if info.visual == "realtime" and view is not None:
+                percept["view"] = view(last_inputs)
+            if on_sample is not None:
+                on_sample(t, {**obs.values, **command})
+            ticks += 1
+            if finished:
+                ended_by = "finish"
+                break
+            clock.sleep_until(start + ticks * period)
+    finally:
+        device.write(safety.safe_command())
+    duration = min(clock.now() - start, info.time_limit_s)
+    emit(duration, "trial_loop_end", {"ended_by": ended_by, "ticks": ticks})
+    return TrialOutcome(ended_by, duration, ticks, scans, reports, events)

@@ -1,0 +1,1 @@
+"""Plugin interfaces (controllers, devices, scenes, participants) and their discovery."""

@@ -1,0 +1,191 @@
+"""The contracts every controller, device, scene and participant plugin implements.
+
+One trial tick, as :func:`studyctl.engine.trial_loop.run_trial` drives it::
+
+    action  = participant.act(t, percept)          # a virtual participant decides; a person's
+                                                   #   hardware inputs arrive through the device
+    device.apply_input(action.inputs)              # simulated devices only (no-op on hardware)
+    obs     = device.read(t)                       # sensors; a simulated device asks the scene
+    command = controller.step(obs)                 # the feedback algorithm
+    device.write(safety.filter(command, obs))      # the safety layer stands between the two
+    percept = device.feedback()                    # what the actuators deliver to the hand/eye
+
+Channels are named floats (``Mapping[str, float]``) so that logging, safety limits and export treat
+every plugin alike. Units go in the channel name suffix (``_n``, ``_mm``, ``_kpa``, ``_psi``, ``_pct``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+Channels = Mapping[str, float]
+
+
+@dataclass(frozen=True)
+class ChannelLimit:
+    """Allowed range of one output channel and the value that is safe when anything goes wrong."""
+
+    name: str
+    low: float
+    high: float
+    safe: float = 0.0
+    max_rate_per_s: float | None = None  # rate-of-change limit, units per second
+    unit: str = ""
+
+
+@dataclass(frozen=True)
+class DeviceLimits:
+    """Everything the safety layer needs to know about a device."""
+
+    outputs: tuple[ChannelLimit, ...]
+    max_force_n: float | None = None  # Euclidean bound on (fx_n, fy_n, fz_n) when the device renders force
+    sensor_stale_s: float = 0.1  # a sensor older than this puts the device in its safe state
+    ramp_up_s: float = 0.0  # outputs are scaled 0→1 over this time after enable
+
+    def channel(self, name: str) -> ChannelLimit:
+        for limit in self.outputs:
+            if limit.name == name:
+                return limit
+        raise KeyError(name)
+
+    def safe_command(self) -> dict[str, float]:
+        return {c.name: c.safe for c in self.outputs}
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a controller sees at one tick: trial time in seconds and named sensor channels."""
+
+    t: float
+    values: Channels
+
+
+@dataclass(frozen=True)
+class Request:
+    """Something a participant asks for during a trial: ``scan``, ``report`` (with a payload), ``finish``."""
+
+    kind: str
+    payload: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Action:
+    """A participant's output at one tick: device inputs (simulated devices) and requests."""
+
+    inputs: Channels = field(default_factory=dict)
+    requests: tuple[Request, ...] = ()
+
+
+@dataclass(frozen=True)
+class TrialInfo:
+    """What a participant may know about a trial: never the hidden truth (tumour sites)."""
+
+    condition: str
+    time_limit_s: float
+    rate_hz: float
+    visual: str = "none"  # "none", "on_request" (scans counted), "realtime"
+    public: Mapping[str, Any] = field(default_factory=dict)  # grid size, nodule count, instructions …
+
+
+class Scene(ABC):
+    """A tissue or phantom model. ``build`` constructs only the parts a trial needs."""
+
+    name: ClassVar[str]
+
+    @classmethod
+    @abstractmethod
+    def build(
+        cls, spec: Mapping[str, Any], placement: Mapping[str, Any], needs: frozenset[str], rng: np.random.Generator
+    ) -> Scene:
+        """Build from the protocol's scene spec and this trial's stored placement.
+
+        ``needs`` names the parts the condition's controller and visual channel use; parts not named
+        must not be built.
+        """
+
+    @abstractmethod
+    def sense(self, inputs: Channels) -> dict[str, float]:
+        """Sensor channels a simulated device reads for the given device inputs (probe pose …)."""
+
+    def view(self, inputs: Channels) -> Mapping[str, Any] | None:
+        """A visual frame (CT slice, cursor and surface) for the given inputs, or None if no view."""
+        return None
+
+    def truth(self) -> Mapping[str, Any]:
+        """Hidden ground truth for metrics (tumour sites); never handed to a participant."""
+        return {}
+
+
+class Controller(ABC):
+    """A feedback algorithm: observation in, device command out, at ``rate_hz``."""
+
+    name: ClassVar[str]
+    rate_hz: float = 50.0
+
+    def __init__(self, params: Mapping[str, Any], scene: Scene | None = None) -> None:
+        self.params = dict(params)
+        self.scene = scene
+
+    @classmethod
+    def needs(cls, params: Mapping[str, Any]) -> frozenset[str]:
+        """Scene parts and models this controller needs with these parameters."""
+        return frozenset()
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Forget all state (filters, puncture flags) before a trial."""
+
+    @abstractmethod
+    def step(self, obs: Observation) -> dict[str, float]:
+        """One update: the command for each output channel."""
+
+
+class Device(ABC):
+    """A device: hardware adapter or simulation. ``limits`` feed the safety layer."""
+
+    name: ClassVar[str]
+    limits: DeviceLimits
+    simulated: ClassVar[bool] = True
+
+    @abstractmethod
+    def open(self) -> None: ...
+
+    @abstractmethod
+    def read(self, t: float) -> Observation: ...
+
+    @abstractmethod
+    def write(self, command: Channels) -> None: ...
+
+    @abstractmethod
+    def close(self) -> None:
+        """Command the safe state and release the device. Must be safe to call twice."""
+
+    def apply_input(self, inputs: Channels) -> None:
+        """Simulated devices take a virtual participant's inputs here; hardware ignores them."""
+
+    def feedback(self) -> dict[str, float]:
+        """What the actuators currently deliver (simulated: the modelled output)."""
+        return {}
+
+
+class Participant(ABC):
+    """A person at a device, or a virtual one acting through the same device and scene."""
+
+    name: ClassVar[str]
+    virtual: ClassVar[bool] = True
+
+    @abstractmethod
+    def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None: ...
+
+    @abstractmethod
+    def act(self, t: float, percept: Mapping[str, Any]) -> Action:
+        """Decide this tick's inputs and requests from what was felt and seen so far."""
+
+    def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:
+        """Answer a questionnaire item (Likert code in the item's scale)."""
+        raise NotImplementedError(f"{type(self).__name__} cannot answer questionnaires")

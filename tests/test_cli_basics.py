@@ -1,0 +1,45 @@
+"""The CLI's contract: version, help on every command, errors as one line."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import typer.main
+
+from studyctl import __version__
+from studyctl.cli.app import app, main
+
+
+def _walk(command, path: tuple[str, ...] = ()):
+    yield path, command
+    if hasattr(command, "commands"):
+        for name, sub in command.commands.items():
+            yield from _walk(sub, (*path, name))
+
+
+def test_version(capsys):
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"studyctl {__version__}"
+
+
+@pytest.mark.parametrize("path", [p for p, _ in _walk(typer.main.get_command(app))], ids=" ".join)
+def test_every_command_has_help(path):
+    root = typer.main.get_command(app)
+    command = dict(_walk(root))[path]
+    assert (command.help or "").strip(), f"studyctl {' '.join(path)} has no help text"
+
+
+def test_unknown_benchmark_is_one_line_error(capsys):
+    code = main(["bench", "no-such-benchmark"])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert err.startswith("Error: unknown benchmark 'no-such-benchmark'")
+    assert "Traceback" not in err
+
+
+def test_console_script_runs():
+    out = subprocess.run([sys.executable, "-m", "studyctl", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "Usage" in out.stdout
