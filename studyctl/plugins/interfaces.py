@@ -167,6 +167,7 @@ class Device(ABC):
 
     def apply_input(self, inputs: Channels) -> None:
         """Simulated devices take a virtual participant's inputs here; hardware ignores them."""
+        return None
 
     def feedback(self) -> dict[str, float]:
         """What the actuators currently deliver (simulated: the modelled output)."""
