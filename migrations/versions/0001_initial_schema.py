@@ -186,6 +186,9 @@ def upgrade() -> None:
     sa.UniqueConstraint('trial_id', 'stream', 'chunk_index', name='uq_sample_chunk_trial_stream_index')
     )
     # ### end Alembic commands ###
+    # The audit chain starts at the genesis hash; the head row exists from the start so concurrent
+    # first appends lock it instead of racing to create it.
+    op.execute(f"INSERT INTO audit_head (id, count, hash) VALUES (1, 0, '{'0' * 64}')")
     _create_append_only_triggers()
 
 

@@ -1,0 +1,561 @@
+"""The repository API over the study database: what the rest of studyctl calls to read and write.
+
+Every method that writes takes an optional ``tx`` (an ORM session from :meth:`StudyStore.in_transaction`)
+so callers can group several changes atomically, e.g. "allocate the next counterbalancing slot, then
+add the participant"; without ``tx`` each call is its own committed transaction. Objects returned are
+plain ORM instances detached from any session (attributes stay readable; change data through these
+methods, not by mutating the objects).
+
+Changes to the study's structure (study, participants, sessions, trial status) are written to the
+hash-chained audit log in the same transaction; high-volume rows (events, samples) are not.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import secrets
+from collections.abc import Iterator, Mapping, Sequence
+from datetime import datetime
+from typing import Any
+
+import pandas as pd
+from sqlalchemy import func, insert, select
+from sqlalchemy.orm import Session as OrmSession
+
+from studyctl import __version__
+from studyctl.errors import NotFoundError, UsageError
+from studyctl.store.audit import AuditReport, append_audit, canonical_json, verify_audit
+from studyctl.store.db import Database
+from studyctl.store.models import (
+    PARTICIPANT_STATUSES,
+    SESSION_STATUSES,
+    TRIAL_STATUSES,
+    AuditLog,
+    Event,
+    LocationReport,
+    Participant,
+    QuestionnaireResponse,
+    Session,
+    Study,
+    Trial,
+    utcnow,
+)
+from studyctl.store.samples import DEFAULT_STREAM, SampleWriter, read_samples, sample_streams
+
+MAX_TEXT = 200
+_SEED_LIMIT = 2**63
+_TRIAL_FIELDS = frozenset(
+    {"status", "timed_out", "started_at", "ended_at", "outcome", "invalid_reason", "placement", "time_limit_s"}
+)
+_SESSION_FIELDS = frozenset({"status", "ended_at", "resume_count", "seed", "site"})
+
+
+def check_text(value: Any, what: str, *, max_len: int = MAX_TEXT, allow_none: bool = False) -> str | None:
+    """Validate a short text stored verbatim (codes, names): non-empty, ≤ ``max_len``, no NUL."""
+    if value is None and allow_none:
+        return None
+    if not isinstance(value, str):
+        raise UsageError(f"{what} must be text, got {type(value).__name__} {value!r}")
+    if value == "":
+        raise UsageError(f"{what} must not be empty")
+    if len(value) > max_len:
+        raise UsageError(f"{what} {value[:40]!r}… is {len(value)} characters long; at most {max_len} are allowed")
+    if "\x00" in value:
+        raise UsageError(f"{what} {value!r} contains a NUL character (\\x00), which PostgreSQL cannot store; "
+                         "remove it")
+    return value
+
+
+def _check_choice(value: str, allowed: tuple[str, ...], what: str) -> str:
+    if value not in allowed:
+        raise UsageError(f"{what} {value!r} is not allowed; use one of {', '.join(allowed)}")
+    return value
+
+
+def _check_seed(seed: int | None, what: str) -> int | None:
+    if seed is None:
+        return None
+    if isinstance(seed, bool) or not isinstance(seed, int) or not (0 <= seed < _SEED_LIMIT):
+        raise UsageError(f"{what} must be an integer in [0, 2**63), got {seed!r}")
+    return seed
+
+
+def schedule_sha256(schedule: Any) -> str:
+    """sha256 of the canonical JSON of a schedule (stored to detect later edits of the plan)."""
+    return hashlib.sha256(canonical_json(schedule).encode("utf-8")).hexdigest()
+
+
+class StudyStore:
+    """Repository over one study database (SQLite file or PostgreSQL).
+
+    Create with :meth:`open` / :meth:`create`, or wrap an existing :class:`Database`.
+    """
+
+    def __init__(self, db: Database) -> None:
+        self.db = db
+
+    # -- lifecycle --------------------------------------------------------------------------------
+    @classmethod
+    def open(cls, url: Any) -> StudyStore:
+        """Open an existing database at schema head (raises SchemaVersionError otherwise)."""
+        return cls(Database.open(url))
+
+    @classmethod
+    def create(cls, url: Any) -> StudyStore:
+        """Create a new database (SQLite file with mode 0600) migrated to head."""
+        return cls(Database.create(url))
+
+    def close(self) -> None:
+        self.db.close()
+
+    def __enter__(self) -> StudyStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- transactions -----------------------------------------------------------------------------
+    def in_transaction(self, lock: str | None = None) -> contextlib.AbstractContextManager[OrmSession]:
+        """One atomic write transaction (see :meth:`Database.in_transaction`); pass it as ``tx=``."""
+        return self.db.in_transaction(lock=lock)
+
+    def reading(self) -> contextlib.AbstractContextManager[OrmSession]:
+        """A read-only snapshot session."""
+        return self.db.reading()
+
+    @contextlib.contextmanager
+    def _tx(self, tx: OrmSession | None, lock: str | None = None) -> Iterator[OrmSession]:
+        if tx is not None:
+            yield tx
+            return
+        with self.db.in_transaction(lock=lock) as s:
+            yield s
+
+    # -- studies ----------------------------------------------------------------------------------
+    def create_study(
+        self,
+        name: str,
+        *,
+        protocol_text: str | None = None,
+        protocol_name: str | None = None,
+        seed: int | None = None,
+        tx: OrmSession | None = None,
+    ) -> Study:
+        """Create a study with a snapshot of its protocol text (and its sha256) and a master seed.
+
+        ``seed`` defaults to 63 random bits from the OS; it is stored so schedules can be re-derived.
+        """
+        check_text(name, "study name")
+        check_text(protocol_name, "protocol name", allow_none=True)
+        seed = _check_seed(seed, "study seed")
+        if seed is None:
+            seed = secrets.randbits(63)
+        digest = None if protocol_text is None else hashlib.sha256(protocol_text.encode("utf-8")).hexdigest()
+        with self._tx(tx, lock="study") as s:
+            if s.scalar(select(Study.id).where(Study.name == name)) is not None:
+                raise UsageError(f"the database already holds a study named {name!r}; choose another name")
+            study = Study(name=name, protocol_name=protocol_name, protocol_text=protocol_text,
+                          protocol_sha256=digest, seed=seed, studyctl_version=__version__, created_at=utcnow())
+            s.add(study)
+            s.flush()
+            append_audit(s, "study.create", entity="study", entity_id=study.id,
+                         details={"name": name, "protocol_name": protocol_name, "protocol_sha256": digest,
+                                  "seed": seed, "studyctl_version": __version__})
+        return study
+
+    def get_study(self, name: str | None = None, *, tx: OrmSession | None = None) -> Study:
+        """The study called ``name``; without a name, the only study in the database."""
+        with self._read(tx) as s:
+            if name is not None:
+                study = s.scalar(select(Study).where(Study.name == name))
+                if study is None:
+                    names = ", ".join(repr(n) for n in s.scalars(select(Study.name).order_by(Study.name))) or "none"
+                    raise NotFoundError(f"no study named {name!r} in this database; studies: {names}")
+                return study
+            studies = list(s.scalars(select(Study).order_by(Study.id).limit(2)))
+        if not studies:
+            raise NotFoundError("this database holds no study yet; create one with `studyctl init DIR`")
+        if len(studies) > 1:
+            raise UsageError("this database holds several studies; name one (e.g. --study NAME)")
+        return studies[0]
+
+    def list_studies(self) -> list[Study]:
+        with self.reading() as s:
+            return list(s.scalars(select(Study).order_by(Study.id)))
+
+    @contextlib.contextmanager
+    def _read(self, tx: OrmSession | None) -> Iterator[OrmSession]:
+        if tx is not None:
+            yield tx
+            return
+        with self.db.reading() as s:
+            yield s
+
+    # -- participants -----------------------------------------------------------------------------
+    def add_participant(
+        self,
+        study_id: int,
+        code: str,
+        *,
+        stratum: str | None = None,
+        group: str | None = None,
+        sequence_slot: int | None = None,
+        schedule: Any = None,
+        schedule_seed: int | None = None,
+        schedule_algorithm_version: str | None = None,
+        status: str = "enrolled",
+        tx: OrmSession | None = None,
+    ) -> Participant:
+        """Enroll a participant under a pseudonymous ``code`` (unique within the study, stored verbatim).
+
+        ``schedule`` is the expanded, ordered trial plan (JSON); its sha256 is stored beside it. To
+        allocate ``sequence_slot`` race-free, open ``with store.in_transaction(lock="enroll:<study>") as tx``,
+        read the taken slots, then call this with ``tx=tx``.
+        """
+        check_text(code, "participant code")
+        check_text(stratum, "stratum", allow_none=True)
+        check_text(group, "group", allow_none=True)
+        check_text(schedule_algorithm_version, "schedule algorithm version", allow_none=True, max_len=64)
+        _check_choice(status, PARTICIPANT_STATUSES, "participant status")
+        _check_seed(schedule_seed, "schedule seed")
+        if sequence_slot is not None and (isinstance(sequence_slot, bool) or not isinstance(sequence_slot, int)):
+            raise UsageError(f"sequence slot must be an integer, got {sequence_slot!r}")
+        digest = None if schedule is None else schedule_sha256(schedule)
+        with self._tx(tx) as s:
+            if s.get(Study, study_id) is None:
+                raise NotFoundError(f"no study with id {study_id}")
+            clash = s.scalar(select(Participant.id).where(Participant.study_id == study_id, Participant.code == code))
+            if clash is not None:
+                raise UsageError(f"participant code {code!r} is already enrolled in this study; codes must be unique")
+            p = Participant(study_id=study_id, code=code, stratum=stratum, group=group, sequence_slot=sequence_slot,
+                            status=status, schedule=schedule, schedule_sha256=digest, schedule_seed=schedule_seed,
+                            schedule_algorithm_version=schedule_algorithm_version, enrolled_at=utcnow())
+            s.add(p)
+            s.flush()
+            append_audit(s, "participant.enroll", entity="participant", entity_id=p.id,
+                         details={"study_id": study_id, "code": code, "stratum": stratum, "group": group,
+                                  "sequence_slot": sequence_slot, "schedule_sha256": digest,
+                                  "schedule_seed": schedule_seed,
+                                  "schedule_algorithm_version": schedule_algorithm_version})
+        return p
+
+    def get_participant(self, study_id: int, code: str, *, tx: OrmSession | None = None) -> Participant:
+        """The participant with ``code`` in the study (NotFoundError names the code)."""
+        with self._read(tx) as s:
+            p = s.scalar(select(Participant).where(Participant.study_id == study_id, Participant.code == code))
+        if p is None:
+            raise NotFoundError(f"no participant with code {code!r} in this study")
+        return p
+
+    def get_participant_by_id(self, participant_id: int, *, tx: OrmSession | None = None) -> Participant:
+        with self._read(tx) as s:
+            p = s.get(Participant, participant_id)
+        if p is None:
+            raise NotFoundError(f"no participant with id {participant_id}")
+        return p
+
+    def list_participants(self, study_id: int, *, tx: OrmSession | None = None) -> list[Participant]:
+        """All participants of a study in enrollment order."""
+        with self._read(tx) as s:
+            return list(s.scalars(select(Participant).where(Participant.study_id == study_id).order_by(Participant.id)))
+
+    def set_participant_status(
+        self, participant_id: int, status: str, *, reason: str | None = None, tx: OrmSession | None = None
+    ) -> Participant:
+        """Change a participant's status (``withdrawn`` records the time and the reason)."""
+        _check_choice(status, PARTICIPANT_STATUSES, "participant status")
+        with self._tx(tx) as s:
+            p = s.get(Participant, participant_id)
+            if p is None:
+                raise NotFoundError(f"no participant with id {participant_id}")
+            old = p.status
+            p.status = status
+            if status == "withdrawn":
+                p.withdrawn_at = utcnow()
+                p.withdrawal_reason = reason
+            s.flush()
+            append_audit(s, "participant.status", entity="participant", entity_id=p.id,
+                         details={"from": old, "to": status, "reason": reason})
+        return p
+
+    # -- sessions ---------------------------------------------------------------------------------
+    def start_session(
+        self,
+        participant_id: int,
+        *,
+        seed: int | None = None,
+        site: str | None = None,
+        tx: OrmSession | None = None,
+    ) -> Session:
+        """Open a new running session for a participant."""
+        _check_seed(seed, "session seed")
+        check_text(site, "site", allow_none=True)
+        with self._tx(tx) as s:
+            if s.get(Participant, participant_id) is None:
+                raise NotFoundError(f"no participant with id {participant_id}")
+            sess = Session(participant_id=participant_id, status="running", started_at=utcnow(), seed=seed,
+                           resume_count=0, site=site)
+            s.add(sess)
+            s.flush()
+            append_audit(s, "session.start", entity="session", entity_id=sess.id,
+                         details={"participant_id": participant_id, "seed": seed, "site": site})
+        return sess
+
+    def get_session(self, session_id: int, *, tx: OrmSession | None = None) -> Session:
+        with self._read(tx) as s:
+            sess = s.get(Session, session_id)
+        if sess is None:
+            raise NotFoundError(f"no session with id {session_id}")
+        return sess
+
+    def list_sessions(self, participant_id: int, *, tx: OrmSession | None = None) -> list[Session]:
+        with self._read(tx) as s:
+            return list(s.scalars(select(Session).where(Session.participant_id == participant_id).order_by(Session.id)))
+
+    def update_session(self, session_id: int, *, tx: OrmSession | None = None, **fields: Any) -> Session:
+        """Change a session's ``status``, ``ended_at``, ``resume_count``, ``seed`` or ``site`` (audited)."""
+        unknown = set(fields) - _SESSION_FIELDS
+        if unknown:
+            raise UsageError(f"cannot update session field(s) {sorted(unknown)}; allowed: {sorted(_SESSION_FIELDS)}")
+        if "status" in fields:
+            _check_choice(fields["status"], SESSION_STATUSES, "session status")
+        with self._tx(tx) as s:
+            sess = s.get(Session, session_id)
+            if sess is None:
+                raise NotFoundError(f"no session with id {session_id}")
+            before = {k: getattr(sess, k) for k in fields}
+            for k, v in fields.items():
+                setattr(sess, k, v)
+            s.flush()
+            append_audit(s, "session.update", entity="session", entity_id=session_id,
+                         details={"from": before, "to": fields})
+        return sess
+
+    # -- trials -----------------------------------------------------------------------------------
+    def add_trial(
+        self,
+        session_id: int,
+        *,
+        plan_position: int,
+        condition: str,
+        block: int | None = None,
+        repetition: int | None = None,
+        placement: Any = None,
+        time_limit_s: float | None = None,
+        status: str = "planned",
+        replaces_trial_id: int | None = None,
+        started_at: datetime | None = None,
+        tx: OrmSession | None = None,
+    ) -> Trial:
+        """Add a trial row for ``plan_position`` of the session's participant's schedule.
+
+        A replacement for an invalid or aborted trial passes ``replaces_trial_id``; the old row stays.
+        """
+        check_text(condition, "condition")
+        _check_choice(status, TRIAL_STATUSES, "trial status")
+        if time_limit_s is not None and not (time_limit_s > 0):
+            raise UsageError(f"time_limit_s must be > 0, got {time_limit_s!r}")
+        with self._tx(tx) as s:
+            sess = s.get(Session, session_id)
+            if sess is None:
+                raise NotFoundError(f"no session with id {session_id}")
+            if replaces_trial_id is not None and s.get(Trial, replaces_trial_id) is None:
+                raise NotFoundError(f"trial {replaces_trial_id} to replace does not exist")
+            trial = Trial(session_id=session_id, participant_id=sess.participant_id, plan_position=plan_position,
+                          condition=condition, block=block, repetition=repetition, placement=placement,
+                          time_limit_s=time_limit_s, status=status, timed_out=False, started_at=started_at,
+                          replaces_trial_id=replaces_trial_id)
+            s.add(trial)
+            s.flush()
+            if replaces_trial_id is not None:
+                append_audit(s, "trial.replace", entity="trial", entity_id=trial.id,
+                             details={"replaces_trial_id": replaces_trial_id, "plan_position": plan_position})
+        return trial
+
+    def update_trial(self, trial_id: int, *, tx: OrmSession | None = None, **fields: Any) -> Trial:
+        """Set trial fields (status, timed_out, started_at, ended_at, outcome, invalid_reason, …).
+
+        Status changes are audited. The commit is fsynced (SQLite ``synchronous=FULL``), so a
+        completed trial survives a crash right after this returns.
+        """
+        unknown = set(fields) - _TRIAL_FIELDS
+        if unknown:
+            raise UsageError(f"cannot update trial field(s) {sorted(unknown)}; allowed: {sorted(_TRIAL_FIELDS)}")
+        if "status" in fields:
+            _check_choice(fields["status"], TRIAL_STATUSES, "trial status")
+        with self._tx(tx) as s:
+            trial = s.get(Trial, trial_id)
+            if trial is None:
+                raise NotFoundError(f"no trial with id {trial_id}")
+            old_status = trial.status
+            for k, v in fields.items():
+                setattr(trial, k, v)
+            s.flush()
+            if "status" in fields and fields["status"] != old_status:
+                append_audit(s, "trial.status", entity="trial", entity_id=trial_id,
+                             details={"from": old_status, "to": fields["status"],
+                                      "invalid_reason": fields.get("invalid_reason")})
+        return trial
+
+    def get_trial(self, trial_id: int, *, tx: OrmSession | None = None) -> Trial:
+        with self._read(tx) as s:
+            trial = s.get(Trial, trial_id)
+        if trial is None:
+            raise NotFoundError(f"no trial with id {trial_id}")
+        return trial
+
+    def list_trials(
+        self, *, session_id: int | None = None, participant_id: int | None = None, tx: OrmSession | None = None
+    ) -> list[Trial]:
+        """Trials of a session or a participant, in creation order."""
+        stmt = select(Trial).order_by(Trial.id)
+        if session_id is not None:
+            stmt = stmt.where(Trial.session_id == session_id)
+        if participant_id is not None:
+            stmt = stmt.where(Trial.participant_id == participant_id)
+        with self._read(tx) as s:
+            return list(s.scalars(stmt))
+
+    # -- events -----------------------------------------------------------------------------------
+    def append_event(
+        self,
+        session_id: int,
+        kind: str,
+        payload: Mapping[str, Any] | None = None,
+        *,
+        t_mono: float,
+        t_wall: datetime | None = None,
+        trial_id: int | None = None,
+        tx: OrmSession | None = None,
+    ) -> int:
+        """Append one event to a session's log; returns its ``seq`` (1, 2, … per session)."""
+        return self.append_events(session_id, [(t_mono, kind, payload or {})], trial_id=trial_id, t_wall=t_wall,
+                                  tx=tx)[0]
+
+    def append_events(
+        self,
+        session_id: int,
+        events: Sequence[tuple[float, str, Mapping[str, Any] | None]],
+        *,
+        trial_id: int | None = None,
+        t_wall: datetime | None = None,
+        tx: OrmSession | None = None,
+    ) -> list[int]:
+        """Append ``(t_mono, kind, payload)`` events in one transaction; returns their ``seq`` numbers."""
+        if not events:
+            return []
+        wall = t_wall or utcnow()
+        with self._tx(tx) as s:
+            last = s.scalar(select(func.max(Event.seq)).where(Event.session_id == session_id))
+            start = (last or 0) + 1
+            rows = []
+            for i, (t_mono, kind, payload) in enumerate(events):
+                check_text(kind, "event kind", max_len=100)
+                rows.append({"session_id": session_id, "trial_id": trial_id, "seq": start + i,
+                             "t_mono": float(t_mono), "t_wall": wall, "kind": kind,
+                             "payload": dict(payload) if payload is not None else None})
+            s.execute(insert(Event), rows)
+        return [r["seq"] for r in rows]
+
+    def events_frame(self, session_id: int, trial_id: int | None = None) -> pd.DataFrame:
+        """A session's events (optionally one trial's) with columns seq, trial_id, t_mono, t_wall, kind, payload."""
+        stmt = select(Event.seq, Event.trial_id, Event.t_mono, Event.t_wall, Event.kind, Event.payload).where(
+            Event.session_id == session_id).order_by(Event.seq)
+        if trial_id is not None:
+            stmt = stmt.where(Event.trial_id == trial_id)
+        with self.reading() as s:
+            rows = s.execute(stmt).all()
+        return pd.DataFrame([tuple(r) for r in rows],
+                            columns=["seq", "trial_id", "t_mono", "t_wall", "kind", "payload"])
+
+    # -- samples ----------------------------------------------------------------------------------
+    def sample_writer(self, trial_id: int, channels: Sequence[str] | None = None, **kwargs: Any) -> SampleWriter:
+        """A :class:`SampleWriter` for a trial (``stream``, ``dtype``, ``flush_interval_s`` as keywords)."""
+        return SampleWriter(self.db, trial_id, channels, **kwargs)
+
+    def read_samples(self, trial_id: int, stream: str = DEFAULT_STREAM) -> pd.DataFrame:
+        """A trial's samples as a DataFrame (``t`` then one column per channel)."""
+        return read_samples(self.db, trial_id, stream)
+
+    def sample_streams(self, trial_id: int) -> list[str]:
+        return sample_streams(self.db, trial_id)
+
+    # -- answers and reports ----------------------------------------------------------------------
+    def record_response(
+        self,
+        participant_id: int,
+        *,
+        instrument: str,
+        instrument_version: str,
+        item: str,
+        code: int,
+        session_id: int | None = None,
+        trial_id: int | None = None,
+        context: str | None = None,
+        answered_at: datetime | None = None,
+        tx: OrmSession | None = None,
+    ) -> QuestionnaireResponse:
+        """Store one coded questionnaire answer (the numeric code, never the label)."""
+        check_text(instrument, "instrument")
+        check_text(instrument_version, "instrument version", max_len=64)
+        check_text(item, "questionnaire item")
+        check_text(context, "response context", allow_none=True)
+        if isinstance(code, bool) or not isinstance(code, int):
+            raise UsageError(f"response code must be an integer, got {code!r}")
+        with self._tx(tx) as s:
+            r = QuestionnaireResponse(participant_id=participant_id, session_id=session_id, trial_id=trial_id,
+                                      instrument=instrument, instrument_version=instrument_version, item=item,
+                                      code=code, answered_at=answered_at or utcnow(), context=context)
+            s.add(r)
+            s.flush()
+        return r
+
+    def record_location_report(
+        self, trial_id: int, *, t: float, payload: Mapping[str, Any], correct: bool | None = None,
+        tx: OrmSession | None = None,
+    ) -> LocationReport:
+        """Store a participant's location report (grid cell or position) at trial time ``t``."""
+        with self._tx(tx) as s:
+            r = LocationReport(trial_id=trial_id, t=float(t), payload=dict(payload), correct=correct)
+            s.add(r)
+            s.flush()
+        return r
+
+    def responses_frame(self, participant_id: int | None = None) -> pd.DataFrame:
+        cols = ["participant_id", "session_id", "trial_id", "instrument", "instrument_version", "item", "code",
+                "answered_at", "context"]
+        stmt = select(*(getattr(QuestionnaireResponse, c) for c in cols)).order_by(QuestionnaireResponse.id)
+        if participant_id is not None:
+            stmt = stmt.where(QuestionnaireResponse.participant_id == participant_id)
+        with self.reading() as s:
+            rows = s.execute(stmt).all()
+        return pd.DataFrame([tuple(r) for r in rows], columns=cols)
+
+    def location_reports(self, trial_id: int) -> list[LocationReport]:
+        with self.reading() as s:
+            return list(s.scalars(select(LocationReport).where(LocationReport.trial_id == trial_id)
+                                  .order_by(LocationReport.id)))
+
+    # -- audit ------------------------------------------------------------------------------------
+    def audit(
+        self, action: str, *, entity: str | None = None, entity_id: Any = None,
+        details: dict[str, Any] | None = None, actor: str | None = None, tx: OrmSession | None = None,
+    ) -> AuditLog:
+        """Append a row to the hash-chained audit log (e.g. ``session.resume`` with the reason)."""
+        with self._tx(tx) as s:
+            return append_audit(s, action, entity=entity, entity_id=entity_id, details=details, actor=actor)
+
+    def verify_audit(self) -> AuditReport:
+        """Check the whole audit chain; see :func:`studyctl.store.audit.verify_audit`."""
+        with self.reading() as s:
+            return verify_audit(s)
+
+    def audit_frame(self) -> pd.DataFrame:
+        cols = ["id", "at", "actor", "action", "entity", "entity_id", "details", "hash"]
+        with self.reading() as s:
+            rows = s.execute(select(*(getattr(AuditLog, c) for c in cols)).order_by(AuditLog.id)).all()
+        return pd.DataFrame([tuple(r) for r in rows], columns=cols)
+
+
+__all__ = ["StudyStore", "check_text", "schedule_sha256"]
