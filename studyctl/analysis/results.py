@@ -1,0 +1,129 @@
+"""Frozen results of running an analysis plan, with tidy ``to_frame()`` tables of fixed columns."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from types import MappingProxyType
+from typing import TYPE_CHECKING
+
+import pandas as pd
+
+if TYPE_CHECKING:
+    from studyctl.analysis.plan import AnalysisPlan
+    from studyctl.analysis.table import MetricTable
+
+NAN = math.nan
+
+#: Columns of the tests table (one row per test, pair, interval or post-hoc comparison).
+ROW_COLUMNS = (
+    "test_id",
+    "role",
+    "kind",
+    "metric",
+    "test",
+    "compare",
+    "split",
+    "groups",
+    "n",
+    "n_per_group",
+    "statistic_name",
+    "statistic",
+    "df",
+    "z",
+    "p",
+    "p_adj",
+    "p_adjust",
+    "alpha",
+    "significant",
+    "critical_value",
+    "effect_size_name",
+    "effect_size",
+    "estimate",
+    "ci_low",
+    "ci_high",
+    "ci_level",
+    "method",
+    "parent",
+    "warnings",
+    "status",
+)
+
+ROW_KINDS = ("omnibus", "two_sample", "pairwise", "posthoc", "interval", "descriptive")
+STATUSES = ("ok", "not_computed", "skipped")
+
+
+@dataclass(frozen=True)
+class TestRow:
+    """One computed (or not computable) test; ``status`` says which, ``warnings`` why."""
+
+    test_id: str
+    role: str
+    kind: str
+    metric: str
+    test: str
+    compare: str
+    split: str = ""
+    groups: str = ""
+    n: int = 0
+    n_per_group: str = ""
+    statistic_name: str = ""
+    statistic: float = NAN
+    df: float = NAN
+    z: float = NAN
+    p: float = NAN
+    p_adj: float = NAN
+    p_adjust: str = "none"
+    alpha: float = 0.05
+    significant: bool | None = None
+    critical_value: float = NAN
+    effect_size_name: str = ""
+    effect_size: float = NAN
+    estimate: float = NAN
+    ci_low: float = NAN
+    ci_high: float = NAN
+    ci_level: float = NAN
+    method: str = ""
+    parent: str = ""
+    warnings: str = ""
+    status: str = "ok"
+
+    __test__ = False  # not a pytest test class
+
+    def with_(self, **changes: object) -> TestRow:
+        return TestRow(**{**asdict(self), **changes})
+
+
+@dataclass(frozen=True)
+class AnalysisResult:
+    """Everything one plan produced from one data source.
+
+    ``rows``: the tests table; ``tables``: extra tables by name (``descriptives``, ``percent_change``,
+    ``likert``, ``cells``); ``missing``: values not available and why; ``problems``: what made the result
+    partial (empty when complete).
+    """
+
+    plan: AnalysisPlan
+    data: MetricTable
+    rows: tuple[TestRow, ...]
+    tables: Mapping[str, pd.DataFrame] = field(default_factory=dict)
+    missing: pd.DataFrame = field(default_factory=pd.DataFrame)
+    problems: tuple[str, ...] = ()
+    timings: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tables", MappingProxyType(dict(self.tables)))
+        object.__setattr__(self, "timings", MappingProxyType(dict(self.timings)))
+
+    @property
+    def partial(self) -> bool:
+        """True when something the plan asked for could not be computed."""
+        return bool(self.problems) or any(r.status != "ok" for r in self.rows)
+
+    def to_frame(self) -> pd.DataFrame:
+        """The tests table, columns :data:`ROW_COLUMNS`, in plan order."""
+        return pd.DataFrame([asdict(r) for r in self.rows], columns=list(ROW_COLUMNS))
+
+    def rows_for(self, test_id: str) -> list[TestRow]:
+        return [r for r in self.rows if r.test_id == test_id]

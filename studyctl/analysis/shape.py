@@ -1,0 +1,170 @@
+"""Shape the tidy metric table into the samples a test needs, applying the plan's missing-data policy.
+
+Units of analysis: by default one value per participant × cell, where repetitions of a condition are
+averaged (``aggregate: mean`` or ``median``) and a metric's sub-levels (tumour classes, nodules, items) are
+averaged, or, for proportions, pooled by summing successes and chances. ``aggregate: none`` keeps
+trials as units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from studyctl.analysis.plan import AnalysisPlan
+from studyctl.analysis.table import MISSING_COLUMNS, MetricTable
+from studyctl.errors import AnalysisError
+
+KEY = ("participant", "group", "condition", "level")
+
+
+def factor_column(factor: str) -> str:
+    """Column of the tidy table holding a plan factor (a metric's own sub-level lives in ``level``)."""
+    return factor if factor in ("condition", "group") else "level"
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """The plan's view of the data: metric ids as in the plan, only planned conditions/groups."""
+
+    frame: pd.DataFrame
+    missing: pd.DataFrame
+    problems: tuple[str, ...]
+    notes: tuple[str, ...]
+
+
+def prepare(plan: AnalysisPlan, table: MetricTable) -> Prepared:
+    """Rename data metrics to plan ids, keep planned conditions and groups, apply the missing policy.
+
+    Everything left out is counted in ``notes``/``problems``; nothing disappears without a line.
+    """
+    frame = table.frame
+    problems: list[str] = []
+    notes: list[str] = []
+    missing = table.missing.copy()
+    if frame.empty:
+        raise AnalysisError(
+            f"{table.source or 'the data'}: no metric values at all"
+            + (f" ({table.info['empty_reason']})" if table.info.get("empty_reason") else "")
+            + "; run sessions first (studyctl run or studyctl simulate) or check the data source"
+        )
+    parts = []
+    for mid in plan.metrics:
+        name = plan.metric_name(mid)
+        # Database tables are computed per plan metric id; CSV tables carry the CSV's metric names.
+        sel = frame[frame["metric"] == mid]
+        if sel.empty and name != mid:
+            sel = frame[frame["metric"] == name]
+        if sel.empty:
+            available = ", ".join(table.metrics()) or "none"
+            problems.append(f"metric {mid!r} ({name}): no values in {table.source or 'the data'} (has: {available})")
+            continue
+        parts.append(sel.assign(metric=mid))
+    if not parts:
+        raise AnalysisError(f"{table.source or 'the data'}: none of the plan's metrics has values")
+    out = pd.concat(parts, ignore_index=True)
+    if not missing.empty:
+        renamed = {plan.metric_name(m): m for m in plan.metrics}
+        missing["metric"] = missing["metric"].map(lambda m: m if m in plan.metrics else renamed.get(m, m))
+
+    planned = set(plan.condition_ids)
+    extra = sorted(set(out["condition"].dropna()) - planned)
+    for c in extra:
+        n = int((out["condition"] == c).sum())
+        notes.append(f"condition {c!r} is in the data but not in the plan: its {n} value(s) are not analysed")
+    # Values tied to no condition (an end-of-study questionnaire) stay; tests comparing conditions skip them.
+    out = out[out["condition"].isin(planned) | out["condition"].isna()]
+    for c in plan.condition_ids:
+        if not (out["condition"] == c).any():
+            problems.append(f"condition {c!r}: no values in the data")
+    if plan.groups:
+        groups = set(plan.group_ids)
+        has_group = out["group"].notna()
+        stray = out[has_group & ~out["group"].isin(groups)]
+        for g in sorted(set(stray["group"])):
+            notes.append(
+                f"group {g!r} is in the data but not in the plan: its values are only used where groups are pooled"
+            )
+    out, missing, extra_problems = _apply_missing_policy(plan, out, missing)
+    problems.extend(extra_problems)
+    return Prepared(out.reset_index(drop=True), missing, tuple(problems), tuple(notes))
+
+
+def _apply_missing_policy(
+    plan: AnalysisPlan, frame: pd.DataFrame, missing: pd.DataFrame
+) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    problems: list[str] = []
+    if frame["participant"].isna().all():
+        return frame, missing, problems  # pooled counts: no participants to be complete or not
+    added = []
+    keep = []
+    for mid, sel in frame.groupby("metric", sort=False):
+        have = sel.groupby("participant")["condition"].agg(lambda s: set(s))
+        lacking = {p: sorted(set(plan.condition_ids) - conds) for p, conds in have.items()}
+        lacking = {p: c for p, c in lacking.items() if c}
+        if lacking and plan.missing == "fail":
+            first = ", ".join(f"{p} ({', '.join(c)})" for p, c in list(lacking.items())[:5])
+            raise AnalysisError(
+                f"metric {mid!r}: {len(lacking)} participant(s) lack values in some condition: {first}; the plan's "
+                "missing policy is 'fail' (use 'available' or 'complete_cases' to analyse what exists)"
+            )
+        if lacking and plan.missing == "complete_cases":
+            groups = sel.drop_duplicates("participant").set_index("participant")["group"]
+            for p, conds in lacking.items():
+                added.append(
+                    {
+                        "participant": p,
+                        "group": groups.get(p),
+                        "condition": ", ".join(conds),
+                        "trial": None,
+                        "metric": mid,
+                        "reason": "complete_cases: participant dropped from this metric (no value in these conditions)",
+                    }
+                )
+            sel = sel[~sel["participant"].isin(lacking)]
+            problems.append(f"metric {mid!r}: {len(lacking)} participant(s) dropped (complete_cases)")
+        keep.append(sel)
+    frame = pd.concat(keep, ignore_index=True) if keep else frame.iloc[0:0]
+    if added:
+        missing = pd.concat([missing, pd.DataFrame(added, columns=list(MISSING_COLUMNS))], ignore_index=True)
+    return frame, missing, problems
+
+
+def unit_values(frame: pd.DataFrame, *, kind: str, keep: list[str], aggregate: str) -> pd.DataFrame:
+    """One row per analysis unit with columns ``keep`` + participant (+ trial) + value, successes, chances.
+
+    ``keep`` lists the tidy columns that stay separate (condition, group, level). For proportion metrics
+    ``value`` is successes / chances after pooling; a unit with no chances gets NaN (and is dropped by the
+    caller with a warning).
+    """
+    keys = ["participant", *[k for k in keep if k != "participant"]]
+    if aggregate == "none" and kind != "proportion":
+        keys = [*keys, "trial"]
+    if kind == "proportion":
+        g = frame.groupby(keys, dropna=False, sort=False)
+        out = g.agg(
+            successes=("value", "sum"), chances=("denominator", "sum"), n_trials=("value", "size")
+        ).reset_index()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out["value"] = np.where(out["chances"] > 0, out["successes"] / out["chances"], np.nan)
+        return out
+    # Collapse repetitions first (within participant × condition × level), then the levels left out.
+    fine = ["participant", "group", "condition", "level"] + (["trial"] if "trial" in keys else [])
+    func = "median" if aggregate == "median" else "mean"
+    first = frame.groupby(fine, dropna=False, sort=False)["value"].agg([func, "size"]).reset_index()
+    first = first.rename(columns={func: "value", "size": "n_trials"})
+    out = first.groupby(keys, dropna=False, sort=False).agg(value=("value", "mean"), n_trials=("n_trials", "sum"))
+    out = out.reset_index()
+    out["successes"] = np.nan
+    out["chances"] = np.nan
+    return out
+
+
+def ordered_levels(values: pd.Series, preferred: list[str] | None) -> list[str]:
+    """Levels present in ``values``: in ``preferred`` order when given, else in order of appearance."""
+    present = list(dict.fromkeys(v for v in values if not (isinstance(v, float) and np.isnan(v)) and v is not None))
+    if preferred:
+        return [p for p in preferred if p in present]
+    return present
