@@ -1,0 +1,517 @@
+"""Expand a protocol into one participant's ordered plan, deterministically.
+
+The plan of a participant depends only on (protocol, seed, stratum, slot) and
+:data:`SCHEDULE_ALGORITHM_VERSION`: expanding again gives the identical plan, so the stored plan can
+always be re-derived and compared. ``slot`` is the 0-based allocation slot, counted within the
+participant's stratum (or across the study when ``counterbalance.within_strata`` is false).
+
+Random draws come from one ``numpy.random.Generator`` per participant (PCG64 seeded by
+``SeedSequence(seed, spawn_key=(stratum key, slot))``), consumed in a fixed order: the random
+condition order (scheme ``random`` only), then placements, then orientations. Only ``random()``
+doubles are drawn and turned into choices here, so the plans do not depend on numpy's
+integer-sampling algorithms.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from studyctl.errors import UsageError
+from studyctl.protocol import counterbalance as cbal
+from studyctl.protocol.schema import Protocol
+
+SCHEDULE_ALGORITHM_VERSION = 1
+
+_PURPOSE_PARTICIPANT = 0
+_PURPOSE_ALLOCATION = 1
+
+PLAN_COLUMNS = (
+    "trial",
+    "position",
+    "block",
+    "condition",
+    "repetition",
+    "placement",
+    "orientation_deg",
+    "time_limit_s",
+    "familiarisation_max_s",
+    "break_before_s",
+    "questionnaires_after",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class PlanEntry:
+    """One planned trial of a participant.
+
+    Attributes
+    ----------
+    trial
+        1-based index of the trial in the participant's plan.
+    position
+        1-based position of this trial's condition in the block's condition order.
+    block
+        1-based block (one pass through the condition order).
+    condition
+        Condition id.
+    repetition
+        1-based repetition of the condition within its block.
+    placement
+        ``((item, site), …)``: the 1-based site (hole) of each scene item, or None without placement.
+    orientation_deg
+        Orientation of the phantom/model in degrees, or None without orientation randomisation.
+    time_limit_s
+        Hard time limit of the trial (None: no limit).
+    familiarisation_max_s
+        Familiarisation offered before this trial (at most this long; None: none).
+    break_before_s
+        Break before this trial, in seconds.
+    questionnaires_after
+        Instrument ids administered after this trial, in protocol order.
+    """
+
+    trial: int
+    position: int
+    block: int
+    condition: str
+    repetition: int
+    placement: tuple[tuple[str, int], ...] | None
+    orientation_deg: float | None
+    time_limit_s: float | None
+    familiarisation_max_s: float | None
+    break_before_s: float
+    questionnaires_after: tuple[str, ...]
+
+    @property
+    def placement_map(self) -> dict[str, int]:
+        """Placement as ``{item: site}`` (empty without placement)."""
+        return dict(self.placement or ())
+
+    def scene_placement(self) -> dict[str, Any]:
+        """What :meth:`Scene.build` receives as ``placement``: ``{"sites": {...}, "orientation_deg": ...}``."""
+        return {"sites": self.placement_map, "orientation_deg": self.orientation_deg}
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict (placement as ``{item: site}``)."""
+        return {
+            "trial": self.trial,
+            "position": self.position,
+            "block": self.block,
+            "condition": self.condition,
+            "repetition": self.repetition,
+            "placement": None if self.placement is None else dict(self.placement),
+            "orientation_deg": self.orientation_deg,
+            "time_limit_s": self.time_limit_s,
+            "familiarisation_max_s": self.familiarisation_max_s,
+            "break_before_s": self.break_before_s,
+            "questionnaires_after": list(self.questionnaires_after),
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> PlanEntry:
+        """Inverse of :meth:`to_json`."""
+        placement = data.get("placement")
+        return cls(
+            trial=int(data["trial"]),
+            position=int(data["position"]),
+            block=int(data["block"]),
+            condition=str(data["condition"]),
+            repetition=int(data["repetition"]),
+            placement=None if placement is None else tuple((str(k), int(v)) for k, v in placement.items()),
+            orientation_deg=None if data.get("orientation_deg") is None else float(data["orientation_deg"]),
+            time_limit_s=None if data.get("time_limit_s") is None else float(data["time_limit_s"]),
+            familiarisation_max_s=(
+                None if data.get("familiarisation_max_s") is None else float(data["familiarisation_max_s"])
+            ),
+            break_before_s=float(data.get("break_before_s", 0.0)),
+            questionnaires_after=tuple(data.get("questionnaires_after", ())),
+        )
+
+
+def format_placement(placement: tuple[tuple[str, int], ...] | None) -> str:
+    """``soft=3;medium=5;hard=1`` (empty string without placement)."""
+    return "" if placement is None else ";".join(f"{item}={site}" for item, site in placement)
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A participant's whole ordered plan, with everything needed to re-derive it.
+
+    ``order`` is the condition order of block 1; ``sequence`` the index of that order among the
+    scheme's sequences (None for the ``random`` scheme); ``questionnaires_start`` the instruments given
+    before the first trial.
+    """
+
+    protocol_id: str
+    protocol_sha256: str
+    algorithm_version: int
+    seed: int
+    stratum: str
+    slot: int
+    sequence: int | None
+    order: tuple[str, ...]
+    questionnaires_start: tuple[str, ...]
+    entries: tuple[PlanEntry, ...]
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per planned trial with the columns of :data:`PLAN_COLUMNS`."""
+        rows = [
+            (
+                e.trial,
+                e.position,
+                e.block,
+                e.condition,
+                e.repetition,
+                format_placement(e.placement),
+                e.orientation_deg,
+                e.time_limit_s,
+                e.familiarisation_max_s,
+                e.break_before_s,
+                ",".join(e.questionnaires_after),
+            )
+            for e in self.entries
+        ]
+        return pd.DataFrame(rows, columns=list(PLAN_COLUMNS))
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict: what the store keeps as the participant's schedule."""
+        return {
+            "protocol_id": self.protocol_id,
+            "protocol_sha256": self.protocol_sha256,
+            "algorithm_version": self.algorithm_version,
+            "seed": self.seed,
+            "stratum": self.stratum,
+            "slot": self.slot,
+            "sequence": self.sequence,
+            "order": list(self.order),
+            "questionnaires_start": list(self.questionnaires_start),
+            "entries": [e.to_json() for e in self.entries],
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Schedule:
+        """Inverse of :meth:`to_json`."""
+        return cls(
+            protocol_id=str(data["protocol_id"]),
+            protocol_sha256=str(data["protocol_sha256"]),
+            algorithm_version=int(data["algorithm_version"]),
+            seed=int(data["seed"]),
+            stratum=str(data["stratum"]),
+            slot=int(data["slot"]),
+            sequence=None if data.get("sequence") is None else int(data["sequence"]),
+            order=tuple(data["order"]),
+            questionnaires_start=tuple(data.get("questionnaires_start", ())),
+            entries=tuple(PlanEntry.from_json(e) for e in data["entries"]),
+        )
+
+
+def stratum_key(stratum: str) -> int:
+    """A stable 32-bit key of a stratum id for seeding (CRC-32 of its UTF-8 bytes)."""
+    return zlib.crc32(stratum.encode("utf-8"))
+
+
+def participant_rng(seed: int, stratum_key_value: int, slot: int) -> np.random.Generator:
+    """The participant's generator: PCG64 from ``SeedSequence(seed, spawn_key=(0, stratum, slot))``."""
+    return np.random.Generator(
+        np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(_PURPOSE_PARTICIPANT, stratum_key_value, slot)))
+    )
+
+
+class Planner:
+    """Everything about a protocol that does not depend on the participant, computed once.
+
+    ``Planner(protocol).expand(seed=..., slot=..., stratum=...)`` is what :func:`expand_schedule`
+    does; keep a planner to expand many participants quickly.
+    """
+
+    def __init__(self, protocol: Protocol) -> None:
+        self.protocol = protocol
+        cb = protocol.counterbalance
+        self.fixed = tuple(cb.fixed_first)
+        ordered = cb.conditions if cb.conditions is not None else [
+            c for c in protocol.condition_ids if c not in self.fixed
+        ]
+        self.ordered = tuple(ordered)
+        self.scheme = cb.scheme
+        k = len(self.ordered)
+        if cb.scheme == "williams":
+            rows = cbal.williams(k)
+        elif cb.scheme == "cyclic_latin":
+            rows = cbal.cyclic_latin(k)
+        elif cb.scheme == "all_permutations":
+            rows = cbal.all_permutations(k)
+        elif cb.scheme == "explicit":
+            index = {c: i for i, c in enumerate(self.ordered)}
+            rows = np.asarray([[index[c] for c in order] for order in (cb.orders or [])], dtype=np.int64)
+        else:
+            rows = None
+        self.sequences: tuple[tuple[str, ...], ...] | None = (
+            None if rows is None else tuple(self.fixed + tuple(self.ordered[i] for i in row) for row in rows.tolist())
+        )
+        self.allocation = cb.allocation
+        self.block_size = cb.block_size or 1
+        self.within_strata = cb.within_strata
+        design = protocol.design
+        self.repetitions, self.blocks, self.block_order = design.repetitions, design.blocks, design.block_order
+        trial = protocol.trial
+        self.time_limit = trial.time_limit_s
+        fam = trial.familiarisation
+        self.fam_s = None if fam is None else fam.max_s
+        self.fam_each = fam is not None and fam.when == "before_each_condition"
+        self.break_s = trial.break_s
+        self.break_each_trial = trial.break_between == "trials"
+        placement = protocol.scene.placement
+        self.items = tuple(placement.items) if placement else ()
+        self.sites = placement.sites if placement else 0
+        self.place_rule = placement.differ_from_previous if placement else "none"
+        orientation = protocol.scene.orientation
+        self.orient_choices = tuple(orientation.choices_deg) if orientation else ()
+        self.orient_per = orientation.per if orientation else "condition"
+        self.orient_differ = bool(orientation and orientation.differ_from_previous)
+        self.strata = protocol.stratum_ids
+        self._stratum_keys = {s: stratum_key(s) for s in self.strata}
+        admins = protocol.questionnaires
+        self.q_start = tuple(a.instrument for a in admins if a.when == "start")
+        self._admins = [(a.instrument, a.when, None if a.conditions is None else frozenset(a.conditions))
+                        for a in admins if a.when != "start"]
+
+    # -- allocation -------------------------------------------------------------------------------
+    def sequence_index(self, seed: int, stratum: str, slot: int) -> int | None:
+        """Which of the scheme's sequences allocation slot ``slot`` gets (None for ``random``)."""
+        if self.sequences is None:
+            return None
+        nseq = len(self.sequences)
+        if self.allocation == "alternating":
+            return slot % nseq
+        if self.allocation == "blocked":
+            return (slot // self.block_size) % nseq
+        key = self._stratum_keys[stratum] if self.within_strata else 0
+        rng = np.random.Generator(
+            np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(_PURPOSE_ALLOCATION, key, slot // nseq)))
+        )
+        return int(np.argsort(rng.random(nseq), kind="stable")[slot % nseq])
+
+    # -- expansion --------------------------------------------------------------------------------
+    def expand(self, *, seed: int, slot: int, stratum: str | None = None) -> Schedule:
+        """The plan of the participant in allocation slot ``slot`` of ``stratum`` (see module docs)."""
+        stratum = self._check(seed, slot, stratum)
+        key = self._stratum_keys[stratum] if self.within_strata else 0
+        rng = participant_rng(seed, key, slot)
+        sequence = self.sequence_index(seed, stratum, slot)
+        if sequence is None:
+            perm = cbal.random_order(len(self.ordered), rng).tolist()
+            order = self.fixed + tuple(self.ordered[i] for i in perm)
+        else:
+            order = self.sequences[sequence]  # type: ignore[index]
+        # (block, position, condition) of every block position, then trials
+        block_orders = []
+        for b in range(self.blocks):
+            this = order[::-1] if (self.block_order == "reverse" and b % 2 == 1) else order
+            block_orders.append(this)
+        n_trials = self.blocks * len(order) * self.repetitions
+        placements = self._placements(rng, n_trials) if self.items else None
+        orientations = self._orientations(rng, block_orders) if self.orient_choices else None
+        entries = []
+        trial = 0
+        n_blocks = len(block_orders)
+        for b, this in enumerate(block_orders):
+            last_position = len(this)
+            for p, condition in enumerate(this, start=1):
+                for r in range(1, self.repetitions + 1):
+                    first_of_condition = r == 1
+                    if self.fam_s is not None and first_of_condition and (self.fam_each or trial == 0):
+                        fam = self.fam_s
+                    else:
+                        fam = None
+                    if trial == 0:
+                        brk = 0.0
+                    elif self.break_each_trial or first_of_condition:
+                        brk = self.break_s
+                    else:
+                        brk = 0.0
+                    last_rep = r == self.repetitions
+                    after = self._after(condition, last_rep, last_rep and p == last_position,
+                                        last_rep and p == last_position and b == n_blocks - 1)
+                    entries.append(
+                        PlanEntry(
+                            trial=trial + 1,
+                            position=p,
+                            block=b + 1,
+                            condition=condition,
+                            repetition=r,
+                            placement=None if placements is None else placements[trial],
+                            orientation_deg=None if orientations is None else orientations[trial],
+                            time_limit_s=self.time_limit,
+                            familiarisation_max_s=fam,
+                            break_before_s=brk,
+                            questionnaires_after=after,
+                        )
+                    )
+                    trial += 1
+        return Schedule(
+            protocol_id=self.protocol.study.id,
+            protocol_sha256=self.protocol.sha256,
+            algorithm_version=SCHEDULE_ALGORITHM_VERSION,
+            seed=int(seed),
+            stratum=stratum,
+            slot=int(slot),
+            sequence=sequence,
+            order=tuple(order),
+            questionnaires_start=self.q_start,
+            entries=tuple(entries),
+        )
+
+    def _check(self, seed: int, slot: int, stratum: str | None) -> str:
+        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+            raise UsageError(f"seed must be a non-negative integer, got {seed!r}")
+        if not isinstance(slot, (int, np.integer)) or isinstance(slot, bool) or slot < 0:
+            raise UsageError(f"slot must be a non-negative integer, got {slot!r}")
+        if stratum is None:
+            if len(self.strata) != 1:
+                raise UsageError(f"this protocol has strata {', '.join(self.strata)}; say which one")
+            return self.strata[0]
+        if stratum not in self._stratum_keys:
+            raise UsageError(f"unknown stratum {stratum!r}; this protocol has {', '.join(self.strata)}")
+        return stratum
+
+    def _after(self, condition: str, end_condition: bool, end_block: bool, end_plan: bool) -> tuple[str, ...]:
+        out = []
+        for instrument, when, only in self._admins:
+            if only is not None and condition not in only:
+                continue
+            if (
+                when == "after_trial"
+                or (when == "after_condition" and end_condition)
+                or (when == "after_block" and end_block)
+                or (when == "end" and end_plan)
+            ):
+                out.append(instrument)
+        return tuple(out)
+
+    def _placements(self, rng: np.random.Generator, n_trials: int) -> list[tuple[tuple[str, int], ...]]:
+        """Item→site placements per trial, each different from the previous one by the protocol's rule."""
+        k, n, rule, items = len(self.items), self.sites, self.place_rule, self.items
+        out: list[tuple[tuple[str, int], ...]] = []
+        previous: list[int] | None = None
+        batch = max(8, 2 * n_trials)
+        while len(out) < n_trials:
+            candidates = (np.argsort(rng.random((batch, n)), axis=1, kind="stable")[:, :k] + 1).tolist()
+            for cand in candidates:
+                if previous is not None:
+                    if rule == "assignment" and cand == previous:
+                        continue
+                    if rule == "every_item" and any(a == b for a, b in zip(cand, previous, strict=True)):
+                        continue
+                out.append(tuple(zip(items, cand, strict=True)))
+                previous = cand
+                if len(out) == n_trials:
+                    break
+        return out
+
+    def _orientations(self, rng: np.random.Generator, block_orders: list[tuple[str, ...]]) -> list[float]:
+        """Orientation per trial, drawn per condition, block or trial."""
+        m = len(self.orient_choices)
+        per_trial: list[float] = []
+        draws = rng.random(sum(len(o) for o in block_orders) * self.repetitions)
+        used = 0
+        previous: int | None = None
+
+        def draw() -> int:
+            nonlocal used, previous
+            u = draws[used]
+            used += 1
+            if self.orient_differ and previous is not None:
+                idx = int(u * (m - 1))
+                idx = idx + 1 if idx >= previous else idx
+            else:
+                idx = int(u * m)
+            previous = idx
+            return idx
+
+        angle = 0.0
+        for order in block_orders:
+            if self.orient_per == "block":
+                angle = self.orient_choices[draw()]
+            for _ in order:
+                if self.orient_per == "condition":
+                    angle = self.orient_choices[draw()]
+                for _ in range(self.repetitions):
+                    if self.orient_per == "trial":
+                        angle = self.orient_choices[draw()]
+                    per_trial.append(float(angle))
+        return per_trial
+
+
+def expand_schedule(protocol: Protocol, *, seed: int, slot: int, stratum: str | None = None) -> Schedule:
+    """Expand the plan of the participant in allocation ``slot`` (0-based) of ``stratum``.
+
+    Parameters
+    ----------
+    protocol
+        A loaded protocol (:func:`studyctl.protocol.load_protocol`).
+    seed
+        The study's schedule seed (non-negative integer), stored with the plan.
+    slot
+        0-based allocation slot within the stratum (or the study, if not ``within_strata``).
+    stratum
+        Stratum id; may be omitted when the protocol has a single stratum.
+
+    Returns
+    -------
+    Schedule
+        Identical for identical arguments and :data:`SCHEDULE_ALGORITHM_VERSION`.
+    """
+    return Planner(protocol).expand(seed=seed, slot=slot, stratum=stratum)
+
+
+def allocate_strata(protocol: Protocol, participants: int) -> list[tuple[str, int]]:
+    """(stratum, slot) for participants 1..N of a simulated enrollment.
+
+    Strata get participants in proportion to their ``target_n`` (equal shares without targets, largest
+    remainders first), enrolled stratum after stratum.
+    """
+    if participants < 0:
+        raise UsageError(f"number of participants must be >= 0, got {participants}")
+    strata = protocol.participants.strata
+    weights = [s.target_n or 1 for s in strata] if any(s.target_n for s in strata) else [1] * len(strata)
+    total = sum(weights)
+    exact = [participants * w / total for w in weights]
+    counts = [int(x) for x in exact]
+    for i in sorted(range(len(strata)), key=lambda i: -(exact[i] - counts[i]))[: participants - sum(counts)]:
+        counts[i] += 1
+    return [(s.id, slot) for s, count in zip(strata, counts, strict=True) for slot in range(count)]
+
+
+def expand_many(protocol: Protocol, *, seed: int, participants: int) -> list[Schedule]:
+    """Plans of participants 1..N allocated by :func:`allocate_strata` (for previews and benchmarks)."""
+    planner = Planner(protocol)
+    return [planner.expand(seed=seed, slot=slot, stratum=stratum)
+            for stratum, slot in allocate_strata(protocol, participants)]
+
+
+def schedule_balance(protocol: Protocol, schedules: Iterable[Schedule]) -> cbal.BalanceReport:
+    """Position and carry-over counts of the block-1 condition orders of ``schedules``."""
+    fixed = tuple(protocol.counterbalance.fixed_first)
+    return cbal.balance_report(
+        [(s.stratum, s.order) for s in schedules], protocol.condition_ids, protocol.stratum_ids, fixed
+    )
+
+
+def schedule_rows(schedules: Sequence[Schedule]) -> pd.DataFrame:
+    """Rows participant, stratum, slot, trial, position, block, condition, repetition, placement, orientation_deg.
+
+    ``participant`` is the 1-based order of the schedule in ``schedules``.
+    """
+    rows = []
+    for number, schedule in enumerate(schedules, start=1):
+        for e in schedule.entries:
+            rows.append((number, schedule.stratum, schedule.slot, e.trial, e.position, e.block, e.condition,
+                         e.repetition, format_placement(e.placement), e.orientation_deg))
+    return pd.DataFrame(rows, columns=["participant", "stratum", "slot", "trial", "position", "block", "condition",
+                                       "repetition", "placement", "orientation_deg"])

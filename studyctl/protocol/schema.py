@@ -1,0 +1,346 @@
+"""The protocol language: strict pydantic models of everything a study protocol says.
+
+Unknown keys are errors, types are not coerced (``"90"`` is not a number, ``1.0`` is not a version
+string), and every section has defaults only where a paper-faithful default exists. Cross-references
+(condition ids in orders, instrument ids in administrations) are checked in
+:mod:`studyctl.protocol.checks`, which also sees files that fail here.
+
+Controller, device, scene and participant ``params`` are free-form mappings: each plugin validates
+its own parameters.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr
+
+FORMAT_VERSION = 1
+ID_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]*$"
+
+Id = Annotated[str, Field(pattern=ID_PATTERN, max_length=64)]
+Seconds = Annotated[float, Field(gt=0)]
+VisualMode = Literal["none", "on_request", "realtime"]
+Scheme = Literal["williams", "cyclic_latin", "explicit", "random", "all_permutations"]
+Allocation = Literal["alternating", "blocked", "shuffled"]
+When = Literal["start", "after_trial", "after_condition", "after_block", "end"]
+
+
+class StrictModel(BaseModel):
+    """Base of every protocol section: unknown keys are errors, values are not coerced, instances frozen."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class StudyMeta(StrictModel):
+    """Who runs the study and what it is: id, title, protocol version, citation, default seed."""
+
+    id: Id
+    title: str
+    version: str
+    description: str = ""
+    reference: str | None = None
+    ethics: str | None = None
+    seed: int | None = Field(None, ge=0)
+
+
+class PluginRef(StrictModel):
+    """A plugin by entry-point name, with the parameters its own ``validate`` checks."""
+
+    plugin: Id
+    params: dict[str, Any] = Field(default_factory=dict)
+
+
+class Devices(StrictModel):
+    """The device used with real participants (``hardware``) and the one used in simulation."""
+
+    hardware: PluginRef | None = None
+    simulated: PluginRef
+
+
+class Stratum(StrictModel):
+    """A between-subject group (novice, expert); counterbalancing runs within each stratum."""
+
+    id: Id
+    label: str = ""
+    target_n: int | None = Field(None, ge=1)
+
+
+class ParticipantsSpec(StrictModel):
+    """Strata, target sample size, pseudonym prefix, withdrawal policy and the virtual participant."""
+
+    strata: list[Stratum] = Field(default_factory=lambda: [Stratum(id="all")], min_length=1)
+    target_n: int | None = Field(None, ge=1)
+    replace_withdrawn: bool = False
+    code_prefix: str = Field("P", pattern=r"^[A-Z][A-Z0-9]{0,7}$")
+    virtual: PluginRef | None = None
+
+
+class Condition(StrictModel):
+    """One within-subject condition: the controller that runs (None for a manual condition), its
+    parameters and the visual-feedback mode (``none``, ``on_request`` scans, ``realtime``).
+
+    In a ``manual`` condition no controller runs and the coordinator enters the outcome.
+    """
+
+    id: Id
+    label: str = ""
+    description: str = ""
+    controller: Id | None = None
+    params: dict[str, Any] = Field(default_factory=dict)
+    visual: VisualMode = "none"
+    manual: bool = False
+
+
+class Counterbalance(StrictModel):
+    """How the order of conditions varies across participants.
+
+    ``fixed_first`` conditions always come first; ``scheme`` orders the rest (``conditions``, by
+    default every other condition in declared order). ``allocation`` maps an enrollment slot to a
+    sequence: ``alternating`` (slot mod number of sequences), ``blocked`` (``block_size`` consecutive
+    slots per sequence) or ``shuffled`` (a seeded shuffle within each complete set of sequences).
+    """
+
+    scheme: Scheme
+    conditions: list[Id] | None = None
+    fixed_first: list[Id] = Field(default_factory=list)
+    orders: list[list[Id]] | None = None
+    allocation: Allocation = "alternating"
+    block_size: int | None = Field(None, ge=1)
+    within_strata: bool = True
+
+
+class Design(StrictModel):
+    """Blocks and repetitions: each condition runs ``repetitions`` consecutive trials; the whole
+    condition sequence runs ``blocks`` times (in the same or the reverse order)."""
+
+    repetitions: int = Field(1, ge=1)
+    blocks: int = Field(1, ge=1)
+    block_order: Literal["same", "reverse"] = "same"
+
+
+class Familiarisation(StrictModel):
+    """Practice before the measured trials: at most ``max_s`` seconds, may end early on request."""
+
+    max_s: Seconds
+    can_end_early: bool = True
+    when: Literal["before_each_condition", "once"] = "before_each_condition"
+    instructions: str = ""
+
+
+class Grid(StrictModel):
+    """The coordinate map a participant reports on (columns × rows, optional cell size)."""
+
+    columns: int = Field(ge=1)
+    rows: int = Field(ge=1)
+    cell_mm: float | None = Field(None, gt=0)
+
+
+class ReportSpec(StrictModel):
+    """What the participant reports: a grid cell, a position, or nothing (outcome is the pose).
+
+    ``hit_radius`` counts a report as correct within that distance of a true site: in grid cells for
+    ``grid_cell``, in millimetres for ``position``. ``count_known`` says whether the participant is told
+    how many targets there are.
+    """
+
+    kind: Literal["grid_cell", "position", "none"]
+    grid: Grid | None = None
+    hit_radius: float | None = Field(None, ge=0)
+    count_known: bool = False
+    max_reports: int | None = Field(None, ge=1)
+
+
+class TrialTemplate(StrictModel):
+    """What every trial looks like: hard time limit, familiarisation, breaks, report, allowed requests."""
+
+    time_limit_s: Seconds | None = None
+    familiarisation: Familiarisation | None = None
+    break_s: float = Field(0.0, ge=0)
+    break_between: Literal["trials", "conditions"] = "trials"
+    report: ReportSpec
+    requests: list[Literal["scan", "report", "finish"]] = Field(default_factory=lambda: ["report", "finish"])
+    instructions: str = ""
+
+
+class Placement(StrictModel):
+    """Targets (``items``, e.g. tumour classes) placed pseudo-randomly in numbered ``sites`` (holes).
+
+    ``differ_from_previous``: ``assignment`` (the item→site map differs from the previous trial),
+    ``every_item`` (every item moves to another site) or ``none``.
+    """
+
+    sites: int = Field(ge=1)
+    items: list[Id] = Field(min_length=1)
+    differ_from_previous: Literal["none", "assignment", "every_item"] = "assignment"
+
+
+class Orientation(StrictModel):
+    """A random orientation of the phantom/model, drawn from ``choices_deg`` per condition, block or trial."""
+
+    choices_deg: list[float] = Field(default_factory=lambda: [0.0, 90.0, 180.0, 270.0], min_length=1)
+    per: Literal["condition", "block", "trial"] = "condition"
+    differ_from_previous: bool = False
+
+
+class SceneSpec(StrictModel):
+    """The scene plugin, its parameters and how it is randomised between trials."""
+
+    plugin: Id
+    params: dict[str, Any] = Field(default_factory=dict)
+    placement: Placement | None = None
+    orientation: Orientation | None = None
+
+
+class Scale(StrictModel):
+    """A rating scale: ``points`` codes starting at ``start`` (1..5 by default), labelled anchors by code."""
+
+    points: int = Field(ge=2)
+    start: int = 1
+    anchors: dict[int, str] = Field(default_factory=dict)
+
+    @property
+    def codes(self) -> tuple[int, ...]:
+        """Every valid answer code, lowest first."""
+        return tuple(range(self.start, self.start + self.points))
+
+
+class Item(StrictModel):
+    """One questionnaire item; ``scale`` overrides the instrument's scale; ``reverse`` marks reverse keying."""
+
+    id: Id
+    text: str
+    scale: Scale | None = None
+    reverse: bool = False
+
+
+class Instrument(StrictModel):
+    """A versioned questionnaire: items answered on a scale of coded points."""
+
+    id: Id
+    version: str
+    title: str = ""
+    reference: str | None = None
+    scale: Scale | None = None
+    items: list[Item] = Field(min_length=1)
+
+    def scale_of(self, item: Item) -> Scale:
+        """The scale an item is answered on (its own, else the instrument's)."""
+        scale = item.scale or self.scale
+        if scale is None:  # checks.py reports this; a loaded protocol never gets here
+            raise ValueError(f"item {item.id!r} of instrument {self.id!r} has no scale")
+        return scale
+
+
+class Administration(StrictModel):
+    """When an instrument is given: at start, after each trial/condition/block, or at the end;
+    ``conditions`` restricts per-trial/condition administrations to those conditions."""
+
+    instrument: Id
+    when: When
+    conditions: list[Id] | None = None
+
+
+class ResumePolicy(StrictModel):
+    """What happens to a trial interrupted by a crash or stop: run it again (``repeat``) or mark it
+    invalid and append a replacement at the end of the plan (``invalidate_and_append``)."""
+
+    interrupted_trial: Literal["repeat", "invalidate_and_append"] = "repeat"
+    checkpoint: Literal["trial", "condition"] = "trial"
+
+
+class Protocol(StrictModel):
+    """A whole study protocol, as loaded from ``protocols/<name>.yaml``.
+
+    Use :func:`studyctl.protocol.load_protocol` to obtain one: it adds ``source_text``, ``sha256`` and
+    ``path`` and runs every cross-reference check.
+    """
+
+    studyctl_protocol: Literal[1]
+    study: StudyMeta
+    devices: Devices
+    participants: ParticipantsSpec = Field(default_factory=ParticipantsSpec)
+    conditions: list[Condition] = Field(min_length=1)
+    counterbalance: Counterbalance
+    design: Design = Field(default_factory=Design)
+    trial: TrialTemplate
+    scene: SceneSpec
+    instruments: list[Instrument] = Field(default_factory=list)
+    questionnaires: list[Administration] = Field(default_factory=list)
+    resume: ResumePolicy = Field(default_factory=ResumePolicy)
+
+    _source_text: str = PrivateAttr(default="")
+    _sha256: str = PrivateAttr(default="")
+    _path: str = PrivateAttr(default="")
+
+    @property
+    def source_text(self) -> str:
+        """The exact text the protocol was loaded from (stored with the study)."""
+        return self._source_text
+
+    @property
+    def sha256(self) -> str:
+        """Hex SHA-256 of ``source_text`` encoded as UTF-8: identifies the protocol in stored schedules."""
+        return self._sha256
+
+    @property
+    def path(self) -> str:
+        """The file the protocol came from ('' when loaded from text)."""
+        return self._path
+
+    @property
+    def condition_ids(self) -> tuple[str, ...]:
+        """Condition ids in declared order."""
+        return tuple(c.id for c in self.conditions)
+
+    @property
+    def stratum_ids(self) -> tuple[str, ...]:
+        """Stratum ids in declared order."""
+        return tuple(s.id for s in self.participants.strata)
+
+    def condition(self, condition_id: str) -> Condition:
+        """The condition with this id (KeyError if none)."""
+        for condition in self.conditions:
+            if condition.id == condition_id:
+                return condition
+        raise KeyError(condition_id)
+
+    def instrument(self, instrument_id: str) -> Instrument:
+        """The questionnaire instrument with this id (KeyError if none)."""
+        for instrument in self.instruments:
+            if instrument.id == instrument_id:
+                return instrument
+        raise KeyError(instrument_id)
+
+    def stratum(self, stratum_id: str) -> Stratum:
+        """The stratum with this id (KeyError if none)."""
+        for stratum in self.participants.strata:
+            if stratum.id == stratum_id:
+                return stratum
+        raise KeyError(stratum_id)
+
+
+# Section models reachable by a key path: used to list the allowed keys of an unknown-key error.
+SECTION_MODELS: tuple[type[StrictModel], ...] = (
+    Protocol,
+    StudyMeta,
+    PluginRef,
+    Devices,
+    Stratum,
+    ParticipantsSpec,
+    Condition,
+    Counterbalance,
+    Design,
+    Familiarisation,
+    Grid,
+    ReportSpec,
+    TrialTemplate,
+    Placement,
+    Orientation,
+    SceneSpec,
+    Scale,
+    Item,
+    Instrument,
+    Administration,
+    ResumePolicy,
+)

@@ -1,0 +1,161 @@
+"""Load YAML into plain Python data while keeping the file position of every key and value.
+
+PyYAML's composer gives nodes with start marks; we build the data ourselves from those nodes so each
+key path (``("conditions", 2, "params")``) maps to where its key and its value start. Duplicate keys,
+which PyYAML silently lets the last one win, are reported as problems instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+
+from studyctl.protocol.problems import KeyPath, Mark, Problem, show
+
+try:  # the C composer is much faster and gives the same marks
+    _Loader: type = yaml.CSafeLoader
+except AttributeError:  # pragma: no cover - libyaml missing
+    _Loader = yaml.SafeLoader
+
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+@dataclass
+class MarkedData:
+    """Data loaded from YAML, with the position of every key (``keys``) and value (``values``)."""
+
+    data: Any
+    keys: dict[KeyPath, Mark] = field(default_factory=dict)
+    values: dict[KeyPath, Mark] = field(default_factory=dict)
+    problems: list[Problem] = field(default_factory=list)
+
+    def key_mark(self, path: KeyPath) -> Mark:
+        """Where the key of ``path`` is written (for a list item: where the item starts)."""
+        return self._best(path, self.keys, self.values)
+
+    def value_mark(self, path: KeyPath) -> Mark:
+        """Where the value of ``path`` starts; falls back to the nearest enclosing path."""
+        return self._best(path, self.values, self.keys)
+
+    @staticmethod
+    def _best(path: KeyPath, first: dict[KeyPath, Mark], second: dict[KeyPath, Mark]) -> Mark:
+        path = tuple(path)
+        while True:
+            if path in first:
+                return first[path]
+            if path in second:
+                return second[path]
+            if not path:
+                return Mark(1, 1)
+            path = path[:-1]
+
+
+def _mark(node: yaml.Node) -> Mark:
+    return Mark(node.start_mark.line + 1, node.start_mark.column + 1)
+
+
+class _Builder:
+    def __init__(self, filename: str) -> None:
+        self.filename = filename
+        self.out = MarkedData(data=None)
+        self._constructor = yaml.constructor.SafeConstructor()
+
+    def build(self, node: yaml.Node, path: KeyPath) -> Any:
+        self.out.values.setdefault(path, _mark(node))
+        if isinstance(node, yaml.MappingNode):
+            return self._mapping(node, path)
+        if isinstance(node, yaml.SequenceNode):
+            result = []
+            for index, item in enumerate(node.value):
+                self.out.keys.setdefault((*path, index), _mark(item))
+                result.append(self.build(item, (*path, index)))
+            return result
+        try:
+            return self._constructor.construct_object(node, deep=True)
+        except yaml.YAMLError as exc:
+            self._problem(node, path, "value cannot be read", show(node.value), f"a valid YAML scalar ({exc})")
+            return None
+
+    def _mapping(self, node: yaml.MappingNode, path: KeyPath) -> dict[Any, Any]:
+        result: dict[Any, Any] = {}
+        explicit: set[Any] = set()
+        merged: list[yaml.MappingNode] = []
+        for key_node, value_node in node.value:
+            if key_node.tag == _MERGE_TAG:
+                sources = value_node.value if isinstance(value_node, yaml.SequenceNode) else [value_node]
+                for source in sources:
+                    if isinstance(source, yaml.MappingNode):
+                        merged.append(source)
+                    else:
+                        self._problem(source, path, "merge key '<<' needs a mapping", show(source.value), "a mapping")
+                continue
+            if not isinstance(key_node, yaml.ScalarNode):
+                self._problem(key_node, path, "key must be a plain value", "a mapping or list", "a string")
+                continue
+            key = self._constructor.construct_object(key_node, deep=True)
+            if key in explicit:
+                first = self.out.keys[(*path, key)]
+                self._problem(
+                    key_node,
+                    (*path, key),
+                    f"duplicate key (first written at line {first.line})",
+                    show(key),
+                    "each key once per mapping",
+                )
+                continue
+            explicit.add(key)
+            self.out.keys[(*path, key)] = _mark(key_node)
+            result[key] = self.build(value_node, (*path, key))
+        for source in merged:  # explicit keys win over merged ones, earlier merges over later ones
+            for key_node, value_node in source.value:
+                if not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                key = self._constructor.construct_object(key_node, deep=True)
+                if key in result:
+                    continue
+                self.out.keys[(*path, key)] = _mark(key_node)
+                result[key] = self.build(value_node, (*path, key))
+        return result
+
+    def _problem(self, node: yaml.Node, path: KeyPath, what: str, found: str, allowed: str) -> None:
+        self.out.problems.append(Problem(self.filename, _mark(node), tuple(path), what, found, allowed))
+
+
+def _text_at(text: str, mark: yaml.Mark | None) -> str:
+    """What stands at a syntax error's position: the rest of that line (shortened), or end of file."""
+    if mark is None:
+        return "invalid text"
+    lines = text.splitlines()
+    if mark.line >= len(lines):
+        return "the end of the file"
+    rest = lines[mark.line][mark.column:].strip()
+    if not rest:
+        return "the end of the line"
+    return repr(rest if len(rest) <= 30 else rest[:27] + "...")
+
+
+def load_marked(text: str, filename: str) -> MarkedData:
+    """Parse YAML ``text`` into data plus the position of every key path.
+
+    Syntax errors do not raise: they come back as problems (with ``data`` None), so a caller can
+    report them alongside everything else.
+    """
+    try:
+        root = yaml.compose(text, Loader=_Loader)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = Mark(mark.line + 1, mark.column + 1) if mark else Mark(1, 1)
+        what = f"YAML syntax error: {exc.problem or 'invalid text'}"
+        if exc.context:
+            what += f" ({exc.context})"
+        problem = Problem(filename, where, (), what, _text_at(text, mark), "valid YAML")
+        return MarkedData(data=None, problems=[problem])
+    except yaml.YAMLError as exc:  # pragma: no cover - reader errors without marks
+        return MarkedData(data=None, problems=[Problem(filename, Mark(1, 1), (), "YAML error", str(exc), "valid YAML")])
+    if root is None:
+        return MarkedData(data=None)
+    builder = _Builder(filename)
+    builder.out.data = builder.build(root, ())
+    return builder.out
