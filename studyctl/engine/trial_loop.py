@@ -13,8 +13,12 @@ from typing import Any
 import numpy as np
 
 from studyctl.engine.clock import Clock
+from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import Controller, Device, Participant, TrialInfo
-from studyctl.plugins.safety import SafetyLayer
+from studyctl.plugins.safety import SafetyLayer, Watchdog
+
+# A device held in its safe state by a fault (stale sensor, disconnected board) this long ends the trial.
+FAULT_ABORT_S = 1.0
 
 
 @dataclass
@@ -59,8 +63,16 @@ def run_trial(
         if on_event is not None:
             on_event(t, kind, payload)
 
-    safety = SafetyLayer(device.limits)
     period = 1.0 / info.rate_hz
+    safety = SafetyLayer(device.limits, period_s=period)
+    watchdog: Watchdog | None = None
+    if not getattr(clock, "simulated", False):
+        # Real time: a thread commands the safe state if the loop stalls inside a plugin.
+        def _stalled(late_s: float) -> None:
+            device.write(safety.safe_command())
+            safety.record(clock.now() - start, "device_fault", "loop_stalled", late_s=late_s)
+
+        watchdog = Watchdog(safety.deadline_factor * period, _stalled)
     participant.begin_trial(info, rng)
     if controller is not None:
         controller.reset()
@@ -72,6 +84,8 @@ def run_trial(
     ended_by = "time_limit"
     last_inputs: Mapping[str, float] = {}
     emit(0.0, "trial_loop_start", {"rate_hz": info.rate_hz})
+    if watchdog is not None:
+        watchdog.start()
     try:
         while True:
             t = clock.now() - start
@@ -87,12 +101,22 @@ def run_trial(
             if action.inputs:
                 device.apply_input(action.inputs)
                 last_inputs = action.inputs
-            obs = device.read(t)
+            try:
+                obs = device.read(t)
+            except DeviceError as exc:
+                emit(t, "device_fault", {"rule": "read_failed", "error": str(exc)})
+                ended_by = "fault"
+                break
             command = controller.step(obs) if controller is not None else {}
-            device.write(safety.filter(command, t))
-            for ev in safety.events:
-                emit(t, "safety", ev)
-            safety.events.clear()
+            written = safety.filter(command, t, obs)  # what the device actually gets, logged below
+            device.write(written)
+            if watchdog is not None:
+                watchdog.kick()
+            for ev in safety.drain_events():
+                emit(ev["t"], ev["kind"], {k: v for k, v in ev.items() if k not in ("t", "kind")})
+            if safety.fault_duration(t) >= FAULT_ABORT_S:
+                ended_by = "fault"
+                break
             percept = dict(device.feedback())
             finished = False
             for request in action.requests:
@@ -111,14 +135,18 @@ def run_trial(
             if info.visual == "realtime" and view is not None:
                 percept["view"] = view(last_inputs)
             if on_sample is not None:
-                on_sample(t, {**obs.values, **command})
+                on_sample(t, {**obs.values, **written})
             ticks += 1
             if finished:
                 ended_by = "finish"
                 break
             clock.sleep_until(start + ticks * period)
     finally:
+        if watchdog is not None:
+            watchdog.stop()
         device.write(safety.safe_command())
+        for ev in safety.drain_events():
+            emit(ev["t"], ev["kind"], {k: v for k, v in ev.items() if k not in ("t", "kind")})
     duration = min(clock.now() - start, info.time_limit_s)
     emit(duration, "trial_loop_end", {"ended_by": ended_by, "ticks": ticks})
     return TrialOutcome(ended_by, duration, ticks, scans, reports, events)

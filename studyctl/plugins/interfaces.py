@@ -7,11 +7,22 @@ One trial tick, as :func:`studyctl.engine.trial_loop.run_trial` drives it::
     device.apply_input(action.inputs)              # simulated devices only (no-op on hardware)
     obs     = device.read(t)                       # sensors; a simulated device asks the scene
     command = controller.step(obs)                 # the feedback algorithm
-    device.write(safety.filter(command, obs))      # the safety layer stands between the two
+    device.write(safety.filter(command, t, obs))   # the safety layer stands between the two
     percept = device.feedback()                    # what the actuators deliver to the hand/eye
 
 Channels are named floats (``Mapping[str, float]``) so that logging, safety limits and export treat
 every plugin alike. Units go in the channel name suffix (``_n``, ``_mm``, ``_kpa``, ``_psi``, ``_pct``).
+
+Construction (what :mod:`studyctl.engine.factory` and :mod:`studyctl.plugins.registry` call):
+``SceneClass.build(spec, placement, needs, rng)``, ``ControllerClass(params, scene)``,
+``DeviceClass(params=..., scene=..., rng=...)`` and ``ParticipantClass(params=...)``; plugins validate
+their params in the constructor and raise :class:`studyctl.errors.ModelParameterError`
+(:func:`studyctl.plugins.params.validate_params` does it for a declared spec).
+
+Additions after the first version (all optional, with defaults, so older plugins keep working):
+``Observation.sample_t`` and ``Observation.faults`` (sensor age and device-detected problems, read by
+the safety layer's watchdog), ``Scene.public()`` (what a participant may know, e.g. the grid),
+``Controller.outputs``, and default constructors for ``Device`` and ``Participant``.
 """
 
 from __future__ import annotations
@@ -59,10 +70,19 @@ class DeviceLimits:
 
 @dataclass(frozen=True)
 class Observation:
-    """What a controller sees at one tick: trial time in seconds and named sensor channels."""
+    """What a controller sees at one tick: trial time in seconds and named sensor channels.
+
+    ``sample_t`` is the trial time at which the newest sensor sample was actually taken (hardware: when
+    its packet arrived); None means "now" (simulated devices). The safety layer commands the safe state
+    when ``t - sample_t`` exceeds the device's ``sensor_stale_s``. ``faults`` lists problems the device
+    detected while reading (e.g. an ADC value outside its range); any fault also puts the device in its
+    safe state for that tick.
+    """
 
     t: float
     values: Channels
+    sample_t: float | None = None
+    faults: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -120,12 +140,17 @@ class Scene(ABC):
         """Hidden ground truth for metrics (tumour sites); never handed to a participant."""
         return {}
 
+    def public(self) -> Mapping[str, Any]:
+        """What a participant may know about the scene (grid size, operating area); goes to ``TrialInfo.public``."""
+        return {}
+
 
 class Controller(ABC):
     """A feedback algorithm: observation in, device command out, at ``rate_hz``."""
 
     name: ClassVar[str]
     rate_hz: float = 50.0
+    outputs: ClassVar[tuple[str, ...]] = ()  # channels this controller commands (informational)
 
     def __init__(self, params: Mapping[str, Any], scene: Scene | None = None) -> None:
         self.params = dict(params)
@@ -151,6 +176,16 @@ class Device(ABC):
     name: ClassVar[str]
     limits: DeviceLimits
     simulated: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        params: Mapping[str, Any] | None = None,
+        scene: Scene | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        self.params = dict(params or {})
+        self.scene = scene
+        self.rng = rng
 
     @abstractmethod
     def open(self) -> None: ...
@@ -179,6 +214,9 @@ class Participant(ABC):
 
     name: ClassVar[str]
     virtual: ClassVar[bool] = True
+
+    def __init__(self, params: Mapping[str, Any] | None = None) -> None:
+        self.params = dict(params or {})
 
     @abstractmethod
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None: ...

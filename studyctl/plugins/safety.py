@@ -1,34 +1,297 @@
 """The safety layer that stands between every controller and every device.
 
-Minimal version: clamps to channel limits and replaces NaN/inf by the safe value. The plugin issue
-extends it with rate limits, ramp-up, the watchdog and fault events.
+Whatever a controller commands, :meth:`SafetyLayer.filter` writes only values the device may take:
+
+1. **Watchdog.** A tick that arrives more than ``deadline_factor`` periods after the previous one (the
+   loop missed its deadline), a sensor sample older than the device's ``sensor_stale_s``, a fault the
+   device reported while reading (``Observation.faults``, e.g. an ADC value outside its range) or a
+   non-finite sensor value each put the device in its safe state and raise a ``device_fault`` event.
+   When the cause clears, a ``device_recovered`` event is raised and the outputs ramp up again.
+2. **Invalid values.** NaN, inf, or a non-number become the channel's safe value; a command that is not
+   a mapping is treated as "everything safe". Channels the device lacks are never written.
+3. **Limits.** Each channel is clamped to ``[low, high]``; force channels ``fx_n, fy_n, fz_n`` are scaled
+   down together to the device's ``max_force_n`` (direction kept).
+4. **Ramp-up on enable.** For ``ramp_up_s`` after enabling (or recovering), outputs are scaled from the
+   safe value towards the command (0 → 1 linearly), as CHAI3D and OpenHaptics do after start-up.
+5. **Rate of change.** A channel with ``max_rate_per_s`` moves at most that much per second of trial time.
+
+Everything is logged as events (dicts with ``t``, ``kind`` and ``rule``) that the trial loop forwards to
+the study log: faults and recoveries when they happen; clamping, invalid values and rate limiting when
+they start and when they end (with the number of ticks affected), so a controller stuck at a limit at
+1 kHz logs two events, not a thousand. :class:`Watchdog` is the thread-based backstop for real-time
+loops: it commands the safe state if the loop stops calling in altogether.
 """
 
 from __future__ import annotations
 
+import logging
 import math
-from collections.abc import Mapping
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
 
-from studyctl.plugins.interfaces import DeviceLimits
+from studyctl.plugins.interfaces import DeviceLimits, Observation
+
+log = logging.getLogger("studyctl.safety")
+
+FORCE_CHANNELS = ("fx_n", "fy_n", "fz_n")
 
 
 class SafetyLayer:
-    def __init__(self, limits: DeviceLimits) -> None:
+    """Clamp, sanitise, ramp and rate-limit commands; watch deadlines and sensors; log everything.
+
+    Parameters
+    ----------
+    limits : DeviceLimits
+        The device's output channels, force bound, sensor staleness and ramp-up time.
+    period_s : float, optional
+        The loop period; enables the missed-deadline check.
+    deadline_factor : float
+        A tick later than ``deadline_factor * period_s`` after the previous one is a missed deadline.
+    auto_enable : bool
+        Enable (and start the ramp-up) at the first :meth:`filter` call. With False, outputs stay safe
+        until :meth:`enable` is called.
+    """
+
+    def __init__(
+        self,
+        limits: DeviceLimits,
+        *,
+        period_s: float | None = None,
+        deadline_factor: float = 3.0,
+        auto_enable: bool = True,
+    ) -> None:
         self.limits = limits
         self._by_name = {c.name: c for c in limits.outputs}
-        self.events: list[dict[str, object]] = []
+        self.period_s = period_s
+        self.deadline_factor = deadline_factor
+        self.auto_enable = auto_enable
+        self.events: list[dict[str, Any]] = []
+        self.counts: dict[str, int] = {}
+        self._lock = threading.Lock()
+        self._enabled_at: float | None = None
+        self._last_t: float | None = None
+        self._last_out: dict[str, float] = {}
+        self._active: dict[tuple[str, str], tuple[float, int]] = {}
+        self._fault_causes: dict[str, float] = {}  # cause -> start time
+        self._ramping = False
 
-    def filter(self, command: Mapping[str, float], t: float) -> dict[str, float]:
-        out: dict[str, float] = {}
-        for name, value in command.items():
-            limit = self._by_name.get(name)
-            if limit is None:
-                continue  # a channel the device does not have is never written
-            if not math.isfinite(value):
-                self.events.append({"t": t, "kind": "non_finite_command", "channel": name})
-                value = limit.safe
-            out[name] = min(max(value, limit.low), limit.high)
-        return out
+    # -- state -------------------------------------------------------------------------------------
+    def enable(self, t: float) -> None:
+        """Allow outputs from trial time ``t``, ramping up over the device's ``ramp_up_s``."""
+        self._enabled_at = t
+        self._last_out = self.safe_command()
+        self._ramping = self.limits.ramp_up_s > 0
+        self._event(t, "safety", "enabled", ramp_up_s=self.limits.ramp_up_s)
+
+    def disable(self, t: float) -> None:
+        """Hold every output at its safe value until :meth:`enable` is called again."""
+        self._enabled_at = None
+        self._event(t, "safety", "disabled")
+
+    @property
+    def enabled(self) -> bool:
+        return self._enabled_at is not None
+
+    @property
+    def faulted(self) -> bool:
+        return bool(self._fault_causes)
+
+    def fault_duration(self, t: float) -> float:
+        """How long (s) the device has been held in its safe state by a fault, 0 if it is not."""
+        if not self._fault_causes:
+            return 0.0
+        return t - min(self._fault_causes.values())
 
     def safe_command(self) -> dict[str, float]:
         return self.limits.safe_command()
+
+    def drain_events(self) -> list[dict[str, Any]]:
+        """Return and forget the events raised since the last call (thread-safe)."""
+        with self._lock:
+            out, self.events = self.events, []
+        return out
+
+    # -- logging -----------------------------------------------------------------------------------
+    def record(self, t: float, kind: str, rule: str, **detail: Any) -> None:
+        """Log an event raised outside :meth:`filter` (e.g. by the :class:`Watchdog` thread)."""
+        self._event(t, kind, rule, **detail)
+
+    def _event(self, t: float, kind: str, rule: str, **detail: Any) -> None:
+        event = {"t": t, "kind": kind, "rule": rule, **detail}
+        with self._lock:
+            self.events.append(event)
+        level = logging.WARNING if kind == "device_fault" else logging.INFO
+        log.log(level, "t=%.4f %s %s %s", t, kind, rule, detail)
+
+    def _mark(self, t: float, rule: str, channel: str, fired: bool, **detail: Any) -> None:
+        """Start/end bookkeeping for per-channel rules, so persistent conditions log twice, not per tick."""
+        key = (rule, channel)
+        if fired:
+            self.counts[rule] = self.counts.get(rule, 0) + 1
+            if key in self._active:
+                start, n = self._active[key]
+                self._active[key] = (start, n + 1)
+            else:
+                self._active[key] = (t, 1)
+                self._event(t, "safety", rule, channel=channel, state="start", **detail)
+        elif key in self._active:
+            start, n = self._active.pop(key)
+            self._event(t, "safety", rule, channel=channel, state="end", ticks=n, duration_s=t - start)
+
+    # -- watchdog ----------------------------------------------------------------------------------
+    def _check_watchdog(self, t: float, obs: Observation | None) -> dict[str, dict[str, Any]]:
+        causes: dict[str, dict[str, Any]] = {}
+        if self.period_s is not None and self._last_t is not None:
+            gap = t - self._last_t
+            if gap > self.deadline_factor * self.period_s:
+                causes["missed_deadline"] = {"gap_s": gap, "period_s": self.period_s}
+        if obs is not None:
+            if obs.sample_t is not None and t - obs.sample_t > self.limits.sensor_stale_s:
+                causes["stale_sensor"] = {"age_s": t - obs.sample_t, "limit_s": self.limits.sensor_stale_s}
+            if obs.faults:
+                causes["sensor_fault"] = {"faults": list(obs.faults)}
+            bad = [k for k, v in obs.values.items() if not _finite_number(v)]
+            if bad:
+                causes["sensor_non_finite"] = {"channels": bad}
+        return causes
+
+    def _update_faults(self, t: float, causes: dict[str, dict[str, Any]]) -> None:
+        for cause, detail in causes.items():
+            if cause not in self._fault_causes:
+                self._fault_causes[cause] = t
+                self._event(t, "device_fault", cause, **detail)
+        cleared = [c for c in self._fault_causes if c not in causes]
+        for cause in cleared:
+            start = self._fault_causes.pop(cause)
+            self._event(t, "device_recovered", cause, duration_s=t - start)
+        if cleared and not self._fault_causes and self.enabled:
+            # Recovering is like enabling again: start from safe and ramp up.
+            self._enabled_at = t
+            self._last_out = self.safe_command()
+            self._ramping = self.limits.ramp_up_s > 0
+
+    # -- the filter --------------------------------------------------------------------------------
+    def filter(self, command: Mapping[str, float] | Any, t: float, obs: Observation | None = None) -> dict[str, float]:
+        """The values to write to the device this tick for ``command`` at trial time ``t``.
+
+        Never raises for bad commands or sensor data: it returns the safe state and logs why.
+        """
+        if self._enabled_at is None and self.auto_enable and self._last_t is None:
+            self.enable(t)
+        causes = self._check_watchdog(t, obs)
+        self._update_faults(t, causes)
+        dt = None if self._last_t is None else t - self._last_t
+        self._last_t = t
+        if not isinstance(command, Mapping):
+            self._mark(t, "invalid_command", "*", True, type=type(command).__name__)
+            command = {}
+        else:
+            self._mark(t, "invalid_command", "*", False)
+        unknown = sorted(str(k) for k in command if k not in self._by_name)
+        self._mark(t, "unknown_channel", "*", bool(unknown), channels=unknown)
+        if self._fault_causes or self._enabled_at is None:
+            out = self.safe_command()
+            self._last_out = dict(out)
+            return out
+
+        values: dict[str, float] = {}
+        for name, limit in self._by_name.items():
+            raw = command.get(name, limit.safe)
+            ok = _finite_number(raw)
+            self._mark(t, "non_finite_command", name, not ok, value=repr(raw))
+            value = float(raw) if ok else limit.safe
+            clamped = min(max(value, limit.low), limit.high)
+            self._mark(t, "clamped", name, clamped != value, value=value, low=limit.low, high=limit.high)
+            values[name] = clamped
+
+        if self.limits.max_force_n is not None:
+            present = [c for c in FORCE_CHANNELS if c in values]
+            norm = math.sqrt(sum(values[c] ** 2 for c in present))
+            over = norm > self.limits.max_force_n
+            self._mark(t, "force_norm", "force", over, norm_n=norm, max_n=self.limits.max_force_n)
+            if over:
+                scale = self.limits.max_force_n / norm
+                for c in present:
+                    values[c] *= scale
+
+        if self._ramping:
+            ramp = self.limits.ramp_up_s
+            s = min(max((t - self._enabled_at) / ramp, 0.0), 1.0)
+            for name, limit in self._by_name.items():
+                values[name] = limit.safe + s * (values[name] - limit.safe)
+            if s >= 1.0:
+                self._ramping = False
+                self._event(t, "safety", "ramp_done", ramp_up_s=ramp)
+
+        step_dt = dt if dt is not None and dt > 0 else self.period_s
+        for name, limit in self._by_name.items():
+            if limit.max_rate_per_s is None or step_dt is None or name not in self._last_out:
+                continue
+            prev = self._last_out[name]
+            max_step = limit.max_rate_per_s * step_dt
+            delta = values[name] - prev
+            limited = abs(delta) > max_step
+            self._mark(t, "rate_limited", name, limited, requested=values[name], rate_per_s=limit.max_rate_per_s)
+            if limited:
+                values[name] = prev + math.copysign(max_step, delta)
+            values[name] = min(max(values[name], limit.low), limit.high)
+
+        self._last_out = dict(values)
+        return values
+
+
+def _finite_number(value: Any) -> bool:
+    if isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except TypeError:
+        return False
+
+
+class Watchdog:
+    """A thread that calls ``on_timeout`` once when :meth:`kick` has not been called for ``timeout_s``.
+
+    The real-time backstop for a loop that stalls inside a plugin (the safety layer's deadline check
+    only runs when the loop comes back). ``on_timeout`` should command the safe state; it is re-armed
+    by the next :meth:`kick`. Uses the monotonic clock.
+    """
+
+    def __init__(self, timeout_s: float, on_timeout: Callable[[float], None]) -> None:
+        if not timeout_s > 0:
+            raise ValueError(f"watchdog timeout must be > 0 s, got {timeout_s!r}")
+        self.timeout_s = timeout_s
+        self.on_timeout = on_timeout
+        self.trips = 0
+        self._last = time.monotonic()
+        self._tripped = False
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="studyctl-watchdog", daemon=True)
+
+    def start(self) -> Watchdog:
+        self._last = time.monotonic()
+        self._thread.start()
+        return self
+
+    def kick(self) -> None:
+        self._last = time.monotonic()
+        self._tripped = False
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        poll = min(self.timeout_s / 4, 0.01)
+        while not self._stop.wait(poll):
+            late = time.monotonic() - self._last
+            if late > self.timeout_s and not self._tripped:
+                self._tripped = True
+                self.trips += 1
+                try:
+                    self.on_timeout(late)
+                except Exception:  # the backstop must never die silently
+                    log.exception("watchdog on_timeout failed")
