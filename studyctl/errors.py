@@ -53,6 +53,12 @@ class SessionError(StudyctlError, RuntimeError):
     """A session cannot start, continue or resume in its current state."""
 
 
+class SessionInterrupted(SessionError):
+    """A session stopped on purpose (Ctrl-C, coordinator stop) in a resumable state."""
+
+    exit_code = 130
+
+
 class PluginError(StudyctlError, ImportError):
     """A plugin is unknown or failed to load."""
 
@@ -89,6 +95,7 @@ __all__ = [
     "SafetyFault",
     "SchemaVersionError",
     "SessionError",
+    "SessionInterrupted",
     "StatsInputError",
     "StoreError",
     "StudyctlError",

@@ -1,0 +1,521 @@
+"""The session state machine: run (or resume) a stored plan step by step.
+
+instructions → familiarisation (timer, may end early) → trial (hard time limit, scans, reports) → break
+→ questionnaire after a block or condition → … → end-of-study questionnaire → done.
+
+Rules the runner keeps:
+
+* **Record, then act.** Entering a step is committed before the step begins; a step's results and its
+  completion are committed together. A crash at any instant therefore leaves every step either done
+  (with all of its results) or not done.
+* **One row per attempt.** A trial that is interrupted (crash, SIGKILL, power loss, Ctrl-C, device
+  fault, coordinator abort or pause) keeps its record, status ``aborted``; the protocol's policy then
+  repeats it at the same plan position (``repeat``: same placement, same random streams) or marks it
+  invalid and appends a replacement after the last trial of its block (``invalidate_and_append``).
+* **Answers are committed one by one**, so a resumed questionnaire asks only what is unanswered.
+* **Devices end in their safe state** whatever happens (the trial loop commands it; the device is closed
+  in a ``finally``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import pandas as pd
+
+from studyctl.engine.clock import Clock, SimulatedClock
+from studyctl.engine.factory import (
+    PluginFactory,
+    build_controller,
+    build_device,
+    build_scene,
+    controller_needs,
+)
+from studyctl.engine.plan import ConditionSpec, InvalidAnswer, SessionPlan, Step
+from studyctl.engine.recorder import Recorder, SessionState
+from studyctl.engine.seeding import TrialStreams, trial_streams
+from studyctl.engine.trial_loop import TrialOutcome, run_trial
+from studyctl.engine.ui import Control, SessionUI
+from studyctl.errors import DeviceError, SessionError, SessionInterrupted, StudyctlError
+from studyctl.plugins.interfaces import Participant, TrialInfo
+
+INTERRUPTED_REASON = "interrupted: the session stopped during this trial (crash, kill or power loss)"
+ProgressFn = Callable[[int, int, Step], None]
+
+
+@dataclass(frozen=True)
+class SessionResult:
+    """How a run of :func:`run_session` / :class:`SessionRunner` ended."""
+
+    session_id: int
+    participant: str
+    status: str
+    steps_done: int
+    steps_total: int
+    trials_completed: int
+    trials_aborted: int
+    trials_invalid: int
+    answers: int
+    resumes: int
+
+    COLUMNS = (
+        "session_id", "participant", "status", "steps_done", "steps_total", "trials_completed",
+        "trials_aborted", "trials_invalid", "answers", "resumes",
+    )
+
+    def to_frame(self) -> pd.DataFrame:
+        return pd.DataFrame([asdict(self)], columns=list(self.COLUMNS))
+
+
+class SessionRunner:
+    """Runs one session's stored plan through a :class:`Recorder`.
+
+    Parameters
+    ----------
+    recorder
+        Durable record of the session (in memory or the study database).
+    ui
+        Prompts (terminal, scripted file, or a virtual participant's answers).
+    participant
+        The Participant plugin acting in trials (a person's terminal input, or a virtual one).
+    clock
+        :class:`~studyctl.engine.clock.RealClock` for people, ``SimulatedClock`` for virtual runs.
+    factory
+        Where scene, controller and device plugins come from.
+    virtual
+        True when the participant is virtual: simulated devices, no manual outcome entry.
+    progress
+        Called after each step with (steps done, steps in plan, step).
+    """
+
+    def __init__(
+        self,
+        recorder: Recorder,
+        *,
+        ui: SessionUI,
+        participant: Participant,
+        clock: Clock,
+        factory: PluginFactory,
+        virtual: bool,
+        progress: ProgressFn | None = None,
+    ) -> None:
+        self.rec = recorder
+        self.ui = ui
+        self.participant = participant
+        self.clock = clock
+        self.factory = factory
+        self.virtual = virtual
+        self.progress = progress
+        self._clock0 = clock.now()
+        self._offset = 0.0
+        self._seed = 0
+
+    # -- time --------------------------------------------------------------------------------------
+    def now(self) -> float:
+        """Session time in seconds: continues from the last recorded time after a resume."""
+        return self._offset + (self.clock.now() - self._clock0)
+
+    @property
+    def plan(self) -> SessionPlan:
+        return self.rec.state().plan
+
+    # -- the loop ------------------------------------------------------------------------------------
+    def run(self) -> SessionResult:
+        """Run every step not yet done; returns when the session is complete.
+
+        Raises :class:`SessionInterrupted` on Ctrl-C and :class:`SessionError` on a device fault, both
+        after recording what happened: the session can then be resumed.
+        """
+        state = self.rec.state()
+        if state.status == "completed":
+            raise SessionError(
+                f"session {state.session_id} of participant {state.participant} is already complete; "
+                "nothing to run (see `studyctl status`, or `studyctl export DIR` for its data)"
+            )
+        if state.status == "aborted":
+            raise SessionError(
+                f"session {state.session_id} of participant {state.participant} was aborted; it cannot "
+                "be resumed"
+            )
+        self._seed = state.seed
+        self._offset = state.last_t
+        self._clock0 = self.clock.now()
+        resuming = bool(state.started)
+        if resuming:
+            self._announce_resume(state)
+        self.rec.set_status("running")
+        refresh_checkpoint = resuming and state.plan.checkpoint == "condition"
+        try:
+            while True:
+                state = self.rec.state()
+                step = next((s for s in state.plan.steps if s.position not in state.completed), None)
+                if step is None:
+                    break
+                if refresh_checkpoint:
+                    self._refresh_condition(state, step)
+                    refresh_checkpoint = False
+                self._run_step(step)
+                if self.progress is not None:
+                    state = self.rec.state()
+                    self.progress(len(state.completed), len(state.plan.steps), step)
+        except KeyboardInterrupt:
+            self.rec.set_status("interrupted", "stopped by Ctrl-C")
+            sid = self.rec.state().session_id
+            raise SessionInterrupted(
+                f"session {sid} stopped by Ctrl-C; everything done so far is saved. "
+                f"Continue with `studyctl resume {sid}`"
+            ) from None
+        self.rec.event("session_end", {}, t=self.now())
+        self.rec.set_status("completed")
+        return self.result()
+
+    def result(self) -> SessionResult:
+        state = self.rec.state()
+        statuses = [t.status for t in state.trials]
+        return SessionResult(
+            session_id=state.session_id,
+            participant=state.participant,
+            status=state.status,
+            steps_done=len(state.completed),
+            steps_total=len(state.plan.steps),
+            trials_completed=statuses.count("completed"),
+            trials_aborted=statuses.count("aborted"),
+            trials_invalid=statuses.count("invalid"),
+            answers=len(state.answers),
+            resumes=state.resumes,
+        )
+
+    def _announce_resume(self, state: SessionState) -> None:
+        pending = [s for s in state.plan.steps if s.position not in state.completed]
+        interrupted = [t for t in state.trials if t.status == "running"]
+        detail = {
+            "session_id": state.session_id,
+            "participant": state.participant,
+            "previous_status": state.status,
+            "steps_done": len(state.completed),
+            "resume_at": pending[0].position if pending else None,
+            "resume_step": pending[0].label() if pending else None,
+            "interrupted_trials": [t.trial_id for t in interrupted],
+            "policy": state.plan.interrupted_trial,
+            "checkpoint": state.plan.checkpoint,
+        }
+        self.rec.audit("session_resumed", detail)
+        self.rec.event("session_resumed", detail, t=self.now())
+        where = pending[0].label() if pending else "the end"
+        self.ui.message(f"Resuming session {state.session_id} at {where} ({len(state.completed)} steps already done)")
+
+    def _refresh_condition(self, state: SessionState, step: Step) -> None:
+        """Checkpoint ``condition``: before continuing, repeat the condition's familiarisation."""
+        steps = list(state.plan.steps)
+        idx = steps.index(step)
+        for prev in reversed(steps[:idx]):
+            if prev.kind == "familiarisation" and prev.condition == step.condition and step.condition:
+                self.rec.event("checkpoint_refresh", {"familiarisation": prev.position}, t=self.now(),
+                               position=step.position)
+                self._familiarise(prev)
+                return
+
+    def _run_step(self, step: Step) -> None:
+        handler = {
+            "instructions": self._instructions,
+            "familiarisation": self._familiarisation,
+            "trial": self._trial,
+            "break": self._break,
+            "questionnaire": self._questionnaire,
+            "end": self._end,
+        }[step.kind]
+        handler(step)
+
+    # -- simple steps ----------------------------------------------------------------------------------
+    def _instructions(self, step: Step) -> None:
+        self.rec.step_started(step.position, self.now())
+        self.ui.instructions(step, str(step.data.get("text", "")))
+        self.rec.step_completed(step.position, self.now())
+
+    def _end(self, step: Step) -> None:
+        self.rec.step_started(step.position, self.now())
+        self.ui.instructions(step, str(step.data.get("text", "The session is complete. Thank you!")))
+        self.rec.step_completed(step.position, self.now())
+
+    def _break(self, step: Step) -> None:
+        self.rec.step_started(step.position, self.now())
+        res = self.ui.timer("Break", float(step.duration_s or 0.0), self.clock, can_end_early=False, purpose="break")
+        self.rec.step_completed(step.position, self.now(), {"elapsed_s": res.elapsed_s, "paused_s": res.paused_s})
+
+    def _familiarisation(self, step: Step) -> None:
+        self.rec.step_started(step.position, self.now())
+        summary = self._familiarise(step)
+        self.rec.step_completed(step.position, self.now(), summary)
+
+    def _familiarise(self, step: Step) -> dict[str, Any]:
+        can_end = bool(step.data.get("can_end_early", True))
+        title = f"Familiarisation: {self._condition_label(step.condition)}"
+        if step.data.get("instructions"):
+            self.ui.instructions(step, str(step.data["instructions"]))
+        res = self.ui.timer(title, float(step.duration_s or 0.0), self.clock, can_end_early=can_end,
+                            purpose="familiarisation")
+        return {"elapsed_s": res.elapsed_s, "ended_early": res.ended_early, "paused_s": res.paused_s}
+
+    def _condition_label(self, condition: str | None) -> str:
+        if condition is None:
+            return ""
+        spec = self.plan.conditions.get(condition)
+        return (spec.label or spec.id) if spec else condition
+
+    # -- questionnaires ------------------------------------------------------------------------------
+    def _questionnaire(self, step: Step) -> None:
+        state = self.rec.state()
+        plan = state.plan
+        instrument = plan.instruments[step.data["instrument"]]
+        self.rec.step_started(step.position, self.now())
+        context = {
+            "position": step.position,
+            "when": step.data.get("when"),
+            "condition": step.condition,
+            "block": step.block,
+            "trials": [
+                dict(t.outcome) for t in state.trials
+                if t.status == "completed" and (step.condition is None or t.condition == step.condition)
+            ],
+        }
+        for number, item in enumerate(instrument.items, start=1):
+            if (step.position, item.id) in state.answers:
+                continue  # answered before an interruption: kept, never asked twice
+            code, rt = self.ui.ask_item(instrument, item, number, context)
+            if code not in item.codes():  # a plugin's answer gets the same check as a typed one
+                raise SessionError(
+                    f"participant answered {code!r} to item {item.id!r} of {instrument.id!r}; "
+                    f"allowed codes: {list(item.codes())}"
+                )
+            self.rec.answer(step.position, instrument.id, instrument.version, item.id, code, rt)
+        self.rec.step_completed(step.position, self.now(), {"instrument": instrument.id,
+                                                            "version": instrument.version})
+
+    # -- trials --------------------------------------------------------------------------------------------
+    def _trial(self, step: Step) -> None:
+        state = self.rec.state()
+        attempts = state.attempts(step.position)
+        for a in attempts:
+            if a.status == "running":  # the process died in this attempt
+                self.rec.mark_trial(a.trial_id, "aborted", INTERRUPTED_REASON)
+        attempts = self.rec.state().attempts(step.position)
+        if attempts and self.plan.interrupted_trial == "invalidate_and_append":
+            self._replace(step, attempts)
+            return
+        self._attempt(step, len(attempts) + 1, attempts[-1].trial_id if attempts else None)
+
+    def _replace(self, step: Step, attempts: list) -> None:
+        plan = self.plan
+        for a in attempts:
+            if a.status != "invalid":
+                self.rec.mark_trial(a.trial_id, "invalid", f"replaced per protocol policy ({a.reason})")
+        existing = [s for s in plan.steps if s.replaces == step.position]
+        if existing:  # the amendment was committed before a crash: do not append twice
+            new = existing[0]
+        else:
+            new_plan, new = plan.with_replacement(step.position)
+            self.rec.amend_plan(new_plan, f"replacement {new.position} for interrupted trial step {step.position}")
+        self.rec.audit("trial_replaced", {"step": step.position, "replacement": new.position,
+                                          "trials": [a.trial_id for a in attempts]})
+        self.rec.step_completed(step.position, self.now(), {"status": "invalid", "replaced_by": new.position})
+
+    def _trial_info(self, step: Step, cond: ConditionSpec, rate_hz: float) -> TrialInfo:
+        plan = self.plan
+        return TrialInfo(
+            condition=cond.id,
+            time_limit_s=float(step.duration_s or 0.0) or float("inf"),
+            rate_hz=rate_hz,
+            visual=cond.visual,
+            public={
+                "trial_index": step.trial_index,
+                "block": step.block,
+                "repetition": step.repetition,
+                "report": asdict(plan.report),
+                "requests": list(plan.requests),
+                **dict(step.data.get("public", {})),
+            },
+        )
+
+    def _attempt(self, step: Step, attempt: int, replaces: int | None) -> None:
+        plan = self.plan
+        cond = plan.conditions[step.condition]
+        rate = self._rate(cond)
+        info = self._trial_info(step, cond, rate)
+        if info.time_limit_s == float("inf") and (self.virtual or not self.ui.interactive):
+            raise SessionError(f"{step.label()} has no time limit; a virtual or scripted run needs one")
+        streams = trial_streams(self._seed, step.position)
+        self.rec.step_started(step.position, self.now())
+        tid = self.rec.trial_started(
+            step.position, attempt, self.now(),
+            {"condition": cond.id, "attempt": attempt, "replaces_trial_id": replaces, "time_limit_s":
+             step.duration_s, "rate_hz": rate, "visual": cond.visual},
+        )
+        flag: dict[str, Any] = {"invalid": None, "stop": None}
+        self.ui.trial_begin(step, info.time_limit_s)
+        # A simulated trial runs on its own clock from 0, so trial times are exact multiples of the period
+        # whatever the session time: a repeated or resumed trial sees bit-identical times.
+        trial_clock: Clock = SimulatedClock(0.0) if self.clock.simulated else self.clock
+        t_start = trial_clock.now()
+
+        def should_stop() -> str | None:
+            self.ui.trial_tick(trial_clock.now() - t_start)
+            control = self.ui.poll_control()
+            if control is None:
+                return None
+            return self._control(control, tid, trial_clock.now() - t_start, flag)
+
+        def on_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
+            # Scans and reports are a participant's answers: committed at once. The rest rides along.
+            self.rec.event(kind, payload, t=t, trial_id=tid, commit=kind in ("scan", "report"))
+
+        try:
+            if cond.manual and not self.virtual:
+                outcome = self._manual(step, info, trial_clock)
+            else:
+                outcome = self._execute(step, cond, info, streams, tid, should_stop, on_event, trial_clock)
+        except KeyboardInterrupt:
+            self._abort_attempt(tid, step, "stopped by Ctrl-C", t_start, trial_clock)
+            raise
+        except DeviceError as exc:
+            self._abort_attempt(tid, step, f"device fault: {exc}", t_start, trial_clock)
+            self.rec.event("device_fault", {"error": str(exc)}, t=self.now(), trial_id=tid)
+            self.rec.set_status("interrupted", f"device fault: {exc}")
+            sid = self.rec.state().session_id
+            raise SessionError(
+                f"device fault in {step.label()}: {exc}. The device was put in its safe state, the trial is "
+                f"recorded as aborted and nothing else is lost; fix the device, then `studyctl resume {sid}`"
+            ) from None
+        except StudyctlError as exc:
+            self._abort_attempt(tid, step, f"{type(exc).__name__}: {exc}", t_start, trial_clock)
+            self.rec.set_status("interrupted", str(exc))
+            raise
+        except Exception as exc:  # a plugin bug: record it, keep the traceback for the developer
+            self._abort_attempt(tid, step, f"plugin error: {type(exc).__name__}: {exc}", t_start, trial_clock)
+            self.rec.set_status("interrupted", f"plugin error: {type(exc).__name__}")
+            raise
+        finally:
+            if trial_clock is not self.clock:  # the session clock moves on by the trial's duration
+                self.clock.sleep_until(self.clock.now() + (trial_clock.now() - t_start))
+        self._finish_attempt(step, tid, attempt, outcome, flag, rate)
+
+    def _rate(self, cond: ConditionSpec) -> float:
+        if cond.rate_hz:
+            return float(cond.rate_hz)
+        if cond.controller and not cond.manual:
+            return float(getattr(self.factory.load("controller", cond.controller), "rate_hz", 50.0) or 50.0)
+        return 50.0
+
+    def _control(self, control: Control, tid: int, t: float, flag: dict[str, Any]) -> str | None:
+        if control.kind == "invalid":
+            flag["invalid"] = control.reason or "marked invalid by the coordinator"
+            self.rec.event("coordinator_mark_invalid", {"reason": flag["invalid"]}, t=t, trial_id=tid)
+            self.rec.audit("trial_marked_invalid", {"trial_id": tid, "reason": flag["invalid"]})
+            return None
+        if control.kind in ("abort", "pause"):
+            flag["stop"] = control
+            self.rec.event(f"coordinator_{control.kind}", {"reason": control.reason}, t=t, trial_id=tid)
+            return control.kind
+        return None
+
+    def _abort_attempt(self, tid: int, step: Step, reason: str, t_start: float, trial_clock: Clock) -> None:
+        duration = trial_clock.now() - t_start
+        self.rec.trial_finished(
+            tid, "aborted", {"ended_by": "fault", "duration_s": duration, "step": step.position}, [],
+            position=step.position, t=self.now(), reason=reason, complete_step=False,
+        )
+
+    def _finish_attempt(
+        self, step: Step, tid: int, attempt: int, outcome: TrialOutcome, flag: dict[str, Any], rate: float
+    ) -> None:
+        plan = self.plan
+        reports = []
+        rejected = 0
+        for rep in outcome.reports:
+            payload = {k: v for k, v in rep.items() if k != "t"}
+            try:
+                clean = plan.report.validate_payload(payload)
+            except InvalidAnswer as exc:
+                rejected += 1
+                self.rec.event("report_rejected", {"payload": payload, "reason": str(exc)}, t=rep.get("t"),
+                               trial_id=tid)
+                continue
+            reports.append({"t": rep.get("t"), **clean})
+        summary = {
+            "ended_by": outcome.ended_by,
+            "timed_out": outcome.ended_by == "time_limit",
+            "duration_s": outcome.duration_s,
+            "ticks": outcome.ticks,
+            "scans": outcome.scans,
+            "reports": len(reports),
+            "rejected_reports": rejected,
+            "attempt": attempt,
+            "step": step.position,
+            "rate_hz": rate,
+        }
+        stop: Control | None = flag["stop"]
+        if stop is not None:
+            reason = f"{'paused' if stop.kind == 'pause' else 'aborted'} by the coordinator: {stop.reason}"
+            self.rec.trial_finished(tid, "aborted", summary, reports, position=step.position, t=self.now(),
+                                    reason=reason, complete_step=False)
+            self.rec.audit("trial_aborted", {"trial_id": tid, "reason": reason})
+            self.ui.trial_end(step, {**summary, "status": "aborted", "reason": reason})
+            if stop.kind == "pause":
+                self.rec.set_status("paused", stop.reason)
+                self.ui.wait_unpause()
+                self.rec.set_status("running", "continued after pause")
+            return
+        status = "invalid" if flag["invalid"] else "completed"
+        self.rec.trial_finished(tid, status, summary, reports, position=step.position, t=self.now(),
+                                reason=flag["invalid"] or "")
+        self.ui.trial_end(step, {**summary, "status": status})
+
+    def _manual(self, step: Step, info: TrialInfo, clock: Clock) -> TrialOutcome:
+        res = self.ui.manual_outcome(step, self.plan.report, clock)
+        reports = [{"t": res.duration_s, **r} for r in res.reports]
+        limit = info.time_limit_s
+        ended = "time_limit" if res.duration_s >= limit else "finish"
+        return TrialOutcome(ended, min(res.duration_s, limit), 0, 0, reports, [])
+
+    def _device_ref(self) -> Mapping[str, Any]:
+        plan = self.plan
+        ref = plan.simulated_device if self.virtual else (plan.hardware_device or plan.simulated_device)
+        if not ref:
+            raise SessionError(f"the plan of study {plan.study!r} names no device to run trials on")
+        return ref
+
+    def _execute(
+        self, step, cond, info, streams: TrialStreams, tid, should_stop, on_event, trial_clock: Clock
+    ) -> TrialOutcome:
+        plan = self.plan
+        controller_name = None if cond.manual else cond.controller
+        needs = controller_needs(self.factory, controller_name, cond.params, cond.visual)
+        scene = None
+        if plan.scene:
+            placement = step.data.get("placement") or {}
+            scene = build_scene(self.factory, plan.scene, plan.scene_spec, placement, needs, streams.scene)
+        controller = build_controller(self.factory, controller_name, cond.params, scene) if controller_name else None
+        ref = self._device_ref()
+        device = build_device(self.factory, ref["plugin"], ref.get("params", {}), scene, streams.device)
+        sink = self.rec.samples(tid, [])
+        try:
+            device.open()
+            return run_trial(
+                info=info,
+                controller=controller,
+                device=device,
+                participant=self.participant,
+                clock=trial_clock,
+                rng=streams.participant,
+                on_event=on_event,
+                on_sample=sink.write,
+                view=scene.view if scene is not None else None,
+                should_stop=should_stop,
+            )
+        finally:
+            try:
+                device.close()
+            except Exception as exc:  # closing a disconnected device may fail; the fault is already raised
+                self.rec.event("device_close_failed", {"error": f"{type(exc).__name__}: {exc}"}, trial_id=tid)
+            sink.close()
