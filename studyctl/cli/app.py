@@ -16,6 +16,7 @@ from studyctl.errors import StudyctlError
 COMMAND_MODULES = (
     "studyctl.cli.bench",
     "studyctl.cli.plugins",
+    "studyctl.cli.protocol",
 )
 
 app = typer.Typer(

@@ -1,0 +1,100 @@
+"""``studyctl protocol check|show|schedule``: validate, summarise and preview a protocol."""
+
+from __future__ import annotations
+
+import json
+from enum import Enum
+
+import typer
+
+from studyctl.errors import UsageError
+from studyctl.protocol import (
+    expand_many,
+    load_protocol,
+    resolve_protocol,
+    schedule_balance,
+    schedule_rows,
+)
+from studyctl.protocol.summary import describe_protocol
+
+
+class Format(str, Enum):
+    table = "table"
+    csv = "csv"
+    json = "json"
+
+
+
+
+def _load(file: str):
+    return load_protocol(resolve_protocol(file))
+
+
+def register(app: typer.Typer) -> None:
+    group = typer.Typer(help="Check, summarise and preview study protocols.", no_args_is_help=True)
+    app.add_typer(group, name="protocol")
+
+    @group.command("check")
+    def check(file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol.")) -> None:
+        """Validate a protocol: exit 0 if valid, else list every problem (file:line:column, key path)."""
+        protocol = _load(file)
+        typer.echo(f"OK: {protocol.path} is a valid protocol ({protocol.study.id}: {len(protocol.conditions)} "
+                   f"conditions, {len(protocol.participants.strata)} strata, scheme {protocol.counterbalance.scheme};"
+                   f" sha256 {protocol.sha256[:12]})")
+
+    @group.command("show")
+    def show(file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol.")) -> None:
+        """Print a readable summary of a protocol: conditions, order, trial template, scene, questionnaires."""
+        typer.echo(describe_protocol(_load(file)))
+
+    @group.command("schedule")
+    def schedule(
+        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol."),
+        participants: int = typer.Option(..., "--participants", "-n", min=1, max=1_000_000,
+                                         help="How many participants to plan (spread over strata by target_n)."),
+        seed: int | None = typer.Option(None, "--seed", "-s", min=0, help="Schedule seed (default: the protocol's study.seed)."),
+        fmt: Format = typer.Option(Format.table, "--format", "-f", help="table, csv or json."),
+    ) -> None:
+        """Preview the schedules of N participants, with position and carry-over balance diagnostics."""
+        protocol = _load(file)
+        if seed is None:
+            seed = protocol.study.seed
+        if seed is None:
+            raise UsageError("no seed: pass --seed S or set study.seed in the protocol")
+        schedules = expand_many(protocol, seed=seed, participants=participants)
+        rows = schedule_rows(schedules)
+        balance = schedule_balance(protocol, schedules)
+        if fmt is Format.csv:
+            typer.echo(rows.to_csv(index=False), nl=False)
+            typer.echo(balance.summary_frame().to_string(index=False), err=True)
+            return
+        if fmt is Format.json:
+            typer.echo(json.dumps({
+                "protocol": protocol.study.id,
+                "protocol_sha256": protocol.sha256,
+                "seed": seed,
+                "algorithm_version": schedules[0].algorithm_version if schedules else None,
+                "rows": json.loads(rows.to_json(orient="records")),
+                "balance": {
+                    "summary": json.loads(balance.summary_frame().to_json(orient="records")),
+                    "counts": json.loads(balance.to_frame().to_json(orient="records")),
+                },
+            }))
+            return
+        typer.echo(f"{protocol.study.id}: {participants} participants, seed {seed}, "
+                   f"algorithm version {schedules[0].algorithm_version}")
+        typer.echo(rows.to_string(index=False))
+        frame = balance.to_frame()
+        for stratum in balance.strata:
+            typer.echo(f"\nBalance in stratum {stratum}:")
+            pos = frame[(frame.stratum == stratum) & (frame.kind == "position")]
+            typer.echo("position counts (condition × position):")
+            typer.echo(pos.pivot(index="condition", columns="other", values="count")
+                       .reindex(list(balance.conditions)).to_string())
+            carry = frame[(frame.stratum == stratum) & (frame.kind == "carryover")]
+            typer.echo("carry-over counts (row followed by column):")
+            typer.echo(carry.pivot(index="condition", columns="other", values="count")
+                       .reindex(index=list(balance.conditions), columns=list(balance.conditions))
+                       .fillna(0).astype(int).to_string())
+        typer.echo("\n" + balance.summary_frame().to_string(index=False))
+        typer.echo("(spread = max − min count over the counterbalanced conditions; 0 is perfectly balanced)")
