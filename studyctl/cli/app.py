@@ -17,6 +17,9 @@ COMMAND_MODULES = (
     "studyctl.cli.bench",
     "studyctl.cli.plugins",
     "studyctl.cli.protocol",
+    "studyctl.cli.study",
+    "studyctl.cli.db",
+    "studyctl.cli.audit",
 )
 
 app = typer.Typer(

@@ -1,0 +1,53 @@
+"""``studyctl audit verify|show``: the hash-chained audit log."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from studyctl.cli.common import DB_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.errors import IntegrityError
+from studyctl.store.repository import StudyStore
+from studyctl.store.workspace import resolve_database
+
+
+def register(app: typer.Typer) -> None:
+    audit_app = typer.Typer(help="Verify and show the append-only, hash-chained audit log.", no_args_is_help=True)
+
+    @audit_app.command("verify")
+    def verify(db: str = DB_OPTION, workspace: Path = WORKSPACE_OPTION) -> None:
+        """Recompute the hash chain; name every edited or deleted row and exit non-zero if any."""
+        url, _ = resolve_database(db, workspace_arg(workspace))
+        with StudyStore.open(url) as store:
+            report = store.verify_audit()
+        if report.ok:
+            typer.echo(f"Audit log intact: {report.rows} rows, head hash {report.head_hash}")
+            return
+        for problem in report.problems:
+            typer.echo(f"  {problem}", err=True)
+        raise IntegrityError(f"the audit log fails verification ({len(report.problems)} problem(s) above); "
+                             "restore the database from a backup and investigate who changed it")
+
+    @audit_app.command("show")
+    def show(
+        db: str = DB_OPTION,
+        workspace: Path = WORKSPACE_OPTION,
+        last: int = typer.Option(20, "--last", min=1, help="How many of the newest rows to show."),
+        as_json: bool = typer.Option(False, "--json", help="Print JSON lines instead of text."),
+    ) -> None:
+        """Print the newest audit rows (time, actor, action, entity, details)."""
+        url, _ = resolve_database(db, workspace_arg(workspace))
+        with StudyStore.open(url) as store:
+            frame = store.audit_frame().tail(last)
+        for row in frame.itertuples(index=False):
+            if as_json:
+                typer.echo(json.dumps({"id": row.id, "at": row.at, "actor": row.actor, "action": row.action,
+                                       "entity": row.entity, "entity_id": row.entity_id,
+                                       "details": json.loads(row.details)}, ensure_ascii=False))
+            else:
+                typer.echo(f"{row.id:>6} {row.at} {row.actor} {row.action} {row.entity or ''}:{row.entity_id or ''} "
+                           f"{row.details}")
+
+    app.add_typer(audit_app, name="audit")

@@ -1,0 +1,62 @@
+"""``studyctl init DIR`` and ``studyctl status``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.store.status import study_status
+from studyctl.store.workspace import init_workspace, open_study
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("init")
+    def init(
+        folder: Path = typer.Argument(..., help="Workspace folder to create (may exist if it holds no study)."),
+        protocol: str = typer.Option(
+            None, "--protocol", "-p", help="Shipped protocol name or protocol file; validated and snapshotted."
+        ),
+        name: str = typer.Option(None, "--name", help="Study name (default: the protocol's study id or folder name)."),
+        seed: int = typer.Option(None, "--seed", help="Master seed (default: the protocol's, else random)."),
+        db: str = typer.Option(
+            None, "--db", help="PostgreSQL URL to hold the study instead of a new study.db in the folder."
+        ),
+    ) -> None:
+        """Create a study workspace: studyctl.toml plus its database at the newest schema."""
+        result = init_workspace(folder, protocol=protocol, name=name, db=db, seed=seed)
+        typer.echo(f"Created study {result.study!r} in {result.root}")
+        typer.echo(f"  database: {result.database}")
+        if result.protocol_name:
+            typer.echo(f"  protocol: {result.protocol_name} (sha256 {result.protocol_sha256})")
+        typer.echo(f"  seed:     {result.seed}")
+
+    @app.command("status")
+    def status(
+        db: str = DB_OPTION,
+        workspace: Path = WORKSPACE_OPTION,
+        study: str = STUDY_OPTION,
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
+    ) -> None:
+        """Show the study, its protocol and how many participants, sessions and trials are in each state."""
+        with open_study(db, workspace_arg(workspace), study) as opened:
+            info = study_status(opened.store, opened.study)
+        if as_json:
+            typer.echo(json.dumps({
+                "study": info.study, "protocol": info.protocol_name, "protocol_sha256": info.protocol_sha256,
+                "seed": info.seed, "database": info.database, "participants": info.participants,
+                "sessions": info.sessions, "trials": info.trials,
+            }))
+            return
+        # Plain echo, not rich markup: names are shown verbatim whatever characters they hold.
+        typer.echo(f"study:    {info.study}")
+        typer.echo(f"database: {info.database}")
+        proto = f"{info.protocol_name} (sha256 {info.protocol_sha256})" if info.protocol_name else "none"
+        typer.echo(f"protocol: {proto}")
+        typer.echo(f"seed:     {info.seed}")
+        for title, counts in (("participants", info.participants), ("sessions", info.sessions),
+                              ("trials", info.trials)):
+            parts = ", ".join(f"{k} {v}" for k, v in counts.items())
+            typer.echo(f"{title + ':':<13} {sum(counts.values())} ({parts})")
