@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from enum import Enum
+from enum import StrEnum
 
 import typer
 
@@ -18,7 +18,7 @@ from studyctl.protocol import (
 from studyctl.protocol.summary import describe_protocol
 
 
-class Format(str, Enum):
+class Format(StrEnum):
     table = "table"
     csv = "csv"
     json = "json"
@@ -52,7 +52,8 @@ def register(app: typer.Typer) -> None:
         file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol."),
         participants: int = typer.Option(..., "--participants", "-n", min=1, max=1_000_000,
                                          help="How many participants to plan (spread over strata by target_n)."),
-        seed: int | None = typer.Option(None, "--seed", "-s", min=0, help="Schedule seed (default: the protocol's study.seed)."),
+        seed: int | None = typer.Option(None, "--seed", "-s", min=0,
+                                        help="Schedule seed (default: the protocol's study.seed)."),
         fmt: Format = typer.Option(Format.table, "--format", "-f", help="table, csv or json."),
     ) -> None:
         """Preview the schedules of N participants, with position and carry-over balance diagnostics."""

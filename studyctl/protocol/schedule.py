@@ -17,6 +17,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from operator import ne
 from typing import Any
 
 import numpy as np
@@ -278,6 +279,9 @@ class Planner:
         self._stratum_keys = {s: stratum_key(s) for s in self.strata}
         admins = protocol.questionnaires
         self.q_start = tuple(a.instrument for a in admins if a.when == "start")
+        self.needs_rng = self.sequences is None or bool(self.items) or bool(self.orient_choices)
+        self._skeletons: dict[tuple[str, ...], tuple[tuple[Any, ...], ...]] = {}
+        self._plain_entries: dict[tuple[str, ...], tuple[PlanEntry, ...]] = {}
         self._admins = [(a.instrument, a.when, None if a.conditions is None else frozenset(a.conditions))
                         for a in admins if a.when != "start"]
 
@@ -302,58 +306,33 @@ class Planner:
         """The plan of the participant in allocation slot ``slot`` of ``stratum`` (see module docs)."""
         stratum = self._check(seed, slot, stratum)
         key = self._stratum_keys[stratum] if self.within_strata else 0
-        rng = participant_rng(seed, key, slot)
+        # Only protocols that draw anything pay for a generator.
+        rng = participant_rng(seed, key, slot) if self.needs_rng else None
         sequence = self.sequence_index(seed, stratum, slot)
         if sequence is None:
-            perm = cbal.random_order(len(self.ordered), rng).tolist()
+            perm = cbal.random_order(len(self.ordered), rng).tolist()  # type: ignore[arg-type]
             order = self.fixed + tuple(self.ordered[i] for i in perm)
         else:
             order = self.sequences[sequence]  # type: ignore[index]
-        # (block, position, condition) of every block position, then trials
-        block_orders = []
-        for b in range(self.blocks):
-            this = order[::-1] if (self.block_order == "reverse" and b % 2 == 1) else order
-            block_orders.append(this)
-        n_trials = self.blocks * len(order) * self.repetitions
-        placements = self._placements(rng, n_trials) if self.items else None
-        orientations = self._orientations(rng, block_orders) if self.orient_choices else None
-        entries = []
-        trial = 0
-        n_blocks = len(block_orders)
-        for b, this in enumerate(block_orders):
-            last_position = len(this)
-            for p, condition in enumerate(this, start=1):
-                for r in range(1, self.repetitions + 1):
-                    first_of_condition = r == 1
-                    if self.fam_s is not None and first_of_condition and (self.fam_each or trial == 0):
-                        fam = self.fam_s
-                    else:
-                        fam = None
-                    if trial == 0:
-                        brk = 0.0
-                    elif self.break_each_trial or first_of_condition:
-                        brk = self.break_s
-                    else:
-                        brk = 0.0
-                    last_rep = r == self.repetitions
-                    after = self._after(condition, last_rep, last_rep and p == last_position,
-                                        last_rep and p == last_position and b == n_blocks - 1)
-                    entries.append(
-                        PlanEntry(
-                            trial=trial + 1,
-                            position=p,
-                            block=b + 1,
-                            condition=condition,
-                            repetition=r,
-                            placement=None if placements is None else placements[trial],
-                            orientation_deg=None if orientations is None else orientations[trial],
-                            time_limit_s=self.time_limit,
-                            familiarisation_max_s=fam,
-                            break_before_s=brk,
-                            questionnaires_after=after,
-                        )
-                    )
-                    trial += 1
+        skeleton = self._skeletons.get(order)
+        if skeleton is None:
+            skeleton = self._skeletons[order] = self._skeleton(order)
+        n_trials = len(skeleton)
+        placements = self._placements(rng, n_trials) if self.items else None  # type: ignore[arg-type]
+        orientations = self._orientations(rng, skeleton) if self.orient_choices else None  # type: ignore[arg-type]
+        if placements is None and orientations is None:
+            entries = self._plain_entries.get(order)
+            if entries is None:
+                entries = self._plain_entries[order] = tuple(
+                    PlanEntry(t, p, b, c, r, None, None, tl, fam, brk, after)
+                    for t, p, b, c, r, tl, fam, brk, after in skeleton
+                )
+        else:
+            entries = tuple(
+                PlanEntry(t, p, b, c, r, None if placements is None else placements[t - 1],
+                          None if orientations is None else orientations[t - 1], tl, fam, brk, after)
+                for t, p, b, c, r, tl, fam, brk, after in skeleton
+            )
         return Schedule(
             protocol_id=self.protocol.study.id,
             protocol_sha256=self.protocol.sha256,
@@ -364,8 +343,35 @@ class Planner:
             sequence=sequence,
             order=tuple(order),
             questionnaires_start=self.q_start,
-            entries=tuple(entries),
+            entries=entries,
         )
+
+    def _skeleton(self, order: tuple[str, ...]) -> tuple[tuple[Any, ...], ...]:
+        """The participant-independent fields of every trial for one condition order.
+
+        Rows are (trial, position, block, condition, repetition, time limit, familiarisation, break,
+        questionnaires after).
+        """
+        rows = []
+        trial = 0
+        blocks = [order[::-1] if (self.block_order == "reverse" and b % 2 == 1) else order for b in range(self.blocks)]
+        for b, this in enumerate(blocks):
+            for p, condition in enumerate(this, start=1):
+                for r in range(1, self.repetitions + 1):
+                    first_of_condition = r == 1
+                    fam = self.fam_s if first_of_condition and (self.fam_each or trial == 0) else None
+                    if trial == 0:
+                        brk = 0.0
+                    elif self.break_each_trial or first_of_condition:
+                        brk = self.break_s
+                    else:
+                        brk = 0.0
+                    end_condition = r == self.repetitions
+                    end_block = end_condition and p == len(this)
+                    after = self._after(condition, end_condition, end_block, end_block and b == len(blocks) - 1)
+                    trial += 1
+                    rows.append((trial, p, b + 1, condition, r, self.time_limit, fam, brk, after))
+        return tuple(rows)
 
     def _check(self, seed: int, slot: int, stratum: str | None) -> str:
         if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
@@ -406,7 +412,7 @@ class Planner:
                 if previous is not None:
                     if rule == "assignment" and cand == previous:
                         continue
-                    if rule == "every_item" and any(a == b for a, b in zip(cand, previous, strict=True)):
+                    if rule == "every_item" and not all(map(ne, cand, previous)):
                         continue
                 out.append(tuple(zip(items, cand, strict=True)))
                 previous = cand
@@ -414,38 +420,31 @@ class Planner:
                     break
         return out
 
-    def _orientations(self, rng: np.random.Generator, block_orders: list[tuple[str, ...]]) -> list[float]:
-        """Orientation per trial, drawn per condition, block or trial."""
+    def _orientations(self, rng: np.random.Generator, skeleton: tuple[tuple[Any, ...], ...]) -> list[float]:
+        """Orientation per trial, drawn per condition (position), block or trial."""
         m = len(self.orient_choices)
-        per_trial: list[float] = []
-        draws = rng.random(sum(len(o) for o in block_orders) * self.repetitions)
-        used = 0
+        draws = rng.random(len(skeleton)).tolist()
+        out: list[float] = []
         previous: int | None = None
-
-        def draw() -> int:
-            nonlocal used, previous
-            u = draws[used]
-            used += 1
-            if self.orient_differ and previous is not None:
-                idx = int(u * (m - 1))
-                idx = idx + 1 if idx >= previous else idx
-            else:
-                idx = int(u * m)
-            previous = idx
-            return idx
-
         angle = 0.0
-        for order in block_orders:
-            if self.orient_per == "block":
-                angle = self.orient_choices[draw()]
-            for _ in order:
-                if self.orient_per == "condition":
-                    angle = self.orient_choices[draw()]
-                for _ in range(self.repetitions):
-                    if self.orient_per == "trial":
-                        angle = self.orient_choices[draw()]
-                    per_trial.append(float(angle))
-        return per_trial
+        for i, (_, position, block, _, repetition, *_rest) in enumerate(skeleton):
+            new = (
+                self.orient_per == "trial"
+                or (self.orient_per == "condition" and repetition == 1)
+                or (self.orient_per == "block" and repetition == 1 and position == 1)
+            )
+            if new:
+                u = draws[i]
+                if self.orient_differ and previous is not None:
+                    idx = int(u * (m - 1))
+                    idx = idx + 1 if idx >= previous else idx
+                else:
+                    idx = int(u * m)
+                previous = idx
+                angle = float(self.orient_choices[idx])
+            del block
+            out.append(angle)
+        return out
 
 
 def expand_schedule(protocol: Protocol, *, seed: int, slot: int, stratum: str | None = None) -> Schedule:

@@ -63,7 +63,8 @@ def describe_protocol(protocol: Protocol) -> str:
     lines.append(f"Design: {d.repetitions} trial(s) per condition in a row; {d.blocks} block(s)"
                  + (f", order {d.block_order}" if d.blocks > 1 else ""))
     t = p.trial
-    lines += ["", "Trial:", f"  time limit {_seconds(t.time_limit_s)}; break {_seconds(t.break_s)} between {t.break_between}"]
+    lines += ["", "Trial:",
+              f"  time limit {_seconds(t.time_limit_s)}; break {_seconds(t.break_s)} between {t.break_between}"]
     if t.familiarisation:
         f = t.familiarisation
         lines.append(f"  familiarisation up to {_seconds(f.max_s)} {f.when.replace('_', ' ')}"
