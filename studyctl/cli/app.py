@@ -17,6 +17,7 @@ COMMAND_MODULES = (
     "studyctl.cli.bench",
     "studyctl.cli.plugins",
     "studyctl.cli.protocol",
+    "studyctl.cli.enroll",
     "studyctl.cli.study",
     "studyctl.cli.db",
     "studyctl.cli.audit",

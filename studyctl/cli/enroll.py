@@ -1,0 +1,45 @@
+"""``studyctl enroll [--group G]``: enroll the next participant and print the code and sequence."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.protocol.enrollment import enroll as enroll_participant
+from studyctl.protocol.schedule import format_placement
+from studyctl.store.workspace import open_study
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("enroll")
+    def enroll(
+        group: str = typer.Option(None, "--group", "-g", help="Stratum to enroll into (e.g. novice, expert)."),
+        code: str = typer.Option(None, "--code", help="Use this participant code instead of a random one."),
+        as_json: bool = typer.Option(False, "--json", help="Print the enrollment and plan as one JSON object."),
+        db: str = DB_OPTION,
+        workspace: Path = WORKSPACE_OPTION,
+        study: str = STUDY_OPTION,
+    ) -> None:
+        """Enroll the next participant: a new pseudonymous code, the next sequence slot and a stored plan."""
+        with open_study(db, workspace_arg(workspace), study) as opened:
+            result = enroll_participant(opened.store, group, study=opened.study.name, code=code)
+        if as_json:
+            typer.echo(json.dumps({"code": result.code, "stratum": result.stratum, "slot": result.slot,
+                                   "schedule": result.schedule.to_json()}))
+            return
+        sequence = "random order" if result.sequence is None else f"sequence {result.sequence + 1}"
+        typer.echo(f"Enrolled {result.code} in group {result.stratum}: slot {result.slot + 1}, {sequence}")
+        typer.echo(f"  order: {' → '.join(result.order)}")
+        for e in result.schedule.entries:
+            extra = []
+            if e.placement is not None:
+                extra.append(f"placement {format_placement(e.placement)}")
+            if e.orientation_deg is not None:
+                extra.append(f"orientation {e.orientation_deg:g}°")
+            if e.questionnaires_after:
+                extra.append(f"then {', '.join(e.questionnaires_after)}")
+            typer.echo(f"  trial {e.trial:>3}: {e.condition} (block {e.block}, repetition {e.repetition})"
+                       + ("; " + "; ".join(extra) if extra else ""))
