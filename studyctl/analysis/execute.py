@@ -846,6 +846,54 @@ def _cells_table(plan: AnalysisPlan, units: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _proportions_table(plan: AnalysisPlan, prep: Prepared) -> pd.DataFrame:
+    """Pooled proportions with 95% Wilson intervals per condition, overall and per level (figures)."""
+    rows = []
+    for metric in plan.metrics:
+        if plan.metric_kind(metric) != "proportion":
+            continue
+        data = prep.frame[prep.frame["metric"] == metric]
+        for by_level in (False, True):
+            if by_level and not data["level"].notna().any():
+                continue
+            keys = ["condition", "level"] if by_level else ["condition"]
+            for key, sel in data.groupby(keys, sort=False, dropna=False):
+                key = key if isinstance(key, tuple) else (key,)
+                x, n = int(sel["value"].sum()), int(sel["denominator"].sum())
+                try:
+                    w = stats.wilson_interval(x, n)
+                    est, lo, hi = _f(w.estimate), _f(w.lower), _f(w.upper)
+                except StudyctlError:
+                    est = lo = hi = NAN
+                rows.append(
+                    {
+                        "metric": metric,
+                        "condition": key[0],
+                        "level": key[1] if by_level else None,
+                        "successes": x,
+                        "chances": n,
+                        "participants": sel["participant"].nunique(),
+                        "estimate": est,
+                        "ci_low": lo,
+                        "ci_high": hi,
+                        "ci_level": 0.95,
+                    }
+                )
+    cols = [
+        "metric",
+        "condition",
+        "level",
+        "successes",
+        "chances",
+        "participants",
+        "estimate",
+        "ci_low",
+        "ci_high",
+        "ci_level",
+    ]
+    return pd.DataFrame(rows, columns=cols)
+
+
 def run_plan(plan: AnalysisPlan, table: MetricTable, *, on_step: Callable[[str], None] | None = None) -> AnalysisResult:
     """Execute every test of ``plan`` on ``table``.
 
@@ -880,6 +928,7 @@ def run_plan(plan: AnalysisPlan, table: MetricTable, *, on_step: Callable[[str],
     frames = {name: pd.DataFrame(rows_) for name, rows_ in tables.items() if rows_}
     frames["units"] = units
     frames["cells"] = _cells_table(plan, units) if not units.empty else pd.DataFrame()
+    frames["proportions"] = _proportions_table(plan, prep)
     problems = list(prep.problems)
     for r in rows:
         if r.status != "ok":

@@ -175,8 +175,10 @@ BUILTIN: dict[str, MetricDef] = {
             "Likert score",
             "",
             ORDINAL,
-            "questionnaire answer codes per item (administered after a condition or at the end)",
+            "questionnaire answer codes per item (administered after a condition or at the end); `instrument` "
+            "selects one instrument ('' for all)",
             level="item",
+            params={"instrument": ""},
             studies=("needle_insertion",),
         ),
     )

@@ -386,6 +386,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
                         f"{name} has no parameter {p!r}{suggest(p, builtin.params)} (its parameters: {allowed})",
                     )
 
+    problems.extend(_check_against_protocol(plan, doc))
     metric_ids = list(plan.metrics)
     test_ids = [t.id for t in plan.tests]
     conditions = plan.condition_ids
@@ -519,6 +520,44 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
                 )
         if f.kind in ("box", "proportion", "percent_change", "likert") and not f.metrics:
             bad(("figures", i, "metrics"), f"a {f.kind} figure needs at least one metric")
+    return problems
+
+
+def shipped_protocol(name: str):  # -> Protocol | None
+    """The shipped protocol called ``name``, or None when there is none (a study of one's own)."""
+    from studyctl.errors import NotFoundError
+    from studyctl.protocol import load_protocol
+    from studyctl.resources import resource_dir
+
+    path = resource_dir("protocols") / f"{name}.yaml"
+    if not path.is_file():
+        return None
+    try:
+        return load_protocol(path)
+    except (ProtocolError, NotFoundError):
+        return None
+
+
+def _check_against_protocol(plan: AnalysisPlan, doc: Located) -> list[str]:
+    """Conditions and groups must exist in the study's protocol (when it is a shipped one)."""
+    protocol = shipped_protocol(plan.study)
+    if protocol is None:
+        return []
+    problems = []
+    known = list(protocol.condition_ids)
+    for i, c in enumerate(plan.condition_ids):
+        if c not in known:
+            problems.append(
+                f"{doc.where(('conditions', i))}: conditions[{i}]: protocol {plan.study!r} has no "
+                f"condition {c!r}{suggest(c, known)} (its conditions: {', '.join(known)})"
+            )
+    strata = list(protocol.stratum_ids)
+    for i, g in enumerate(plan.group_ids):
+        if g not in strata:
+            problems.append(
+                f"{doc.where(('groups', i))}: groups[{i}]: protocol {plan.study!r} has no group "
+                f"(stratum) {g!r}{suggest(g, strata)} (its strata: {', '.join(strata)})"
+            )
     return problems
 
 

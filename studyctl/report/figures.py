@@ -1,0 +1,360 @@
+"""Figures that mirror the papers' results sections, drawn with matplotlib's object API (no pyplot state).
+
+Every function takes tidy tables (from :class:`~studyctl.analysis.results.AnalysisResult`) and returns a
+:class:`matplotlib.figure.Figure`; :func:`png_bytes` renders one. matplotlib is imported inside the
+functions so that ``import studyctl`` never pays for it.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from studyctl.report.style import PALETTE, fmt_p, stars
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+DPI = 110
+
+
+def _figure(
+    n_panels: int, *, panel_w: float = 4.2, panel_h: float = 3.4, cols: int | None = None
+) -> tuple[Figure, list[Axes]]:
+    from matplotlib.figure import Figure
+
+    cols = cols or min(n_panels, 2 if n_panels == 4 else 3)
+    rows = math.ceil(n_panels / cols)
+    fig = Figure(figsize=(panel_w * cols, panel_h * rows + 0.6), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False).ravel().tolist()
+    for ax in axes[n_panels:]:
+        ax.set_visible(False)
+    return fig, axes[:n_panels]
+
+
+def png_bytes(fig: Figure) -> bytes:
+    """The figure as PNG bytes."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
+
+
+def _spread(n: int, width: float) -> np.ndarray:
+    """Deterministic horizontal offsets for n points (no randomness: the same figure every run)."""
+    if n <= 1:
+        return np.zeros(n)
+    return np.linspace(-width / 2, width / 2, n)
+
+
+def _ylabel(label: str, unit: str) -> str:
+    return f"{label} ({unit})" if unit else label
+
+
+def box_panel(
+    ax: Axes,
+    units: pd.DataFrame,
+    *,
+    conditions: Sequence[tuple[str, str]],
+    groups: Sequence[tuple[str, str]] | None,
+    label: str,
+    unit: str,
+    marks: pd.DataFrame | None = None,
+) -> None:
+    """Box plots of one metric per condition (side by side per group when ``groups``), points overlaid.
+
+    ``marks`` are rows of the tests table for this metric: significant pairwise/post-hoc rows between
+    conditions become brackets with stars; significant two-sample rows between groups within a condition
+    become a star above that condition; the omnibus p goes into the panel title.
+    """
+    cond_ids = [c for c, _ in conditions]
+    groups = list(groups or [])
+    n_g = max(len(groups), 1)
+    width = 0.7 / n_g
+    top = -np.inf
+    bottom = np.inf
+    for gi, (gid, glabel) in enumerate(groups or [(None, None)]):
+        data, pos = [], []
+        for ci, cid in enumerate(cond_ids):
+            sel = units[units["condition"] == cid]
+            if gid is not None:
+                sel = sel[sel["group"] == gid]
+            vals = sel["value"].to_numpy(dtype=float)
+            vals = vals[np.isfinite(vals)]
+            data.append(vals)
+            pos.append(ci + (gi - (n_g - 1) / 2) * width)
+            if len(vals):
+                top, bottom = max(top, vals.max()), min(bottom, vals.min())
+        color = PALETTE[gi % len(PALETTE)]
+        nonempty = [(d, p) for d, p in zip(data, pos, strict=True) if len(d)]
+        if nonempty:
+            bp = ax.boxplot(
+                [d for d, _ in nonempty],
+                positions=[p for _, p in nonempty],
+                widths=width * 0.8,
+                patch_artist=True,
+                showfliers=False,
+                manage_ticks=False,
+                medianprops={"color": "black", "linewidth": 1.4},
+            )
+            for patch in bp["boxes"]:
+                patch.set_facecolor(color)
+                patch.set_alpha(0.35)
+                patch.set_edgecolor(color)
+            for d, p in nonempty:
+                ax.scatter(
+                    p + _spread(len(d), width * 0.5), np.sort(d), s=10, color=color, alpha=0.85, zorder=3, linewidths=0
+                )
+        if gid is not None:
+            ax.scatter(
+                [], [], color=color, label=f"{glabel} (n={units.loc[units['group'] == gid, 'participant'].nunique()})"
+            )
+    ax.set_xticks(range(len(cond_ids)), [lbl for _, lbl in conditions], rotation=0)
+    ax.set_xlim(-0.6, len(cond_ids) - 0.4)
+    ax.set_ylabel(_ylabel(label, unit))
+    ax.grid(axis="y", alpha=0.3)
+    if groups:
+        ax.legend(fontsize=8, frameon=False, loc="best")
+    if not np.isfinite(top):
+        ax.text(0.5, 0.5, "no values", transform=ax.transAxes, ha="center", va="center", color="gray")
+        return
+    span = (top - bottom) or max(abs(top), 1.0)
+    title = label
+    if marks is not None and not marks.empty:
+        omni = marks[marks["kind"] == "omnibus"]
+        if len(omni) == 1 and np.isfinite(omni["p"].iloc[0]):
+            r = omni.iloc[0]
+            title += f"\n{_test_name(r['test'])} p = {fmt_p(r['p'])}"
+        level = top + 0.06 * span
+        pairs = marks[marks["kind"].isin(["posthoc", "pairwise", "two_sample"]) & (marks["compare"] == "condition")]
+        for _, r in pairs.iterrows():
+            p = r["p_adj"] if np.isfinite(r["p_adj"]) else r["p"]
+            sig = r["significant"] if r["significant"] is not None else (np.isfinite(p) and p < r["alpha"])
+            if not sig or " vs " not in str(r["groups"]):
+                continue
+            a, b = str(r["groups"]).split(" vs ", 1)
+            if a not in cond_ids or b not in cond_ids:
+                continue
+            x1, x2 = sorted((cond_ids.index(a), cond_ids.index(b)))
+            mark = stars(p) if np.isfinite(p) else "*"
+            ax.plot(
+                [x1, x1, x2, x2], [level, level + 0.02 * span, level + 0.02 * span, level], color="black", linewidth=0.9
+            )
+            ax.text((x1 + x2) / 2, level + 0.025 * span, mark or "*", ha="center", va="bottom", fontsize=9)
+            level += 0.09 * span
+        groupwise = marks[(marks["compare"] == "group") & marks["kind"].isin(["two_sample"])]
+        for _, r in groupwise.iterrows():
+            split = str(r["split"])
+            if not split.startswith("condition="):
+                continue
+            cid = split.split("=", 1)[1]
+            p = r["p_adj"] if np.isfinite(r["p_adj"]) else r["p"]
+            if cid in cond_ids and r["significant"]:
+                ax.text(cond_ids.index(cid), top + 0.03 * span, stars(p) or "*", ha="center", fontsize=10)
+        ax.set_ylim(top=max(level, top + 0.1 * span) + 0.05 * span)
+    ax.set_title(title, fontsize=10)
+
+
+_TEST_NAMES = {
+    "kruskal_wallis": "Kruskal-Wallis",
+    "anova_oneway": "ANOVA",
+    "friedman": "Friedman",
+    "rm_anova": "RM-ANOVA",
+    "rank_sum": "rank-sum",
+    "signed_rank": "signed-rank",
+}
+
+
+def _test_name(test: str) -> str:
+    return _TEST_NAMES.get(test, test)
+
+
+def box_figure(panels: list[dict[str, Any]], *, title: str) -> Figure:
+    """One box-plot panel per metric; each panel dict holds the keyword arguments of :func:`box_panel`."""
+    fig, axes = _figure(len(panels))
+    for ax, panel in zip(axes, panels, strict=True):
+        box_panel(ax, **panel)
+    fig.suptitle(title, fontsize=11)
+    return fig
+
+
+def proportion_figure(
+    props: pd.DataFrame,
+    *,
+    conditions: Sequence[tuple[str, str]],
+    levels: Sequence[str] | None,
+    label: str,
+    title: str,
+) -> Figure:
+    """Pooled proportions with their Wilson intervals: bars per condition (grouped by level when given).
+
+    ``props`` columns: condition, level, successes, chances, estimate, ci_low, ci_high.
+    """
+    fig, (ax,) = _figure(1, panel_w=max(5.0, 1.3 * len(conditions) * max(1, len(levels or [])) ** 0.5 + 2), panel_h=3.8)
+    cond_ids = [c for c, _ in conditions]
+    series = list(levels) if levels else [None]
+    width = 0.8 / len(series)
+    for li, lv in enumerate(series):
+        sel = props[props["level"].isna()] if lv is None else props[props["level"] == lv]
+        xs, est, lo, hi, txt = [], [], [], [], []
+        for ci, cid in enumerate(cond_ids):
+            row = sel[sel["condition"] == cid]
+            if row.empty:
+                continue
+            r = row.iloc[0]
+            xs.append(ci + (li - (len(series) - 1) / 2) * width)
+            est.append(r["estimate"])
+            lo.append(r["estimate"] - r["ci_low"])
+            hi.append(r["ci_high"] - r["estimate"])
+            txt.append(f"{int(r['successes'])}/{int(r['chances'])}")
+        color = PALETTE[li % len(PALETTE)]
+        ax.bar(xs, est, width=width * 0.9, color=color, alpha=0.75, label=str(lv) if lv is not None else None)
+        ax.errorbar(xs, est, yerr=[lo, hi], fmt="none", ecolor="black", elinewidth=1, capsize=3)
+        for x, e, t in zip(xs, est, txt, strict=True):
+            ax.text(
+                x,
+                0.02,
+                t,
+                ha="center",
+                va="bottom",
+                fontsize=7,
+                rotation=90 if len(series) > 2 else 0,
+                color="white" if e > 0.15 else "black",
+            )
+    ax.set_xticks(range(len(cond_ids)), [lbl for _, lbl in conditions])
+    ax.set_ylim(0, 1.08)
+    ax.set_ylabel(f"{label} (95% Wilson interval)")
+    ax.grid(axis="y", alpha=0.3)
+    if levels:
+        ax.legend(fontsize=8, frameon=False, ncols=len(series), loc="upper center", bbox_to_anchor=(0.5, 1.12))
+    fig.suptitle(title, fontsize=11)
+    return fig
+
+
+def percent_change_figure(
+    pct: pd.DataFrame,
+    *,
+    metrics: Sequence[tuple[str, str]],
+    conditions: Sequence[tuple[str, str]],
+    reference: str,
+    title: str,
+) -> Figure:
+    """Bars of the percent change of each condition's mean against ``reference``, one panel per metric."""
+    fig, axes = _figure(len(metrics), panel_w=3.6, panel_h=3.0, cols=min(4, len(metrics)))
+    others = [(c, lbl) for c, lbl in conditions if c != reference]
+    for ax, (mid, mlabel) in zip(axes, metrics, strict=True):
+        sel = pct[pct["metric"] == mid]
+        vals = [
+            float(sel.loc[sel["level"] == c, "percent_change"].iloc[0]) if (sel["level"] == c).any() else np.nan
+            for c, _ in others
+        ]
+        colors = [PALETTE[2] if v < 0 else PALETTE[5] for v in vals]
+        ax.bar(range(len(others)), vals, color=colors, alpha=0.8)
+        for i, v in enumerate(vals):
+            if np.isfinite(v):
+                ax.text(i, v, f"{v:+.1f}%", ha="center", va="bottom" if v >= 0 else "top", fontsize=8)
+        ax.axhline(0, color="black", linewidth=0.8)
+        ax.set_xticks(range(len(others)), [lbl for _, lbl in others])
+        ax.set_title(mlabel, fontsize=10)
+        ax.set_ylabel(f"% change vs {reference}")
+        ax.grid(axis="y", alpha=0.3)
+        lo, hi = np.nanmin(vals + [0]), np.nanmax(vals + [0])
+        pad = 0.2 * ((hi - lo) or 10)
+        ax.set_ylim(lo - pad, hi + pad)
+    fig.suptitle(title, fontsize=11)
+    return fig
+
+
+def likert_figure(
+    table: pd.DataFrame, *, items: Sequence[str], conditions: Sequence[tuple[str, str]], points: int, title: str
+) -> Figure:
+    """Mean Likert score (± SE) per item, bars per condition. ``table``: item, level, mean, se, n."""
+    fig, (ax,) = _figure(1, panel_w=max(6.0, 1.6 * len(items) + 1.5), panel_h=3.8)
+    width = 0.8 / max(len(conditions), 1)
+    for ci, (cid, clabel) in enumerate(conditions):
+        sel = table[table["level"] == cid]
+        xs, ys, es = [], [], []
+        for ii, item in enumerate(items):
+            row = sel[sel["item"] == item]
+            if row.empty:
+                continue
+            xs.append(ii + (ci - (len(conditions) - 1) / 2) * width)
+            ys.append(float(row["mean"].iloc[0]))
+            es.append(float(row["se"].iloc[0]) if np.isfinite(row["se"].iloc[0]) else 0.0)
+        ax.bar(xs, ys, width=width * 0.9, color=PALETTE[ci % len(PALETTE)], alpha=0.8, label=clabel)
+        ax.errorbar(xs, ys, yerr=es, fmt="none", ecolor="black", elinewidth=0.8, capsize=2)
+        for x, y in zip(xs, ys, strict=True):
+            ax.text(x, y + 0.05, f"{y:.1f}", ha="center", va="bottom", fontsize=7)
+    ax.set_xticks(range(len(items)), [i.replace("_", " ") for i in items], fontsize=8)
+    ax.set_ylim(1 if points > 1 else 0, points + 0.6)
+    ax.set_ylabel(f"mean score (1–{points}) ± SE")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8, frameon=False, ncols=len(conditions), loc="upper center", bbox_to_anchor=(0.5, 1.13))
+    fig.suptitle(title, fontsize=11)
+    return fig
+
+
+def trace_figure(
+    traces: pd.DataFrame,
+    *,
+    panels: Sequence[str],
+    channels: Sequence[tuple[str, str, str]],
+    title: str,
+    x_label: str = "time (s)",
+    shade: str | None = None,
+    threshold: float | None = None,
+) -> Figure:
+    """Time series per panel (condition): ``traces`` columns panel, x, and one column per channel.
+
+    ``channels``: (column, label, axis) with axis "left" or "right" (a second y axis for commands).
+    ``shade``: a boolean column; its true spans are shaded (tumour contact). ``threshold`` draws the
+    contact force threshold as a dotted line.
+    """
+    fig, axes = _figure(len(panels), panel_w=4.6, panel_h=3.0, cols=min(2, len(panels)))
+    for ax, panel in zip(axes, panels, strict=True):
+        sel = traces[traces["panel"] == panel]
+        right = None
+        handles = []
+        for i, (col, lbl, side) in enumerate(channels):
+            if col not in sel:
+                continue
+            target = ax
+            if side == "right":
+                right = right or ax.twinx()
+                target = right
+            (h,) = target.plot(sel["x"], sel[col], color=PALETTE[i % len(PALETTE)], linewidth=1.2, label=lbl)
+            handles.append(h)
+        if shade and shade in sel and sel[shade].any():
+            x = sel["x"].to_numpy()
+            on = sel[shade].to_numpy(dtype=bool)
+            edges = np.flatnonzero(np.diff(np.r_[0, on.astype(int), 0]))
+            for a, b in zip(edges[::2], edges[1::2], strict=True):
+                ax.axvspan(x[a], x[min(b, len(x)) - 1], color="gray", alpha=0.15, linewidth=0)
+        if threshold is not None:
+            ax.axhline(threshold, color="black", linestyle=":", linewidth=0.9)
+        ax.set_title(str(panel), fontsize=10)
+        ax.set_xlabel(x_label)
+        left = [lbl for _, lbl, side in channels if side == "left"]
+        ax.set_ylabel(left[0] if len(left) == 1 else "value")
+        if right is not None:
+            rl = [lbl for _, lbl, side in channels if side == "right"]
+            right.set_ylabel(rl[0] if len(rl) == 1 else "command")
+        ax.grid(alpha=0.3)
+        if handles:
+            ax.legend(handles=handles, fontsize=7, frameon=False, loc="upper right")
+    fig.suptitle(title, fontsize=11)
+    return fig
+
+
+def message_figure(text: str, *, title: str) -> Figure:
+    """A placeholder figure that says why the real one could not be drawn (never a silent gap)."""
+    fig, (ax,) = _figure(1, panel_w=6, panel_h=2)
+    ax.axis("off")
+    ax.text(0.5, 0.5, text, ha="center", va="center", wrap=True, fontsize=9)
+    fig.suptitle(title, fontsize=11)
+    return fig
