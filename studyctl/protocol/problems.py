@@ -49,7 +49,13 @@ def show(value: object) -> str:
     if isinstance(value, dict):
         return "a mapping" if value else "an empty mapping"
     if isinstance(value, list):
-        return "a list" if value else "an empty list"
+        if not value:
+            return "an empty list"
+        if all(isinstance(v, (str, int, float)) and not isinstance(v, bool) for v in value):
+            text = "[" + ", ".join(str(v) for v in value) + "]"
+            if len(text) <= 60:
+                return text
+        return "a list"
     if value is None:
         return "null"
     text = repr(value)
