@@ -6,6 +6,7 @@ its reference errors reported in the same ``check``: every check tolerates missi
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator
 from importlib import metadata
@@ -41,9 +42,17 @@ def _items(data: Any, *path: str | int) -> Iterator[tuple[int, Any]]:
         yield from enumerate(node)
 
 
+@functools.cache
+def _registered(group: str) -> tuple[str, ...]:
+    return tuple(sorted({ep.name for ep in metadata.entry_points(group=group)}))
+
+
 def plugin_names(kind: str) -> list[str]:
-    """Names registered under the entry-point group of a plugin kind (controller, device, scene, participant)."""
-    return sorted({ep.name for ep in metadata.entry_points(group=PLUGIN_GROUPS[kind])})
+    """Names registered under the entry-point group of a plugin kind (controller, device, scene, participant).
+
+    Read once per process: installing a plugin package takes effect in the next studyctl run.
+    """
+    return list(_registered(PLUGIN_GROUPS[kind]))
 
 
 class _Checker:

@@ -166,7 +166,8 @@ def test_more_reference_and_feasibility_errors(write, valid_text):
     assert "conditions[0].controller: a manual condition runs no controller: found 'none', allowed null" in joined
     assert "counterbalance.orders: orders are only used by the explicit scheme, not williams" in joined
     assert "counterbalance.block_size: block_size is only used by allocation 'blocked', not 'alternating'" in joined
-    assert "instruments[0].scale.anchors[0]: anchor code outside the scale: found 0, allowed a code from 1 to 5" in joined
+    assert ("instruments[0].scale.anchors[0]: anchor code outside the scale: found 0, allowed a code from 1 to 5"
+            in joined)
 
 
 def test_scans_on_request_need_the_scan_request(write, valid_text):
