@@ -52,6 +52,13 @@ def _spread(n: int, width: float) -> np.ndarray:
     return np.linspace(-width / 2, width / 2, n)
 
 
+def _wrap(label: str, width: int = 11) -> str:
+    """Break a tick label over lines so neighbouring labels never collide."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(label, width)) or label
+
+
 def _ylabel(label: str, unit: str) -> str:
     return f"{label} ({unit})" if unit else label
 
@@ -114,12 +121,12 @@ def box_panel(
             ax.scatter(
                 [], [], color=color, label=f"{glabel} (n={units.loc[units['group'] == gid, 'participant'].nunique()})"
             )
-    ax.set_xticks(range(len(cond_ids)), [lbl for _, lbl in conditions], rotation=0)
+    ax.set_xticks(range(len(cond_ids)), [_wrap(lbl) for _, lbl in conditions], fontsize=8)
     ax.set_xlim(-0.6, len(cond_ids) - 0.4)
     ax.set_ylabel(_ylabel(label, unit))
     ax.grid(axis="y", alpha=0.3)
     if groups:
-        ax.legend(fontsize=8, frameon=False, loc="best")
+        ax.legend(fontsize=8, frameon=False, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncols=len(groups))
     if not np.isfinite(top):
         ax.text(0.5, 0.5, "no values", transform=ax.transAxes, ha="center", va="center", color="gray")
         return
@@ -132,6 +139,8 @@ def box_panel(
             title += f"\n{_test_name(r['test'])} p = {fmt_p(r['p'])}"
         level = top + 0.06 * span
         pairs = marks[marks["kind"].isin(["posthoc", "pairwise", "two_sample"]) & (marks["compare"] == "condition")]
+        span_of = {i: _bracket_span(str(g), cond_ids) for i, g in zip(pairs.index, pairs["groups"], strict=True)}
+        pairs = pairs.loc[sorted(pairs.index, key=lambda i: span_of[i])]
         for _, r in pairs.iterrows():
             p = r["p_adj"] if np.isfinite(r["p_adj"]) else r["p"]
             sig = r["significant"] if r["significant"] is not None else (np.isfinite(p) and p < r["alpha"])
@@ -158,6 +167,13 @@ def box_panel(
                 ax.text(cond_ids.index(cid), top + 0.03 * span, stars(p) or "*", ha="center", fontsize=10)
         ax.set_ylim(top=max(level, top + 0.1 * span) + 0.05 * span)
     ax.set_title(title, fontsize=10)
+
+
+def _bracket_span(groups: str, cond_ids: list[str]) -> int:
+    a, _, b = groups.partition(" vs ")
+    if a in cond_ids and b in cond_ids:
+        return abs(cond_ids.index(a) - cond_ids.index(b))
+    return 99
 
 
 _TEST_NAMES = {
@@ -209,8 +225,9 @@ def proportion_figure(
             r = row.iloc[0]
             xs.append(ci + (li - (len(series) - 1) / 2) * width)
             est.append(r["estimate"])
-            lo.append(r["estimate"] - r["ci_low"])
-            hi.append(r["ci_high"] - r["estimate"])
+            # Clip rounding noise: an interval ending at the estimate gives a zero (never negative) arm.
+            lo.append(max(r["estimate"] - r["ci_low"], 0.0))
+            hi.append(max(r["ci_high"] - r["estimate"], 0.0))
             txt.append(f"{int(r['successes'])}/{int(r['chances'])}")
         color = PALETTE[li % len(PALETTE)]
         ax.bar(xs, est, width=width * 0.9, color=color, alpha=0.75, label=str(lv) if lv is not None else None)
@@ -226,8 +243,8 @@ def proportion_figure(
                 rotation=90 if len(series) > 2 else 0,
                 color="white" if e > 0.15 else "black",
             )
-    ax.set_xticks(range(len(cond_ids)), [lbl for _, lbl in conditions])
-    ax.set_ylim(0, 1.08)
+    ax.set_xticks(range(len(cond_ids)), [_wrap(lbl, 16) for _, lbl in conditions])
+    ax.set_ylim(0, 1.1)
     ax.set_ylabel(f"{label} (95% Wilson interval)")
     ax.grid(axis="y", alpha=0.3)
     if levels:
