@@ -6,7 +6,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
@@ -93,6 +93,20 @@ class TestRow:
 
     def with_(self, **changes: object) -> TestRow:
         return TestRow(**{**asdict(self), **changes})
+
+
+@dataclass(frozen=True)
+class FigureData:
+    """Data a figure needs beyond the result tables (sample traces, model curves), and how to draw it.
+
+    ``frame`` has a ``panel`` column, an ``x`` column and one column per channel; ``meta`` says which
+    channels to draw (``channels``: (column, label, "left"|"right")), the x label, a shaded boolean column
+    and a threshold line. ``problem`` says why the data are incomplete ('' when they are not).
+    """
+
+    frame: pd.DataFrame
+    meta: Mapping[str, Any] = field(default_factory=dict)
+    problem: str = ""
 
 
 @dataclass(frozen=True)

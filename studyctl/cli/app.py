@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "studyctl.cli.study",
     "studyctl.cli.db",
     "studyctl.cli.audit",
+    "studyctl.cli.analysis",
 )
 
 app = typer.Typer(

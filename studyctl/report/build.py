@@ -26,26 +26,18 @@ import os
 import tempfile
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
+from studyctl.analysis.results import FigureData
 from studyctl.errors import ConfigError
 
 if TYPE_CHECKING:
     from studyctl.analysis.results import AnalysisResult
-
-
-@dataclass(frozen=True)
-class FigureData:
-    """Data a figure needs beyond the result tables (sample traces, model curves), and how to draw it."""
-
-    frame: pd.DataFrame
-    meta: Mapping[str, Any] = field(default_factory=dict)
-    problem: str = ""
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from studyctl.analysis.plan import FigureEntry
-    from studyctl.analysis.results import AnalysisResult
-    from studyctl.report.build import FigureData
+    from studyctl.analysis.results import AnalysisResult, FigureData
 
 
 def _conditions(result: AnalysisResult, present: pd.Series | None = None) -> list[tuple[str, str]]:
