@@ -325,27 +325,28 @@ def trace_figure(
     x_label: str = "time (s)",
     shade: str | None = None,
     threshold: float | None = None,
+    right_limits: tuple[float, float] | None = (0.0, 105.0),
 ) -> Figure:
     """Time series per panel (condition): ``traces`` columns panel, x, and one column per channel.
 
-    ``channels``: (column, label, axis) with axis "left" or "right" (a second y axis for commands).
-    ``shade``: a boolean column; its true spans are shaded (tumour contact). ``threshold`` draws the
-    contact force threshold as a dotted line.
+    ``channels``: (column, label, axis) with axis "left" or "right" (a second y axis for commands, drawn
+    within ``right_limits``). ``shade``: a boolean column whose true spans are shaded (tumour contact).
+    ``threshold`` draws the contact threshold as a dotted line. One legend for the whole figure.
     """
-    fig, axes = _figure(len(panels), panel_w=4.6, panel_h=3.0, cols=min(2, len(panels)))
+    fig, axes = _figure(len(panels), panel_w=4.6, panel_h=2.9, cols=min(2, len(panels)))
+    legend: dict[str, Any] = {}
     for ax, panel in zip(axes, panels, strict=True):
         sel = traces[traces["panel"] == panel]
         right = None
-        handles = []
         for i, (col, lbl, side) in enumerate(channels):
-            if col not in sel:
+            if col not in sel or sel[col].isna().all():
                 continue
             target = ax
             if side == "right":
                 right = right or ax.twinx()
                 target = right
             (h,) = target.plot(sel["x"], sel[col], color=PALETTE[i % len(PALETTE)], linewidth=1.2, label=lbl)
-            handles.append(h)
+            legend.setdefault(lbl, h)
         if shade and shade in sel and sel[shade].any():
             x = sel["x"].to_numpy()
             on = sel[shade].to_numpy(dtype=bool)
@@ -353,17 +354,28 @@ def trace_figure(
             for a, b in zip(edges[::2], edges[1::2], strict=True):
                 ax.axvspan(x[a], x[min(b, len(x)) - 1], color="gray", alpha=0.15, linewidth=0)
         if threshold is not None:
+            (h,) = ax.plot([], [], color="black", linestyle=":", linewidth=0.9, label="contact threshold")
             ax.axhline(threshold, color="black", linestyle=":", linewidth=0.9)
+            legend.setdefault("contact threshold", h)
         ax.set_title(str(panel), fontsize=10)
         ax.set_xlabel(x_label)
         left = [lbl for _, lbl, side in channels if side == "left"]
         ax.set_ylabel(left[0] if len(left) == 1 else "value")
         if right is not None:
             rl = [lbl for _, lbl, side in channels if side == "right"]
-            right.set_ylabel(rl[0] if len(rl) == 1 else "command")
+            right.set_ylabel(rl[0] if len(rl) == 1 else "command (%)")
+            if right_limits is not None:
+                right.set_ylim(*right_limits)
         ax.grid(alpha=0.3)
-        if handles:
-            ax.legend(handles=handles, fontsize=7, frameon=False, loc="upper right")
+    if legend:
+        fig.legend(
+            list(legend.values()),
+            list(legend),
+            loc="outside lower center",
+            ncols=len(legend),
+            fontsize=8,
+            frameon=False,
+        )
     fig.suptitle(title, fontsize=11)
     return fig
 
