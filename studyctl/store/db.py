@@ -212,7 +212,7 @@ def schema_state(engine: Engine) -> SchemaState:
     """Read the database's alembic revision (None when it was never migrated)."""
     with engine.connect() as conn:
         current = MigrationContext.configure(conn).get_current_revision()
-        has_tables = bool(inspect(conn).get_table_names())
+        has_tables = bool(set(inspect(conn).get_table_names()) - {"alembic_version"})
     return SchemaState(current=current, head=head_revision(), has_tables=has_tables)
 
 
