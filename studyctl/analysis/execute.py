@@ -275,7 +275,7 @@ class _EntryRunner:
                 if n < 1:
                     raise StatsInputError("no participant has values in both levels")
                 res = stats.signed_rank(matrix[:, 0], matrix[:, 1], **opts)
-                n_r = int(_get(res, "n_nonzero", "n_effective", "n", default=n))
+                n_r = int(_get(res, "n_used", "n_nonzero", "n", default=n))
                 w_min = _f(_get(res, "w_min"))
                 row = self.row(
                     metric,
@@ -666,7 +666,7 @@ class _EntryRunner:
                 d, lo, hi = _f(res.difference), _f(res.lower), _f(res.upper)
                 # The margin on the side of the difference towards zero (the papers' "CI" column): a pair
                 # differs when |Δp| exceeds it, i.e. when the interval excludes 0.
-                margin = d - lo if d > 0 else (hi - d if d < 0 else NAN)
+                margin = _f(_get(res, "margin", default=d - lo if d > 0 else (hi - d if d < 0 else NAN)))
                 sig = bool(abs(d) > margin) if d != 0 else False
                 warn = "equal proportions: no margin towards zero (the paper prints NULL)" if d == 0 else ""
                 out.append(
@@ -738,15 +738,20 @@ class _EntryRunner:
 
 
 def _pair_index(r: pd.Series, levels: list[str]) -> tuple[int, int]:
-    """Indices of the two groups of a pairwise row (names or 0-/1-based positions)."""
+    """Indices of the two groups of a pairwise row: level names, else R-style 1-based group numbers."""
     out = []
     for key in ("group1", "group2"):
         v = r[key]
         if isinstance(v, str) and v in levels:
             out.append(levels.index(v))
-        else:
+            continue
+        try:
             iv = int(v)
-            out.append(iv if 0 <= iv < len(levels) and str(v) != str(len(levels)) else iv - 1)
+        except (TypeError, ValueError):
+            raise StatsInputError(f"pairwise result names an unknown group {v!r}") from None
+        if not 1 <= iv <= len(levels):
+            raise StatsInputError(f"pairwise result group number {iv} is outside 1..{len(levels)}")
+        out.append(iv - 1)
     return out[0], out[1]
 
 
