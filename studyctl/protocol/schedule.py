@@ -473,7 +473,8 @@ def allocate_strata(protocol: Protocol, participants: int) -> list[tuple[str, in
     """(stratum, slot) for participants 1..N of a simulated enrollment.
 
     Strata get participants in proportion to their ``target_n`` (equal shares without targets, largest
-    remainders first), enrolled stratum after stratum.
+    remainders first), enrolled stratum after stratum. Slots count within each stratum, or across the
+    study when ``counterbalance.within_strata`` is false.
     """
     if participants < 0:
         raise UsageError(f"number of participants must be >= 0, got {participants}")
@@ -484,7 +485,10 @@ def allocate_strata(protocol: Protocol, participants: int) -> list[tuple[str, in
     counts = [int(x) for x in exact]
     for i in sorted(range(len(strata)), key=lambda i: -(exact[i] - counts[i]))[: participants - sum(counts)]:
         counts[i] += 1
-    return [(s.id, slot) for s, count in zip(strata, counts, strict=True) for slot in range(count)]
+    pairs = [(s.id, slot) for s, count in zip(strata, counts, strict=True) for slot in range(count)]
+    if not protocol.counterbalance.within_strata:  # one slot sequence across the whole study
+        pairs = [(stratum, index) for index, (stratum, _) in enumerate(pairs)]
+    return pairs
 
 
 def expand_many(protocol: Protocol, *, seed: int, participants: int) -> list[Schedule]:

@@ -179,6 +179,16 @@ def test_allocate_strata_by_target(mini):
     assert rows["participant"].tolist() == [1] * 4 + [2] * 4 + [3] * 4
 
 
+def test_counterbalancing_across_strata(valid_text):
+    protocol = _variant(valid_text, "  scheme: williams", "  scheme: williams\n  within_strata: false")
+    assert allocate_strata(protocol, 4) == [("novice", 0), ("novice", 1), ("expert", 2), ("expert", 3)]
+    a = expand_schedule(protocol, seed=1, slot=2, stratum="novice")
+    b = expand_schedule(protocol, seed=1, slot=2, stratum="expert")
+    assert a.entries == b.entries and a.stratum != b.stratum
+    orders = [s.order for s in expand_many(protocol, seed=1, participants=4)]
+    assert len(set(orders)) == 4
+
+
 # ---------------------------------------------------------------------------- reference protocols
 
 
