@@ -8,6 +8,7 @@ written beside it; values no source gives are marked **chosen** with the reason.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -77,6 +78,28 @@ class SensorCalibration:
         out = np.clip(np.rint(idx), 0, self.adc_max).astype(int)
         return int(out) if out.ndim == 0 else out
 
+    def force_of_count(self, count: int) -> float:
+        """Scalar fast path of :meth:`force` for one integer count already known to be in range."""
+        a = count / self.counts_per_unit
+        return ((self.c3 * a + self.c2) * a + self.c1) * a + self.c0
+
+    def count_of_force(self, force_n: float) -> int:
+        """Scalar fast path of :meth:`counts`: nearest ADC count for a finite force, saturating."""
+        table = self._table_list()
+        i = bisect.bisect_left(table, force_n)
+        if i <= 0:
+            return 0
+        if i >= len(table):
+            return self.adc_max
+        lo, hi = table[i - 1], table[i]
+        return i if (force_n - lo) >= (hi - force_n) else i - 1
+
+    def _table_list(self) -> list[float]:
+        cached = _LISTS.get(self)
+        if cached is None:
+            cached = _LISTS[self] = self._table().tolist()
+        return cached
+
     def _table(self) -> np.ndarray:
         table = _TABLES.get(self)
         if table is None:
@@ -93,6 +116,7 @@ class SensorCalibration:
 
 
 _TABLES: dict[SensorCalibration, np.ndarray] = {}
+_LISTS: dict[SensorCalibration, list[float]] = {}
 A201 = SensorCalibration()
 
 

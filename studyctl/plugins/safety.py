@@ -76,6 +76,7 @@ class SafetyLayer:
         self._active: dict[tuple[str, str], tuple[float, int]] = {}
         self._fault_causes: dict[str, float] = {}  # cause -> start time
         self._ramping = False
+        self._rate_limited = any(c.max_rate_per_s is not None for c in limits.outputs)
 
     # -- state -------------------------------------------------------------------------------------
     def enable(self, t: float) -> None:
@@ -140,6 +141,11 @@ class SafetyLayer:
             start, n = self._active.pop(key)
             self._event(t, "safety", rule, channel=channel, state="end", ticks=n, duration_s=t - start)
 
+    def _quiet(self, t: float, rule: str, channel: str) -> None:
+        """The rule did not fire: close its start/end pair if one is open (cheap when none is)."""
+        if self._active and (rule, channel) in self._active:
+            self._mark(t, rule, channel, False)
+
     # -- watchdog ----------------------------------------------------------------------------------
     def _check_watchdog(self, t: float, obs: Observation | None) -> dict[str, dict[str, Any]]:
         causes: dict[str, dict[str, Any]] = {}
@@ -152,7 +158,7 @@ class SafetyLayer:
                 causes["stale_sensor"] = {"age_s": t - obs.sample_t, "limit_s": self.limits.sensor_stale_s}
             if obs.faults:
                 causes["sensor_fault"] = {"faults": list(obs.faults)}
-            bad = [k for k, v in obs.values.items() if not _finite_number(v)]
+            bad = [k for k, v in obs.values.items() if not (type(v) is float and v - v == 0.0) and not _finite_number(v)]
             if bad:
                 causes["sensor_non_finite"] = {"channels": bad}
         return causes
@@ -188,9 +194,12 @@ class SafetyLayer:
             self._mark(t, "invalid_command", "*", True, type=type(command).__name__)
             command = {}
         else:
-            self._mark(t, "invalid_command", "*", False)
-        unknown = sorted(str(k) for k in command if k not in self._by_name)
-        self._mark(t, "unknown_channel", "*", bool(unknown), channels=unknown)
+            self._quiet(t, "invalid_command", "*")
+        unknown = [k for k in command if k not in self._by_name]
+        if unknown:
+            self._mark(t, "unknown_channel", "*", True, channels=sorted(map(str, unknown)))
+        else:
+            self._quiet(t, "unknown_channel", "*")
         if self._fault_causes or self._enabled_at is None:
             out = self.safe_command()
             self._last_out = dict(out)
@@ -199,22 +208,33 @@ class SafetyLayer:
         values: dict[str, float] = {}
         for name, limit in self._by_name.items():
             raw = command.get(name, limit.safe)
-            ok = _finite_number(raw)
-            self._mark(t, "non_finite_command", name, not ok, value=repr(raw))
-            value = float(raw) if ok else limit.safe
-            clamped = min(max(value, limit.low), limit.high)
-            self._mark(t, "clamped", name, clamped != value, value=value, low=limit.low, high=limit.high)
-            values[name] = clamped
+            if type(raw) is float and raw - raw == 0.0:  # fast path: a finite float
+                value = raw
+                self._quiet(t, "non_finite_command", name)
+            elif _finite_number(raw):
+                value = float(raw)
+                self._quiet(t, "non_finite_command", name)
+            else:
+                self._mark(t, "non_finite_command", name, True, value=repr(raw))
+                value = limit.safe
+            if value < limit.low or value > limit.high:
+                clamped = limit.low if value < limit.low else limit.high
+                self._mark(t, "clamped", name, True, value=value, low=limit.low, high=limit.high)
+                value = clamped
+            else:
+                self._quiet(t, "clamped", name)
+            values[name] = value
 
         if self.limits.max_force_n is not None:
             present = [c for c in FORCE_CHANNELS if c in values]
             norm = math.sqrt(sum(values[c] ** 2 for c in present))
-            over = norm > self.limits.max_force_n
-            self._mark(t, "force_norm", "force", over, norm_n=norm, max_n=self.limits.max_force_n)
-            if over:
+            if norm > self.limits.max_force_n:
+                self._mark(t, "force_norm", "force", True, norm_n=norm, max_n=self.limits.max_force_n)
                 scale = self.limits.max_force_n / norm
                 for c in present:
                     values[c] *= scale
+            else:
+                self._quiet(t, "force_norm", "force")
 
         if self._ramping:
             ramp = self.limits.ramp_up_s
@@ -225,21 +245,22 @@ class SafetyLayer:
                 self._ramping = False
                 self._event(t, "safety", "ramp_done", ramp_up_s=ramp)
 
-        step_dt = dt if dt is not None and dt > 0 else self.period_s
-        for name, limit in self._by_name.items():
-            if limit.max_rate_per_s is None or step_dt is None or name not in self._last_out:
-                continue
-            prev = self._last_out[name]
-            max_step = limit.max_rate_per_s * step_dt
-            delta = values[name] - prev
-            limited = abs(delta) > max_step
-            self._mark(t, "rate_limited", name, limited, requested=values[name], rate_per_s=limit.max_rate_per_s)
-            if limited:
-                values[name] = prev + math.copysign(max_step, delta)
-            values[name] = min(max(values[name], limit.low), limit.high)
+        if self._rate_limited:
+            step_dt = dt if dt is not None and dt > 0 else self.period_s
+            for name, limit in self._by_name.items():
+                if limit.max_rate_per_s is None or step_dt is None or name not in self._last_out:
+                    continue
+                prev = self._last_out[name]
+                max_step = limit.max_rate_per_s * step_dt
+                delta = values[name] - prev
+                if abs(delta) > max_step:
+                    self._mark(t, "rate_limited", name, True, requested=values[name], rate_per_s=limit.max_rate_per_s)
+                    values[name] = min(max(prev + math.copysign(max_step, delta), limit.low), limit.high)
+                else:
+                    self._quiet(t, "rate_limited", name)
 
-        self._last_out = dict(values)
-        return values
+        self._last_out = values
+        return dict(values)
 
 
 def _finite_number(value: Any) -> bool:

@@ -1,0 +1,224 @@
+"""A driver-board emulator that speaks :mod:`studyctl.devices.board_protocol` over UDP, as its own process.
+
+Run it, then point a ``udp_driver_board`` device at the printed port::
+
+    python -m studyctl.devices.board_emulator --port 0 --force 0.8
+    READY 50123
+
+It streams SENSOR packets (the force of ``--force`` or ``--profile`` through the A201 calibration and a
+10-bit ADC) to the host that said HELLO, applies COMMANDs to modelled actuators (balloon and motor of
+:mod:`studyctl.models.palpation_hw`), enforces its own output watchdog, and can misbehave on purpose for
+tests: ``--adc-glitch START:DURATION`` sends an out-of-range ADC value, ``--silence-after S`` stops
+sending (a cable pulled), ``--log FILE`` writes every received command and event as JSON lines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import select
+import signal
+import socket
+import sys
+import time
+from dataclasses import dataclass, field
+
+from studyctl.devices import board_protocol as bp
+from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
+
+FIRMWARE = 0x0100
+
+
+def trapezoid(t: float, peak: float, rate: float, hold: float, rest: float) -> float:
+    """A repeating trapezoid: ramp up at ``rate`` N/s to ``peak``, hold, ramp down, rest."""
+    ramp = peak / rate if rate > 0 else 0.0
+    period = 2 * ramp + hold + rest
+    u = t % period if period > 0 else 0.0
+    if u < ramp:
+        return rate * u
+    if u < ramp + hold:
+        return peak
+    if u < 2 * ramp + hold:
+        return peak - rate * (u - ramp - hold)
+    return 0.0
+
+
+@dataclass
+class Board:
+    """The emulated board's state; :meth:`tick` and :meth:`receive` are all the firmware there is."""
+
+    force_fn: object
+    rate_hz: float = 50.0
+    watchdog_ms: int = 250
+    glitch: tuple[float, float] | None = None
+    silence_after: float | None = None
+    log_path: str | None = None
+    host: tuple[str, int] | None = None
+    start: float = field(default_factory=time.monotonic)
+    hello_at: float | None = None
+    last_command: float | None = None
+    balloon: float = 0.0
+    vibration: float = 0.0
+    psi: float = 0.0
+    speed: float = 0.0
+    seq: int = 0
+    rejected: int = 0
+    dropped: int = 0
+    status_flags: int = 0
+    _last_dyn: float | None = None
+
+    def now(self) -> float:
+        return time.monotonic() - self.start
+
+    def log(self, **entry) -> None:
+        if self.log_path:
+            with open(self.log_path, "a", encoding="utf-8") as fh:
+                fh.write(json.dumps({"t": round(self.now(), 6), **entry}) + "\n")
+
+    def receive(self, data: bytes, addr: tuple[str, int], sock: socket.socket) -> None:
+        try:
+            pkt = bp.decode(data)
+        except bp.ProtocolError as exc:
+            self.dropped += 1
+            self.log(event="dropped", reason=str(exc))
+            return
+        now = self.now()
+        if pkt.type == bp.HELLO:
+            rate, wd = pkt.fields
+            self.host, self.hello_at, self.last_command = addr, now, now
+            self.rate_hz = float(rate) if rate else self.rate_hz
+            self.watchdog_ms = int(wd) if wd else self.watchdog_ms
+            self.seq += 1
+            sock.sendto(bp.encode(bp.STATUS, self.seq, FIRMWARE, A201.adc_bits, int(self.rate_hz),
+                                  self.watchdog_ms, self.rejected), addr)
+            self.log(event="hello", host=list(addr), rate_hz=self.rate_hz, watchdog_ms=self.watchdog_ms)
+        elif pkt.type == bp.COMMAND:
+            b, v = pkt.fields
+            if b > 100 * bp.SCALE or v > 100 * bp.SCALE:
+                self.rejected += 1
+                self.status_flags |= bp.ST_REJECTED
+                self.log(event="rejected", balloon=b, vibration=v)
+                return
+            self.balloon, self.vibration = b / bp.SCALE, v / bp.SCALE
+            self.last_command = now
+            self.status_flags &= ~bp.ST_WATCHDOG
+            self.log(event="command", seq=pkt.seq, balloon_pct=self.balloon, vibration_pct=self.vibration)
+        elif pkt.type in (bp.SAFE, bp.BYE):
+            self.balloon = self.vibration = 0.0
+            self.log(event="safe" if pkt.type == bp.SAFE else "bye")
+            if pkt.type == bp.BYE:
+                self.host = None
+        else:
+            self.dropped += 1
+
+    def tick(self, sock: socket.socket) -> None:
+        """Watchdog, actuator dynamics and one SENSOR packet."""
+        now = self.now()
+        if self.host is None:
+            return
+        if self.last_command is not None and (now - self.last_command) * 1000 > self.watchdog_ms:
+            if not self.status_flags & bp.ST_WATCHDOG:
+                self.log(event="watchdog_tripped", since_command_s=now - self.last_command)
+            self.status_flags |= bp.ST_WATCHDOG
+            self.balloon = self.vibration = 0.0
+        dt = 0.0 if self._last_dyn is None else now - self._last_dyn
+        self._last_dyn = now
+        self.psi = BalloonModel().step(self.psi, self.balloon, dt)
+        self.speed = VibrationMotorModel().step(self.speed, self.vibration, dt)
+        if self.silence_after is not None and self.hello_at is not None and now - self.hello_at >= self.silence_after:
+            return
+        force = float(self.force_fn(now))
+        adc = A201.count_of_force(force)
+        flags = self.status_flags
+        if self.glitch and self.glitch[0] <= now < self.glitch[0] + self.glitch[1]:
+            adc = A201.adc_max + 77
+            flags |= bp.ST_ADC_FAULT
+        if self.psi >= BalloonModel().regulator_psi:
+            flags |= bp.ST_REGULATOR
+        self.seq += 1
+        sock.sendto(
+            bp.encode(bp.SENSOR, self.seq, int(now * 1e6) & 0xFFFFFFFF, adc, flags,
+                      int(round(self.balloon * bp.SCALE)), int(round(self.vibration * bp.SCALE))),
+            self.host,
+        )
+        self.status_flags &= ~bp.ST_REJECTED
+
+
+def serve(args: argparse.Namespace) -> int:
+    if args.profile:
+        parts = args.profile.split(":")
+        if parts[0] != "trapezoid" or len(parts) != 5:
+            print("Error: --profile must be trapezoid:PEAK_N:RATE_N_S:HOLD_S:REST_S", file=sys.stderr)
+            return 2
+        peak, rate, hold, rest = (float(x) for x in parts[1:])
+
+        def force_fn(t: float) -> float:
+            return trapezoid(t, peak, rate, hold, rest)
+    else:
+        const = float(args.force)
+
+        def force_fn(t: float) -> float:
+            return const
+    glitch = None
+    if args.adc_glitch:
+        a, b = args.adc_glitch.split(":")
+        glitch = (float(a), float(b))
+    board = Board(force_fn, rate_hz=args.rate, watchdog_ms=args.watchdog_ms, glitch=glitch,
+                  silence_after=args.silence_after, log_path=args.log)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind((args.host, args.port))
+    sock.setblocking(False)
+    stop = {"flag": False}
+
+    def _stop(*_):
+        stop["flag"] = True
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    print(f"READY {sock.getsockname()[1]}", flush=True)
+    next_tick = board.now()
+    deadline = board.now() + args.max_runtime
+    while not stop["flag"] and board.now() < deadline:
+        timeout = max(0.0, next_tick - board.now())
+        ready, _, _ = select.select([sock], [], [], timeout)
+        if ready:
+            while True:
+                try:
+                    data, addr = sock.recvfrom(2048)
+                except BlockingIOError:
+                    break
+                board.receive(data, addr, sock)
+        if board.now() >= next_tick:
+            board.tick(sock)
+            period = 1.0 / board.rate_hz if board.rate_hz > 0 else 0.02
+            next_tick += period
+            if board.now() - next_tick > 10 * period:  # fell behind (suspended): resynchronise
+                next_tick = board.now() + period
+    board.log(event="exit", dropped=board.dropped, rejected=board.rejected)
+    sock.close()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m studyctl.devices.board_emulator", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
+    parser.add_argument("--port", type=int, default=0, help="UDP port (0: any free port, printed as READY <port>)")
+    parser.add_argument("--rate", type=float, default=50.0, help="sensor packets per second before HELLO sets it")
+    parser.add_argument("--watchdog-ms", type=int, default=250, help="output watchdog before HELLO sets it")
+    parser.add_argument("--force", type=float, default=0.0, help="constant force on the sensor, N")
+    parser.add_argument("--profile", help="trapezoid:PEAK_N:RATE_N_S:HOLD_S:REST_S (repeats)")
+    parser.add_argument("--adc-glitch", help="START_S:DURATION_S of out-of-range ADC values")
+    parser.add_argument("--silence-after", type=float, help="stop sending sensor packets S seconds after HELLO")
+    parser.add_argument("--log", help="append received commands and events to this JSON-lines file")
+    parser.add_argument("--max-runtime", type=float, default=120.0, help="exit after this many seconds")
+    args = parser.parse_args(argv)
+    if not math.isfinite(args.force):
+        parser.error("--force must be finite")
+    return serve(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

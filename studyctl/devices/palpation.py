@@ -1,0 +1,172 @@
+"""Simulated palpation hardware: the sensorised forceps in a scene, the balloon and the vibration motor.
+
+Reading asks the scene for the force on the probe at the participant's current probe pose, passes it
+through the force sensor and its 10-bit ADC (noise and quantisation; :mod:`studyctl.models.palpation_hw`)
+and reports the calibrated force. Writing sets the actuators' control amounts; :meth:`feedback` gives what
+they deliver (balloon pressure, vibration frequency and acceleration) after their dynamics.
+
+Channels
+--------
+read: ``adc`` (counts), ``force_n`` (calibrated), ``pressure_kpa`` (over the sensing area), and the probe
+pose ``probe_x_mm``, ``probe_y_mm``, ``depth_mm`` (simulation only; for contact metrics).
+write: ``balloon_pct``, ``vibration_pct`` (0-100).
+feedback: ``balloon_psi``, ``vibration_hz``, ``vibration_ms2``.
+
+Faults can be injected for rehearsals and tests (``faults: [{kind, start_s, end_s}]``, kind ``stale``,
+``adc_out_of_range`` or ``nan``); the safety layer must then hold the safe state.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from studyctl.errors import DeviceError, ModelParameterError
+from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
+from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
+from studyctl.plugins.params import Param, validate_params
+
+FAULT_KINDS = ("stale", "adc_out_of_range", "nan")
+
+
+def palpation_limits(ramp_up_s: float = 0.2, sensor_stale_s: float = 0.1) -> DeviceLimits:
+    """Output limits of the palpation driver board: control amounts 0-100, safe value 0 (both off).
+
+    The balloon's 20 psi ceiling is the regulator's (physical, in :class:`BalloonModel`); the control
+    range is the paper's 0-100. No rate limit: the valve array and the motor driver switch within a
+    50 Hz tick (the piecewise controller's steps are part of the design).
+    """
+    return DeviceLimits(
+        outputs=(
+            ChannelLimit("balloon_pct", 0.0, 100.0, safe=0.0, unit="%"),
+            ChannelLimit("vibration_pct", 0.0, 100.0, safe=0.0, unit="%"),
+        ),
+        sensor_stale_s=sensor_stale_s,
+        ramp_up_s=ramp_up_s,
+    )
+
+
+class SimulatedPalpationDevice(Device):
+    """Simulated force-sensing forceps with pneumatic balloon and vibration motor (seed 000 hardware)."""
+
+    name = "sim_palpation"
+    simulated = True
+    PARAMS = (
+        Param("sensor_noise_lsb", 0.5, 0.0, 50.0, unit="LSB", source="CHOSEN: ADC noise before quantisation"),
+        Param("ramp_up_s", 0.2, 0.0, 5.0, unit="s", source="CHOSEN: output ramp after enable"),
+        Param("sensor_stale_s", 0.1, 0.001, 10.0, unit="s", source="CHOSEN: 5 missed 50 Hz samples"),
+        Param("balloon_tau_s", BalloonModel.tau_s, 0.0, 5.0, unit="s", source="see BalloonModel"),
+        Param("motor_tau_s", VibrationMotorModel.tau_s, 0.0, 5.0, unit="s", source="see VibrationMotorModel"),
+        Param("faults", (), kind=tuple, source="studyctl: fault injection for tests and rehearsals"),
+    )
+
+    def __init__(
+        self,
+        params: Mapping[str, Any] | None = None,
+        scene: Scene | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        checked = validate_params("sim_palpation device", params, self.PARAMS)
+        super().__init__(checked, scene, rng)
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.limits = palpation_limits(checked["ramp_up_s"], checked["sensor_stale_s"])
+        self.sensor = A201
+        self.balloon = BalloonModel(tau_s=checked["balloon_tau_s"])
+        self.motor = VibrationMotorModel(tau_s=checked["motor_tau_s"])
+        self.faults = tuple(_check_fault(f) for f in checked["faults"])
+        self._open = False
+        self._inputs: dict[str, float] = {}
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self._command = {"balloon_pct": 0.0, "vibration_pct": 0.0}
+        self._psi = 0.0
+        self._speed = 0.0
+        self._t = None
+        self._last_sample: tuple[float, dict[str, float]] | None = None
+
+    # -- Device --------------------------------------------------------------------------------------
+    def open(self) -> None:
+        self._reset_state()
+        self._open = True
+
+    def close(self) -> None:
+        self._command = {"balloon_pct": 0.0, "vibration_pct": 0.0}
+        self._open = False
+
+    def apply_input(self, inputs: Channels) -> None:
+        self._inputs.update({k: float(v) for k, v in inputs.items()})
+
+    def read(self, t: float) -> Observation:
+        if not self._open:
+            raise DeviceError("sim_palpation device: read before open(); the engine must open the device first")
+        self._advance(t)
+        fault = self._fault_at(t)
+        if fault == "stale" and self._last_sample is not None:
+            sample_t, values = self._last_sample
+            return Observation(t, values, sample_t=sample_t)
+        pose = {
+            "probe_x_mm": self._inputs.get("x_mm", -1.0),
+            "probe_y_mm": self._inputs.get("y_mm", -1.0),
+            "depth_mm": self._inputs.get("depth_mm", 0.0),
+        }
+        force = 0.0
+        if self.scene is not None:
+            force = float(self.scene.sense({"x_mm": pose["probe_x_mm"], "y_mm": pose["probe_y_mm"],
+                                            "depth_mm": pose["depth_mm"]}).get("force_n", 0.0))
+        noise = self.params["sensor_noise_lsb"]
+        counts = self.sensor.count_of_force(force)
+        if noise > 0:
+            counts = int(min(max(round(counts + noise * self.rng.standard_normal()), 0), self.sensor.adc_max))
+        faults: tuple[str, ...] = ()
+        if fault == "adc_out_of_range":
+            counts = self.sensor.adc_max + 77  # what a glitching board might send
+        if 0 <= counts <= self.sensor.adc_max:
+            force_n = self.sensor.force_of_count(counts)
+        else:
+            force_n = math.nan
+            faults = (f"adc_out_of_range: {counts} not in 0..{self.sensor.adc_max}",)
+        if fault == "nan":
+            force_n = math.nan
+        values = {"adc": float(counts), "force_n": force_n,
+                  "pressure_kpa": self.sensor.pressure_kpa(force_n) if math.isfinite(force_n) else math.nan, **pose}
+        self._last_sample = (t, values)
+        return Observation(t, values, sample_t=t, faults=faults)
+
+    def write(self, command: Channels) -> None:
+        for name in self._command:
+            if name in command:
+                self._command[name] = float(command[name])
+
+    def feedback(self) -> dict[str, float]:
+        hz, ms2 = self.motor.output(self._speed)
+        return {"balloon_psi": self._psi, "vibration_hz": hz, "vibration_ms2": ms2}
+
+    # -- internals -----------------------------------------------------------------------------------
+    def _advance(self, t: float) -> None:
+        """Run the actuator dynamics from the previous read to ``t`` under the last command."""
+        if self._t is not None and t > self._t:
+            dt = t - self._t
+            self._psi = self.balloon.step(self._psi, self._command["balloon_pct"], dt)
+            self._speed = self.motor.step(self._speed, self._command["vibration_pct"], dt)
+        self._t = t
+
+    def _fault_at(self, t: float) -> str | None:
+        for f in self.faults:
+            if f["start_s"] <= t < f["end_s"]:
+                return f["kind"]
+        return None
+
+
+def _check_fault(f: Any) -> dict[str, Any]:
+    if not isinstance(f, Mapping) or f.get("kind") not in FAULT_KINDS:
+        raise ModelParameterError(
+            f"sim_palpation device: fault {f!r} must be a mapping with kind in {', '.join(FAULT_KINDS)}"
+        )
+    start, end = float(f.get("start_s", 0.0)), float(f.get("end_s", math.inf))
+    if not end > start >= 0:
+        raise ModelParameterError(f"sim_palpation device: fault {f!r} needs 0 ≤ start_s < end_s")
+    return {"kind": f["kind"], "start_s": start, "end_s": end}
