@@ -55,6 +55,12 @@ def run_trial(
     ``view`` renders a visual frame from the device inputs (the scene's CT slice or cursor view); it is
     called on each scan request (counted) or every tick in real-time visual conditions.
     ``should_stop`` is polled every tick and returns a reason ("abort", "pause") to end the trial.
+
+    Optional controller extras (duck-typed, so older controllers keep working): a ``diagnostics`` dict that
+    the controller updates in place each step (model state such as needle depth or tissue layer) is logged
+    with every sample and passed to ``view``; an ``events`` list of ``{"kind": …, …}`` dicts (puncture,
+    contact …) is drained into the event log each tick. ``view`` receives the participant's inputs
+    overlaid with the device's observation (the real pose, also with hardware) and the diagnostics.
     """
     events: list[dict[str, Any]] = []
 
@@ -83,6 +89,8 @@ def run_trial(
     ticks = 0
     ended_by = "time_limit"
     last_inputs: Mapping[str, float] = {}
+    diagnostics: Mapping[str, float] = getattr(controller, "diagnostics", None) or {}
+    controller_events: list[dict[str, Any]] | None = getattr(controller, "events", None)
     emit(0.0, "trial_loop_start", {"rate_hz": info.rate_hz})
     if watchdog is not None:
         watchdog.start()
@@ -114,6 +122,10 @@ def run_trial(
                 watchdog.kick()
             for ev in safety.drain_events():
                 emit(ev["t"], ev["kind"], {k: v for k, v in ev.items() if k not in ("t", "kind")})
+            if controller_events:
+                for ev in controller_events:
+                    emit(t, str(ev.get("kind", "controller")), {k: v for k, v in ev.items() if k != "kind"})
+                controller_events.clear()
             if safety.fault_duration(t) >= FAULT_ABORT_S:
                 ended_by = "fault"
                 break
@@ -123,9 +135,10 @@ def run_trial(
                 if request.kind == "scan":
                     if info.visual == "on_request":
                         scans += 1
-                        frame = view(last_inputs) if view is not None else None
+                        pose = {**last_inputs, **obs.values, **diagnostics}
+                        frame = view(pose) if view is not None else None
                         percept["scan"] = frame
-                        emit(t, "scan", {"count": scans, "pose": dict(last_inputs)})
+                        emit(t, "scan", {"count": scans, "pose": pose})
                 elif request.kind == "report":
                     report = {"t": t, **request.payload}
                     reports.append(report)
@@ -133,9 +146,9 @@ def run_trial(
                 elif request.kind == "finish":
                     finished = True
             if info.visual == "realtime" and view is not None:
-                percept["view"] = view(last_inputs)
+                percept["view"] = view({**last_inputs, **obs.values, **diagnostics})
             if on_sample is not None:
-                on_sample(t, {**obs.values, **written})
+                on_sample(t, {**obs.values, **written, **diagnostics})
             ticks += 1
             if finished:
                 ended_by = "finish"

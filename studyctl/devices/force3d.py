@@ -1,0 +1,284 @@
+"""A simulated 3-DoF force-feedback device (PHANToM Omni or omega.6 class) with a simulated hand.
+
+Inputs (from a virtual participant): ``x_mm``, ``y_mm``, ``z_mm`` — where the hand wants the handle —
+and optionally the pen axis ``dir_x``/``dir_y``/``dir_z`` and a ``button`` (0/1), passed through.
+Outputs (from the controller): ``fx_n``, ``fy_n``, ``fz_n`` in the device frame.
+
+With ``hand = "spring"`` (default) the handle is a mass held by the hand through a spring-damper towards
+the wanted position, and the rendered force acts on that mass: forces push the hand back, as on a real
+device. ``hand = "none"`` puts the handle exactly where the inputs say (kinematic, for scripted probes).
+The reported position is quantised to the encoder resolution and the velocity is a finite difference over
+``velocity_window_s`` (the Force Dimension SDK's default estimator window is 20 ms), so the controller sees
+realistic velocity noise. The force written in one tick acts during the next (zero-order hold).
+
+A reading that is not finite or jumps further than ``max_jump_mm`` in one tick puts the device in its
+safe state: zero force from then on, ``fault`` = 1 in every observation, and the reason in :attr:`fault`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from studyctl.errors import DeviceError, ModelParameterError
+from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
+
+# Device classes: peak force (N), from the CHAI3D driver specs (see research/haptics.md).
+DEVICE_CLASSES = {"omni": 3.3, "omega6": 12.0}
+
+DEFAULTS: dict[str, Any] = {
+    "device_class": "omni",
+    "max_force_n": None,  # None: the device class's peak force
+    "rate_hz": 1000.0,
+    "hand": "spring",
+    "hand_mass_kg": 0.5,  # handle plus the hand/forearm mass that moves with it
+    "hand_stiffness_n_per_m": 300.0,  # relaxed grip (100–500 N/m)
+    "hand_damping_ns_per_m": 8.0,
+    "resolution_mm": 0.01,
+    "velocity_window_s": 0.02,
+    "max_jump_mm": 5.0,  # 5 mm in 1 ms = 5 m/s: no hand moves like that
+    "ramp_up_s": 0.0,
+    "max_force_rate_n_per_s": None,
+}
+
+
+class SimulatedForceDevice(Device):
+    """Simulated 3-DoF force device; ``params`` as in :data:`DEFAULTS`, ``scene`` optional.
+
+    When a scene is given its :meth:`~studyctl.plugins.interfaces.Scene.sense` channels are added to every
+    observation (palpation scenes report pressures or depths there).
+    """
+
+    name = "sim_force3d"
+    simulated = True
+
+    def __init__(
+        self,
+        params: Mapping[str, Any] | None = None,
+        scene: Scene | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        super().__init__(params, scene, rng)
+        p = {**DEFAULTS}
+        for key, value in (params or {}).items():
+            if key not in DEFAULTS:
+                raise ModelParameterError(
+                    f"device sim_force3d: unknown parameter {key!r}; allowed: {', '.join(DEFAULTS)}"
+                )
+            p[key] = value
+        cls_name = str(p["device_class"]).lower().replace(".", "").replace("_", "")
+        if cls_name not in DEVICE_CLASSES:
+            raise ModelParameterError(
+                f"device sim_force3d: device_class = {p['device_class']!r}; allowed: {', '.join(DEVICE_CLASSES)}"
+            )
+        if p["max_force_n"] is None:
+            p["max_force_n"] = DEVICE_CLASSES[cls_name]
+        if p["hand"] not in ("spring", "none"):
+            raise ModelParameterError(f"device sim_force3d: hand = {p['hand']!r}; allowed: spring, none")
+        for key in ("max_force_n", "rate_hz", "hand_mass_kg", "resolution_mm", "velocity_window_s", "max_jump_mm"):
+            v = p[key]
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (v > 0 and math.isfinite(v)):
+                raise ModelParameterError(f"device sim_force3d: {key} = {v!r} must be a finite number > 0")
+        for key in ("hand_stiffness_n_per_m", "hand_damping_ns_per_m", "ramp_up_s"):
+            v = p[key]
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (v >= 0 and math.isfinite(v)):
+                raise ModelParameterError(f"device sim_force3d: {key} = {v!r} must be a finite number ≥ 0")
+        self.params = p
+        self.scene = scene
+        self.max_force_n = float(p["max_force_n"])
+        self.rate_hz = float(p["rate_hz"])
+        rate_limit = p["max_force_rate_n_per_s"]
+        self.limits = DeviceLimits(
+            outputs=tuple(
+                ChannelLimit(ch, -self.max_force_n, self.max_force_n, 0.0, rate_limit, "N")
+                for ch in ("fx_n", "fy_n", "fz_n")
+            ),
+            max_force_n=self.max_force_n,
+            ramp_up_s=float(p["ramp_up_s"]),
+        )
+        self._dt = 1.0 / self.rate_hz
+        self._kinematic = p["hand"] == "none"
+        self._m = float(p["hand_mass_kg"])
+        self._kh = float(p["hand_stiffness_n_per_m"])
+        self._bh = float(p["hand_damping_ns_per_m"])
+        self._res = float(p["resolution_mm"])
+        self._win = max(1, round(float(p["velocity_window_s"]) * self.rate_hz))
+        self._max_jump = float(p["max_jump_mm"])
+        self._opened = False
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self._target: list[float] | None = None
+        self._pos = [0.0, 0.0, 0.0]  # true handle position (mm)
+        self._vel = [0.0, 0.0, 0.0]  # true handle velocity (mm/s)
+        self._meas = (0.0, 0.0, 0.0)
+        self._ring: list[tuple[float, float, float]] = []
+        self._ring_i = 0
+        self._force = [0.0, 0.0, 0.0]
+        self._dir = (0.0, 0.0, -1.0)
+        self._button = 1.0
+        self._t_last: float | None = None
+        self.fault: str | None = None
+        self.faults: list[dict[str, Any]] = []
+        self._feedback = {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0, "x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0}
+
+    # ------------------------------------------------------------------ lifecycle
+    def open(self) -> None:
+        self._reset_state()
+        self._opened = True
+
+    def close(self) -> None:
+        self._force = [0.0, 0.0, 0.0]
+        self._feedback.update(fx_n=0.0, fy_n=0.0, fz_n=0.0)
+        self._opened = False
+
+    def _enter_safe_state(self, reason: str) -> None:
+        if self.fault is None:
+            self.fault = reason
+            self.faults.append({"kind": "device_fault", "reason": reason})
+        self._force = [0.0, 0.0, 0.0]
+        self._feedback.update(fx_n=0.0, fy_n=0.0, fz_n=0.0)
+
+    # ------------------------------------------------------------------ the tick
+    def apply_input(self, inputs: Channels) -> None:
+        """Take the hand's wanted position (and pen axis, button) from a virtual participant."""
+        if not self._opened:
+            raise DeviceError("device sim_force3d: apply_input before open()")
+        x, y, z = inputs.get("x_mm"), inputs.get("y_mm"), inputs.get("z_mm")
+        if x is not None:
+            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):  # type: ignore[arg-type]
+                self._enter_safe_state(f"non-finite input position ({x}, {y}, {z})")
+                return
+            if self._target is None:
+                # the hand holds the handle at rest where it starts
+                self._pos = [float(x), float(y), float(z)]  # type: ignore[arg-type]
+                q = self._quantise(self._pos)
+                self._meas = q
+                self._ring = [q] * self._win
+            self._target = [x, y, z]  # type: ignore[list-item]
+        d = inputs.get("dir_x")
+        if d is not None:
+            self._dir = (d, inputs.get("dir_y", 0.0), inputs.get("dir_z", 0.0))
+        b = inputs.get("button")
+        if b is not None:
+            self._button = b
+
+    def _quantise(self, p: list[float]) -> tuple[float, float, float]:
+        """Encoder reading of a position (mm)."""
+        r = self._res
+        return (round(p[0] / r) * r, round(p[1] / r) * r, round(p[2] / r) * r)
+
+    def _integrate(self, dt: float) -> None:
+        """Semi-implicit Euler of the handle mass under the hand's spring-damper and the device force.
+
+        The hand's damping is treated implicitly, so any hand damping is stable; positions in mm,
+        velocities in mm/s, forces in N.
+        """
+        pos, vel, f, tgt = self._pos, self._vel, self._force, self._target
+        if tgt is None:
+            return
+        if self._kinematic:
+            for i in range(3):
+                vel[i] = (tgt[i] - pos[i]) / dt
+                pos[i] = tgt[i]
+            return
+        g = dt * 1000.0 / self._m  # N → mm/s per step
+        k = self._kh * 1e-3  # N per mm
+        den = 1.0 + dt * self._bh / self._m
+        v0 = (vel[0] + g * (k * (tgt[0] - pos[0]) + f[0])) / den
+        v1 = (vel[1] + g * (k * (tgt[1] - pos[1]) + f[1])) / den
+        v2 = (vel[2] + g * (k * (tgt[2] - pos[2]) + f[2])) / den
+        vel[0], vel[1], vel[2] = v0, v1, v2
+        pos[0] += dt * v0
+        pos[1] += dt * v1
+        pos[2] += dt * v2
+
+    def read(self, t: float) -> Observation:
+        last = self._t_last
+        if last is not None:
+            n = round((t - last) * self.rate_hz)
+            if n == 1:
+                self._integrate(self._dt)
+            else:
+                for _ in range(min(max(n, 0), 50)):
+                    self._integrate(self._dt)
+        self._t_last = t
+        pos, r = self._pos, self._res
+        qx, qy, qz = round(pos[0] / r) * r, round(pos[1] / r) * r, round(pos[2] / r) * r
+        px, py, pz = self._meas
+        jump = self._max_jump
+        if not (-jump <= qx - px <= jump and -jump <= qy - py <= jump and -jump <= qz - pz <= jump):
+            # NaN fails every comparison, so it lands here too
+            if not (math.isfinite(qx) and math.isfinite(qy) and math.isfinite(qz)):
+                self._enter_safe_state(f"non-finite position reading ({qx}, {qy}, {qz})")
+                qx, qy, qz = px, py, pz
+            elif self.fault is None:
+                self._enter_safe_state(
+                    f"position jumped {math.dist((qx, qy, qz), (px, py, pz)):.1f} mm in one tick "
+                    f"(limit {jump:g} mm)"
+                )
+        q = (qx, qy, qz)
+        self._meas = q
+        ring = self._ring
+        if ring:
+            i = self._ring_i
+            ox, oy, oz = ring[i]  # written len(ring) ticks ago
+            ring[i] = q
+            i += 1
+            self._ring_i = 0 if i == len(ring) else i
+            inv = self.rate_hz / len(ring)
+            vx, vy, vz = (qx - ox) * inv, (qy - oy) * inv, (qz - oz) * inv
+        else:
+            vx = vy = vz = 0.0
+        fb = self._feedback
+        fb["x_mm"] = qx
+        fb["y_mm"] = qy
+        fb["z_mm"] = qz
+        d = self._dir
+        values = {
+            "x_mm": qx,
+            "y_mm": qy,
+            "z_mm": qz,
+            "vx_mm_s": vx,
+            "vy_mm_s": vy,
+            "vz_mm_s": vz,
+            "dir_x": d[0],
+            "dir_y": d[1],
+            "dir_z": d[2],
+            "button": self._button,
+            "fault": 0.0 if self.fault is None else 1.0,
+        }
+        if self.scene is not None:
+            sensed = self.scene.sense(values)
+            if sensed:
+                values.update(sensed)
+        return Observation(t, values)
+
+    def write(self, command: Channels) -> None:
+        if self.fault is not None:
+            return
+        fx, fy, fz = command.get("fx_n", 0.0), command.get("fy_n", 0.0), command.get("fz_n", 0.0)
+        if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
+            fx = fy = fz = 0.0
+        n2 = fx * fx + fy * fy + fz * fz
+        cap = self.max_force_n
+        if n2 > cap * cap:  # the amplifier saturates along the commanded direction
+            s = cap / math.sqrt(n2)
+            fx, fy, fz = fx * s, fy * s, fz * s
+        f = self._force
+        f[0], f[1], f[2] = fx, fy, fz
+        fb = self._feedback
+        fb["fx_n"], fb["fy_n"], fb["fz_n"] = fx, fy, fz
+
+    def feedback(self) -> dict[str, float]:
+        """What the hand feels: the rendered force (N) and where the handle is (mm, proprioception)."""
+        return self._feedback
+
+    # ------------------------------------------------------------------ for tests and energy checks
+    @property
+    def true_state(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """Exact handle position (mm) and velocity (mm/s) of the simulation, unquantised."""
+        return tuple(self._pos), tuple(self._vel)

@@ -1,0 +1,724 @@
+"""Needle–tissue forces and needle guidance for the virtual CT-guided insertion of seed 001.
+
+The model follows Selim, Dresscher & Abayazid (Sensors 2024, 24, 5560), whose axial forces are the
+Okamura, Simone & O'Leary (IEEE TBME 2004) decomposition
+
+    f_axial = f_stiffness + f_cutting + f_friction
+
+* **stiffness** (eq. 3) ``k·Δx² + k·Δx`` while the tip pushes an unbroken surface (capsule, tumour),
+  ``Δx`` in metres from the first contact; an explicit **puncture event** ends it when the spring force
+  reaches the layer's puncture force (latched per track, so it never re-arms while inside).
+* **cutting** (eq. 4) ``k_cut·v`` only while the tip advances into tissue that this track has not cut
+  yet; retraction and re-advancing along an existing track do not cut.
+* **friction** (eq. 5, 6) Karnopp static/dynamic levels plus depth-dependent damping
+  ``c·v·(x_penet − x_cur)``; on retraction friction is the only axial force.
+
+Two modelling choices the paper leaves open are made here and named in :class:`NeedleParams`:
+
+1. Table 1 gives the friction levels in newtons, yet Figure 3 settles near 0.3 N in liver tissue, below the
+   0.8 N dynamic level. Shaft friction grows with the length of shaft in contact (Okamura et al.), so the
+   levels are read as the friction of a fully embedded shaft and scale with ``embedded length /
+   friction_ref_length_mm`` (default: the 150 mm needle). With BL parameters at 15 mm/s this gives the
+   Figure 3 shape (rise at the capsule, drop at puncture, slow rise to ≈0.3 N at 40 mm depth).
+2. Puncture forces are not in Table 1: ``capsule_puncture_n`` = 1.0 N and ``tumour_puncture_n`` = 1.5 N
+   (a tumour whose stiffness is 0, as in BL, is punctured at contact).
+
+Karnopp in a haptic loop has no measured hand force, so sticking is rendered with a *stick anchor*: on
+entering the stick band (|v| below ``stick_band_mm_s``, sized above the device's velocity noise) the anchor
+is placed so that the spring force equals the friction force of the previous tick (no jump at stick onset);
+the spring-damper to the anchor is saturated at the static level, and saturation is breakaway. After a
+breakaway the friction keeps the breakaway direction until the speed leaves the band, so velocity noise
+around zero cannot flip its sign (no chattering).
+
+Radial guidance (eq. 1) is a PD spring-damper in the needle's body frame towards the planned line (incision
+point → tumour centroid) with a tolerance capsule of radius ``tolerance_mm``: zero force inside, a spring on
+``r − t`` outside, and the damper faded in over ``damping_band_mm`` so that the force is continuous at the
+capsule edge. Releasing the button switches to the maintain mode (eq. 8, same gains, 3-D, towards the pose
+at release) through a smoothstep cross-fade of ``maintain_blend_s``. Body-frame forces are rotated to the
+device frame (eq. 7). Positions are in mm, velocities in mm/s, gains in SI units as in Table 1.
+
+The hot path :meth:`NeedleTissueModel.step` works on plain Python floats: at 1 kHz one tick costs a few
+microseconds, where small NumPy arrays would cost tens.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+from studyctl.errors import ModelParameterError
+
+# Table 1 of the paper (axial and radial parameters per scenario). RT renders exactly like BL (its
+# difference is the real-time visual channel); ES/ESG enhance the tumour, EG/ESG the radial guidance.
+_TUMOUR_COMPLIANT = {
+    "tumour_k_stiff": 0.0,
+    "tumour_k_cut": 7.0,
+    "tumour_f_dynamic": 0.9,
+    "tumour_f_static": 1.1,
+    "tumour_c": 10.5,
+}
+_TUMOUR_ENHANCED = {
+    "tumour_k_stiff": 1000.0,
+    "tumour_k_cut": 10.0,
+    "tumour_f_dynamic": 1.4,
+    "tumour_f_static": 1.8,
+    "tumour_c": 15.0,
+}
+_LIVER = {
+    "capsule_k_stiff": 100.0,
+    "liver_k_cut": 5.0,
+    "liver_f_dynamic": 0.8,
+    "liver_f_static": 1.0,
+    "liver_c": 10.0,
+}
+TABLE1: dict[str, dict[str, float]] = {
+    "BL": {**_LIVER, **_TUMOUR_COMPLIANT, "radial_kp": 100.0, "radial_kd": 30.0},
+    "RT": {**_LIVER, **_TUMOUR_COMPLIANT, "radial_kp": 100.0, "radial_kd": 30.0},
+    "ES": {**_LIVER, **_TUMOUR_ENHANCED, "radial_kp": 100.0, "radial_kd": 30.0},
+    "EG": {**_LIVER, **_TUMOUR_COMPLIANT, "radial_kp": 1000.0, "radial_kd": 70.0},
+    "ESG": {**_LIVER, **_TUMOUR_ENHANCED, "radial_kp": 1000.0, "radial_kd": 50.0},
+}
+
+# Units of every parameter, for messages and documentation.
+UNITS: dict[str, str] = {
+    "capsule_k_stiff": "N/m",
+    "capsule_puncture_n": "N",
+    "liver_k_cut": "N·s/m",
+    "liver_f_dynamic": "N",
+    "liver_f_static": "N",
+    "liver_c": "N·s/m²",
+    "tumour_k_stiff": "N/m",
+    "tumour_puncture_n": "N",
+    "tumour_k_cut": "N·s/m",
+    "tumour_f_dynamic": "N",
+    "tumour_f_static": "N",
+    "tumour_c": "N·s/m²",
+    "radial_kp": "N/m",
+    "radial_kd": "N·s/m",
+    "tolerance_mm": "mm",
+    "damping_band_mm": "mm",
+    "friction_ref_length_mm": "mm",
+    "stick_band_mm_s": "mm/s",
+    "stick_k": "N/m",
+    "stick_d": "N·s/m",
+    "contact_d": "N·s/m",
+    "maintain_blend_s": "s",
+    "track_match_mm": "mm",
+    "track_match_deg": "deg",
+    "rate_hz": "Hz",
+}
+
+
+@dataclass(frozen=True)
+class NeedleParams:
+    """Every parameter of the needle–tissue model and the guidance, with its Table 1 default (BL).
+
+    Axial (Table 1): ``capsule_k_stiff``; ``liver_k_cut``, ``liver_f_dynamic``, ``liver_f_static``,
+    ``liver_c``; ``tumour_k_stiff``, ``tumour_k_cut``, ``tumour_f_dynamic``, ``tumour_f_static``,
+    ``tumour_c``. Radial (Table 1): ``radial_kp``, ``radial_kd`` (also the maintain-mode gains, eq. 8).
+
+    Not in the paper (our choices, see the module docstring): ``capsule_puncture_n``,
+    ``tumour_puncture_n``, ``tolerance_mm`` (tolerance capsule radius t), ``damping_band_mm`` (radial
+    damper fade-in beyond t), ``friction_ref_length_mm`` (embedded length at which friction reaches the
+    Table 1 level), ``stick_band_mm_s`` (Karnopp band ε), ``stick_k``/``stick_d`` (stick anchor),
+    ``contact_d`` (damping while a surface is pushed, for passivity), ``maintain_blend_s``,
+    ``track_match_mm``/``track_match_deg`` (a re-insertion this close to an earlier track reuses it),
+    ``rate_hz`` (servo rate; the passivity bounds depend on it).
+    """
+
+    capsule_k_stiff: float = 100.0
+    capsule_puncture_n: float = 1.0
+    liver_k_cut: float = 5.0
+    liver_f_dynamic: float = 0.8
+    liver_f_static: float = 1.0
+    liver_c: float = 10.0
+    tumour_k_stiff: float = 0.0
+    tumour_puncture_n: float = 1.5
+    tumour_k_cut: float = 7.0
+    tumour_f_dynamic: float = 0.9
+    tumour_f_static: float = 1.1
+    tumour_c: float = 10.5
+    radial_kp: float = 100.0
+    radial_kd: float = 30.0
+    tolerance_mm: float = 1.0
+    damping_band_mm: float = 0.5
+    friction_ref_length_mm: float = 150.0
+    stick_band_mm_s: float = 2.0
+    stick_k: float = 1000.0
+    stick_d: float = 2.0
+    contact_d: float = 1.0
+    maintain_blend_s: float = 0.1
+    track_match_mm: float = 1.0
+    track_match_deg: float = 3.0
+    rate_hz: float = 1000.0
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def from_mapping(cls, params: Mapping[str, Any], *, where: str = "needle parameters") -> NeedleParams:
+        """Build from a protocol's parameter mapping: an optional ``scenario`` preset plus overrides.
+
+        ``scenario`` (BL, RT, ES, EG, ESG) fills the Table 1 values; any named parameter overrides it.
+        ``tumor_*`` is accepted for ``tumour_*``. Unknown names, non-numbers and unstable values raise
+        :class:`~studyctl.errors.ModelParameterError` naming the field, the value and what is allowed.
+        """
+        values: dict[str, float] = {}
+        params = _flatten(params, where)
+        scenario = params.get("scenario")
+        if scenario is not None:
+            key = str(scenario).upper()
+            if key not in TABLE1:
+                raise ModelParameterError(f"{where}: scenario = {scenario!r} is unknown; allowed: {', '.join(TABLE1)}")
+            values.update(TABLE1[key])
+        allowed = cls.names()
+        for raw_name, value in params.items():
+            if raw_name == "scenario":
+                continue
+            name = raw_name.replace("tumor_", "tumour_", 1) if raw_name.startswith("tumor_") else raw_name
+            if name not in allowed:
+                raise ModelParameterError(
+                    f"{where}: unknown parameter {raw_name!r}; allowed: scenario, {', '.join(allowed)}"
+                )
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ModelParameterError(
+                    f"{where}: {raw_name} = {value!r} is not a number; give a value in {UNITS[name]}"
+                )
+            values[name] = float(value)
+        out = cls(**values)
+        out.validate(where=where)
+        return out
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+    def validate(self, *, where: str = "needle parameters") -> None:
+        """Refuse values that make the model meaningless or the 1 kHz loop non-passive."""
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not math.isfinite(v):
+                raise ModelParameterError(f"{where}: {f.name} = {v} is not finite; give a number in {UNITS[f.name]}")
+        nonneg = (
+            "capsule_k_stiff", "tumour_k_stiff", "radial_kp", "stick_k",
+            "liver_k_cut", "tumour_k_cut", "liver_f_dynamic", "liver_f_static", "tumour_f_dynamic",
+            "tumour_f_static", "liver_c", "tumour_c", "radial_kd", "stick_d", "contact_d", "tolerance_mm",
+        )  # fmt: skip
+        for name in nonneg:
+            v = getattr(self, name)
+            if v < 0:
+                kind = "stiffness" if ("k_stiff" in name or name in ("radial_kp", "stick_k")) else "value"
+                raise ModelParameterError(
+                    f"{where}: {name} = {v:g} {UNITS[name]} is a negative {kind}; it must be ≥ 0 "
+                    "(a negative spring or damper adds energy and makes the loop unstable)"
+                )
+        positive = (
+            "capsule_puncture_n", "tumour_puncture_n", "friction_ref_length_mm", "stick_band_mm_s",
+            "damping_band_mm", "rate_hz", "track_match_mm", "track_match_deg",
+        )  # fmt: skip
+        for name in positive:
+            v = getattr(self, name)
+            if v <= 0:
+                raise ModelParameterError(f"{where}: {name} = {v:g} {UNITS[name]} must be > 0")
+        if self.maintain_blend_s < 1.0 / self.rate_hz:
+            raise ModelParameterError(
+                f"{where}: maintain_blend_s = {self.maintain_blend_s:g} s is shorter than one tick "
+                f"({1.0 / self.rate_hz:g} s at {self.rate_hz:g} Hz); the mode switch would jump — use ≥ 0.05 s"
+            )
+        for layer in ("liver", "tumour"):
+            fd, fs = getattr(self, f"{layer}_f_dynamic"), getattr(self, f"{layer}_f_static")
+            if fd > fs:
+                raise ModelParameterError(
+                    f"{where}: {layer}_f_dynamic = {fd:g} N exceeds {layer}_f_static = {fs:g} N; Karnopp "
+                    "friction needs dynamic ≤ static"
+                )
+        # Passivity at the servo rate: every virtual spring needs a damper of at least K·T/2.
+        for spring, damper, stiffness in self.spring_damper_pairs():
+            bound = passivity_min_damping(stiffness, self.rate_hz)
+            d = getattr(self, damper)
+            if d < bound:
+                raise ModelParameterError(
+                    f"{where}: {damper} = {d:g} N·s/m is below the passivity bound K·T/2 = {bound:.4g} N·s/m "
+                    f"(K = {spring} = {stiffness:.4g} N/m at {self.rate_hz:g} Hz); set {damper} ≥ {bound:.4g} "
+                    f"or lower {spring.split(' ')[0]}"
+                )
+
+    def spring_damper_pairs(self) -> list[tuple[str, str, float]]:
+        """(spring name, damper name, largest local stiffness N/m) for every virtual spring."""
+        return [
+            ("radial_kp", "radial_kd", self.radial_kp),
+            ("stick_k", "stick_d", self.stick_k),
+            (
+                "capsule_k_stiff (local, at puncture)",
+                "contact_d",
+                local_stiffness_at_puncture(self.capsule_k_stiff, self.capsule_puncture_n),
+            ),
+            (
+                "tumour_k_stiff (local, at puncture)",
+                "contact_d",
+                local_stiffness_at_puncture(self.tumour_k_stiff, self.tumour_puncture_n),
+            ),
+        ]
+
+
+_BLOCKS = ("capsule", "liver", "tumour", "tumor", "radial")
+_KEY_ALIASES = {"k_p": "kp", "k_d": "kd"}
+_RADIAL_PLAIN = ("tolerance_mm", "damping_band_mm")
+
+
+def _flatten(params: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """Accept per-layer blocks (``liver: {k_cut: 5}``, ``radial: {k_p: 100}``) as well as flat names."""
+    flat: dict[str, Any] = {}
+    for key, value in params.items():
+        if key in _BLOCKS and isinstance(value, Mapping):
+            block = "tumour" if key == "tumor" else key
+            for sub, v in value.items():
+                sub = _KEY_ALIASES.get(sub, sub)
+                name = sub if (block == "radial" and sub in _RADIAL_PLAIN) else f"{block}_{sub}"
+                if name in flat:
+                    raise ModelParameterError(f"{where}: {key}.{sub} is given twice")
+                flat[name] = v
+        else:
+            if key in flat:
+                raise ModelParameterError(f"{where}: {key} is given twice")
+            flat[key] = value
+    return flat
+
+
+def passivity_min_damping(stiffness_n_per_m: float, rate_hz: float) -> float:
+    """Smallest virtual damping (N·s/m) that offsets a sampled spring's energy leak: ``K·T/2``.
+
+    A zero-order-hold spring of stiffness K sampled every T seconds injects energy at the rate a
+    negative damper of K·T/2 would (Colgate & Schenkel 1997); the virtual damper must at least cancel it.
+    """
+    return stiffness_n_per_m / (2.0 * rate_hz)
+
+
+def local_stiffness_at_puncture(k: float, puncture_n: float) -> float:
+    """dF/dΔx of ``k·Δx² + k·Δx`` at the puncture displacement (N/m); the largest along the spring."""
+    if k <= 0.0:
+        return 0.0
+    return k * math.sqrt(1.0 + 4.0 * puncture_n / k)
+
+
+def stiffness_force(k: float, dx_m: float) -> float:
+    """Okamura's nonlinear capsule spring, eq. (3): ``k·Δx² + k·Δx`` (N) for Δx ≥ 0 in metres."""
+    if dx_m <= 0.0:
+        return 0.0
+    return k * (dx_m * dx_m + dx_m)
+
+
+@dataclass(frozen=True)
+class NeedleGeometry:
+    """Where the layers are, in the device frame (mm): nested spheres and the planned straight path.
+
+    The capsule is the surface of the liver sphere; the tumour sphere sits inside it. The planned path
+    runs from ``incision_mm`` to the tumour centroid.
+    """
+
+    liver_center_mm: tuple[float, float, float]
+    liver_radius_mm: float
+    tumour_center_mm: tuple[float, float, float]
+    tumour_radius_mm: float
+    incision_mm: tuple[float, float, float]
+
+    @property
+    def planned_direction(self) -> tuple[float, float, float]:
+        a, b = self.incision_mm, self.tumour_center_mm
+        d = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+        n = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+        return (d[0] / n, d[1] / n, d[2] / n)
+
+    @property
+    def planned_length_mm(self) -> float:
+        return math.dist(self.incision_mm, self.tumour_center_mm)
+
+
+def body_frame(ux: float, uy: float, uz: float) -> tuple[float, float, float, float, float, float]:
+    """Radial axes (y_B, z_B) of the needle body frame whose x_B is the unit needle axis ``u``.
+
+    y_B is horizontal (ẑ × u normalised); near a vertical needle x̂ × u is used instead. Returns
+    ``(yx, yy, yz, zx, zy, zz)``; the columns (u, y_B, z_B) form the rotation R_BI of eq. (7).
+    """
+    # ẑ × u = (−uy, ux, 0)
+    yx, yy, yz = -uy, ux, 0.0
+    n = math.sqrt(yx * yx + yy * yy)
+    if n < 1e-6:  # needle vertical: use x̂ × u = (0, −uz, uy)
+        yx, yy, yz = 0.0, -uz, uy
+        n = math.sqrt(yy * yy + yz * yz)
+    yx, yy, yz = yx / n, yy / n, yz / n
+    # z_B = u × y_B
+    zx = uy * yz - uz * yy
+    zy = uz * yx - ux * yz
+    zz = ux * yy - uy * yx
+    return yx, yy, yz, zx, zy, zz
+
+
+def body_to_device(u: tuple[float, float, float], f_body: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Eq. (7): rotate (f_axial, f_radial_y, f_radial_z) from the needle body frame to the device frame."""
+    ux, uy, uz = u
+    yx, yy, yz, zx, zy, zz = body_frame(ux, uy, uz)
+    fa, fy, fz = f_body
+    return (fa * ux + fy * yx + fz * zx, fa * uy + fy * yy + fz * zy, fa * uz + fy * yz + fz * zz)
+
+
+def radial_guidance(
+    e_y_mm: float,
+    e_z_mm: float,
+    v_y_mm_s: float,
+    v_z_mm_s: float,
+    kp: float,
+    kd: float,
+    tolerance_mm: float,
+    damping_band_mm: float,
+) -> tuple[float, float]:
+    """Eq. (1) with a tolerance capsule: body-frame radial force (N) for offset ``e`` towards the line.
+
+    ``e`` points from the needle to the planned line (mm); ``v`` is the radial velocity (mm/s). Zero inside
+    the capsule (|e| ≤ t); outside, ``kp·(|e| − t)`` towards the line plus ``kd·v`` opposing motion, the
+    damper faded in linearly over ``damping_band_mm`` so the force is continuous at |e| = t.
+    """
+    r = math.sqrt(e_y_mm * e_y_mm + e_z_mm * e_z_mm)
+    if r <= tolerance_mm:
+        return 0.0, 0.0
+    spring = kp * (r - tolerance_mm) * 1e-3 / r
+    w = (r - tolerance_mm) / damping_band_mm
+    if w > 1.0:
+        w = 1.0
+    damp = w * kd * 1e-3
+    return spring * e_y_mm - damp * v_y_mm_s, spring * e_z_mm - damp * v_z_mm_s
+
+
+class _Track:
+    """One needle track through the liver: where it entered, its axis, how deep it has cut."""
+
+    __slots__ = ("ex", "ey", "ez", "ux", "uy", "uz", "max_s", "capsule_punctured", "tumour_punctured")
+
+    def __init__(self, ex: float, ey: float, ez: float, ux: float, uy: float, uz: float) -> None:
+        self.ex, self.ey, self.ez = ex, ey, ez
+        self.ux, self.uy, self.uz = ux, uy, uz
+        self.max_s = 0.0
+        self.capsule_punctured = False
+        self.tumour_punctured = False
+
+
+# Layer codes reported by the model (also the ``layer`` channel of the controller).
+OUTSIDE, CAPSULE, LIVER, TUMOUR_SURFACE, TUMOUR = 0, 1, 2, 3, 4
+LAYER_NAMES = {
+    OUTSIDE: "outside",
+    CAPSULE: "capsule",
+    LIVER: "liver",
+    TUMOUR_SURFACE: "tumour_surface",
+    TUMOUR: "tumour",
+}
+
+# Karnopp states
+_SLIP, _STICK, _BREAKAWAY = 0, 1, 2
+
+
+class NeedleTissueModel:
+    """The stateful 1 kHz force law: needle pose in, device-frame force out.
+
+    Call :meth:`step` once per servo tick with the tip position (mm), its velocity (mm/s), the pen's axis
+    (any non-zero vector) and the button (pressed = inserting). After each step the attributes
+    ``f_axial``, ``f_radial``, ``depth_mm``, ``layer``, ``stuck``, ``maintain`` and ``axis`` describe the
+    tick, and ``events`` collects ``(kind, depth_mm)`` for contact, puncture, track reuse and exit.
+    """
+
+    def __init__(self, params: NeedleParams, geometry: NeedleGeometry) -> None:
+        params.validate()
+        self.params = params
+        self.geometry = geometry
+        p = params
+        g = geometry
+        self._lc = g.liver_center_mm
+        self._lr2 = g.liver_radius_mm**2
+        self._lr = g.liver_radius_mm
+        self._tc = g.tumour_center_mm
+        self._tr2 = g.tumour_radius_mm**2
+        self._a = g.incision_mm
+        self._d = g.planned_direction
+        self._dt = 1.0 / p.rate_hz
+        # per-mm and per-(mm/s) coefficients so the hot path stays in mm
+        self._kcap = p.capsule_k_stiff
+        self._ktum = p.tumour_k_stiff
+        self._inv_lref = 1.0 / p.friction_ref_length_mm
+        self._eps = p.stick_band_mm_s
+        self._stick_k_mm = p.stick_k * 1e-3
+        self._stick_d_mm = p.stick_d * 1e-3
+        self._contact_d_mm = p.contact_d * 1e-3
+        self._kp_mm = p.radial_kp * 1e-3
+        self._kd_mm = p.radial_kd * 1e-3
+        self._blend_rate = self._dt / p.maintain_blend_s
+        self._match_cos = math.cos(math.radians(p.track_match_deg))
+        self.events: list[tuple[str, float]] = []
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the tracks, puncture flags, friction and mode state (a fresh trial)."""
+        self._tracks: list[_Track] = []
+        self._track: _Track | None = None
+        self._tumour_contact_s: float | None = None
+        self._fric_state = _SLIP
+        self._anchor = 0.0
+        self._break_dir = 0.0
+        self._f_fric = 0.0
+        self._w = 0.0  # maintain blend weight 0 (insert) … 1 (maintain)
+        self._hold = (0.0, 0.0, 0.0)
+        self._pressed = True
+        self._axis = (0.0, 0.0, -1.0)
+        self._frame = body_frame(0.0, 0.0, -1.0)
+        self.events.clear()
+        self.f_axial = 0.0
+        self.f_radial = 0.0
+        self.depth_mm = 0.0
+        self.layer = OUTSIDE
+        self.stuck = 0
+        self.maintain = 0.0
+        self.punctures = 0
+
+    @property
+    def axis(self) -> tuple[float, float, float]:
+        """The needle axis used this tick (frozen while the needle is in tissue)."""
+        return self._axis
+
+    @property
+    def in_tissue(self) -> bool:
+        return self._track is not None
+
+    # ------------------------------------------------------------------ tracks
+    def _enter(self, px: float, py: float, pz: float, ux: float, uy: float, uz: float) -> None:
+        """The tip just crossed the liver surface: find the entry point, reuse a matching track or open one."""
+        cx, cy, cz = self._lc
+        wx, wy, wz = px - cx, py - cy, pz - cz
+        b = wx * ux + wy * uy + wz * uz
+        disc = b * b - (wx * wx + wy * wy + wz * wz) + self._lr2
+        sigma = b + math.sqrt(disc) if disc > 0.0 else 0.0
+        if sigma < 0.0:
+            sigma = 0.0
+        ex, ey, ez = px - sigma * ux, py - sigma * uy, pz - sigma * uz
+        tol2 = self.params.track_match_mm**2
+        for tr in self._tracks:
+            dx, dy, dz = tr.ex - ex, tr.ey - ey, tr.ez - ez
+            if dx * dx + dy * dy + dz * dz <= tol2 and tr.ux * ux + tr.uy * uy + tr.uz * uz >= self._match_cos:
+                self._track = tr
+                self.events.append(("track_reused", sigma))
+                break
+        else:
+            tr = _Track(ex, ey, ez, ux, uy, uz)
+            self._tracks.append(tr)
+            self._track = tr
+            self.events.append(("capsule_contact", sigma))
+        tr = self._track
+        self._axis = (tr.ux, tr.uy, tr.uz)
+        self._frame = body_frame(tr.ux, tr.uy, tr.uz)
+        self._tumour_contact_s = None
+        self._fric_state = _SLIP
+        self._f_fric = 0.0
+
+    # ------------------------------------------------------------------ the tick
+    def step(
+        self,
+        px: float,
+        py: float,
+        pz: float,
+        vx: float,
+        vy: float,
+        vz: float,
+        ax: float,
+        ay: float,
+        az: float,
+        pressed: bool = True,
+    ) -> tuple[float, float, float]:
+        """One servo tick: the device-frame force (N) for tip position/velocity and pen axis ``a``."""
+        tr = self._track
+        if tr is None:
+            n = math.sqrt(ax * ax + ay * ay + az * az)
+            if n > 1e-9 and (ax, ay, az) != self._axis:
+                ax, ay, az = ax / n, ay / n, az / n
+                if (ax, ay, az) != self._axis:
+                    self._axis = (ax, ay, az)
+                    self._frame = body_frame(ax, ay, az)
+            cx, cy, cz = self._lc
+            wx, wy, wz = px - cx, py - cy, pz - cz
+            if wx * wx + wy * wy + wz * wz < self._lr2:
+                ux, uy, uz = self._axis
+                self._enter(px, py, pz, ux, uy, uz)
+                tr = self._track
+        ux, uy, uz = self._axis
+        f_ax = 0.0
+        layer = OUTSIDE
+        stuck = 0
+        s = 0.0
+        if tr is not None:
+            s = (px - tr.ex) * ux + (py - tr.ey) * uy + (pz - tr.ez) * uz
+            if s <= 0.0:
+                # retracted out of the liver: the track (and its hole in the capsule) stays for reuse
+                self.events.append(("needle_withdrawn", 0.0))
+                self._track = tr = None
+                self._fric_state = _SLIP
+                self._f_fric = 0.0
+                s = 0.0
+            else:
+                f_ax, layer, stuck = self._axial(tr, s, px, py, pz, vx * ux + vy * uy + vz * uz)
+                if s > tr.max_s:
+                    tr.max_s = s
+        # radial guidance towards the planned line, in the body frame
+        yx, yy, yz, zx, zy, zz = self._frame
+        a0, a1, a2 = self._a
+        d0, d1, d2 = self._d
+        wx, wy, wz = px - a0, py - a1, pz - a2
+        lam = wx * d0 + wy * d1 + wz * d2
+        ex, ey, ez = lam * d0 - wx, lam * d1 - wy, lam * d2 - wz  # from the tip to its closest point on the line
+        e_y = ex * yx + ey * yy + ez * yz
+        e_z = ex * zx + ey * zy + ez * zz
+        r = math.sqrt(e_y * e_y + e_z * e_z)
+        tol = self.params.tolerance_mm
+        f_y = f_z = 0.0
+        if r > tol:
+            spring = self._kp_mm * (r - tol) / r
+            w = (r - tol) / self.params.damping_band_mm
+            damp = self._kd_mm * (w if w < 1.0 else 1.0)
+            f_y = spring * e_y - damp * (vx * yx + vy * yy + vz * yz)
+            f_z = spring * e_z - damp * (vx * zx + vy * zy + vz * zz)
+        # eq. (7): body → device frame
+        fx = f_ax * ux + f_y * yx + f_z * zx
+        fy = f_ax * uy + f_y * yy + f_z * zy
+        fz = f_ax * uz + f_y * yz + f_z * zz
+        # maintain mode (eq. 8) with a smoothstep cross-fade
+        if pressed != self._pressed:
+            self._pressed = pressed
+            if not pressed:
+                self._hold = (px, py, pz)
+        w = self._w
+        if not pressed:
+            if w < 1.0:
+                w = min(1.0, w + self._blend_rate)
+        elif w > 0.0:
+            w = max(0.0, w - self._blend_rate)
+        self._w = w
+        if w > 0.0:
+            h0, h1, h2 = self._hold
+            kp, kd = self._kp_mm, self._kd_mm
+            mx = -kp * (px - h0) - kd * vx
+            my = -kp * (py - h1) - kd * vy
+            mz = -kp * (pz - h2) - kd * vz
+            ws = w * w * (3.0 - 2.0 * w)
+            fx += ws * (mx - fx)
+            fy += ws * (my - fy)
+            fz += ws * (mz - fz)
+        self.f_axial = f_ax
+        self.f_radial = math.sqrt(f_y * f_y + f_z * f_z)
+        self.depth_mm = s
+        self.layer = layer
+        self.stuck = stuck
+        self.maintain = w
+        return fx, fy, fz
+
+    def _axial(self, tr: _Track, s: float, px: float, py: float, pz: float, v: float) -> tuple[float, int, int]:
+        """Axial force (N, + along the needle axis) for a tip at depth ``s`` mm moving at ``v`` mm/s."""
+        p = self.params
+        if not tr.capsule_punctured:
+            dx = s * 1e-3
+            f_st = self._kcap * (dx * dx + dx)
+            if f_st < p.capsule_puncture_n:
+                # the capsule deflects: only its spring (and a small contact damper) act on the tip
+                return -f_st - self._contact_d_mm * v, CAPSULE, 0
+            tr.capsule_punctured = True
+            tr.max_s = s  # the tissue up to the tip is cut by the puncture itself
+            self.punctures += 1
+            self.events.append(("capsule_puncture", s))
+            self._fric_state = _SLIP
+            self._f_fric = 0.0
+        # the tumour chord of the shaft (points tip − σ·u, 0 ≤ σ ≤ s) and whether the tip is inside it
+        ux, uy, uz = tr.ux, tr.uy, tr.uz
+        cx, cy, cz = self._tc
+        wx, wy, wz = px - cx, py - cy, pz - cz
+        b = wx * ux + wy * uy + wz * uz
+        disc = b * b - (wx * wx + wy * wy + wz * wz) + self._tr2
+        chord = 0.0
+        tip_in_tumour = False
+        if disc > 0.0:
+            root = math.sqrt(disc)
+            s1, s2 = b - root, b + root
+            tip_in_tumour = s1 < 0.0 < s2
+            lo = s1 if s1 > 0.0 else 0.0
+            hi = s2 if s2 < s else s
+            if hi > lo:
+                chord = hi - lo
+        f_tip = 0.0
+        layer = LIVER
+        if tip_in_tumour and not tr.tumour_punctured:
+            if self._tumour_contact_s is None:
+                self._tumour_contact_s = s
+                self.events.append(("tumour_contact", s))
+            dx = (s - self._tumour_contact_s) * 1e-3
+            f_st = self._ktum * (dx * dx + dx) if dx > 0.0 else 0.0
+            if f_st < p.tumour_puncture_n and self._ktum > 0.0:
+                f_tip = -f_st - self._contact_d_mm * v
+                layer = TUMOUR_SURFACE
+            else:
+                tr.tumour_punctured = True
+                tr.max_s = s
+                self.punctures += 1
+                self.events.append(("tumour_puncture", s))
+                layer = TUMOUR
+        elif tip_in_tumour:
+            layer = TUMOUR
+        elif self._tumour_contact_s is not None and not tr.tumour_punctured:
+            if s > self._tumour_contact_s:
+                # a soft tumour pushed all the way through without reaching its puncture force
+                tr.tumour_punctured = True
+                self.punctures += 1
+                self.events.append(("tumour_puncture", s))
+            self._tumour_contact_s = None  # withdrawn from an unbroken tumour: it springs back
+        if not tr.tumour_punctured:
+            chord = 0.0  # an unbroken tumour is pushed, not cut: its chord of the shaft rubs liver
+        liver_len = s - chord
+        inv = self._inv_lref
+        f_dyn = (p.liver_f_dynamic * liver_len + p.tumour_f_dynamic * chord) * inv
+        f_sta = (p.liver_f_static * liver_len + p.tumour_f_static * chord) * inv
+        c_eff = (p.liver_c * liver_len + p.tumour_c * chord) * 1e-6  # c · depth(m), per (mm/s) → N
+        # cutting: only advancing into tissue this track has not cut
+        if layer != TUMOUR_SURFACE and v > 0.0 and s > tr.max_s:
+            k_cut = p.tumour_k_cut if layer == TUMOUR else p.liver_k_cut
+            f_tip -= k_cut * v * 1e-3
+        # Karnopp friction with a stick anchor
+        eps = self._eps
+        state = self._fric_state
+        if state == _STICK:
+            f = -self._stick_k_mm * (s - self._anchor) - self._stick_d_mm * v
+            if f > f_sta or f < -f_sta:
+                state = _BREAKAWAY
+                self._break_dir = 1.0 if f < 0.0 else -1.0  # the hand pushed against the friction
+            elif v > 2.0 * eps or v < -2.0 * eps:
+                state = _SLIP
+            else:
+                self._f_fric = f
+                return f_tip + f, layer, 1
+        if state == _BREAKAWAY:
+            if v > eps or v < -eps:
+                state = _SLIP
+            else:
+                f = -self._break_dir * f_dyn
+                self._fric_state = state
+                self._f_fric = f
+                return f_tip + f, layer, 0
+        # slip
+        if -eps < v < eps and f_sta > 0.0:
+            # enter stick with the anchor placed so that the force does not jump
+            f = self._f_fric
+            if f > f_sta or f < -f_sta:  # slip damping can exceed the static level: hold at the limit
+                f = f_sta if f > 0.0 else -f_sta
+            self._anchor = s + f / self._stick_k_mm
+            self._fric_state = _STICK
+            self._f_fric = f
+            return f_tip + f, layer, 1
+        f = -(f_dyn + c_eff * (v if v > 0.0 else -v))
+        if v < 0.0:
+            f = -f
+        self._fric_state = _SLIP
+        self._f_fric = f
+        return f_tip + f, layer, 0
