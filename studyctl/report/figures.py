@@ -232,19 +232,10 @@ def proportion_figure(
         color = PALETTE[li % len(PALETTE)]
         ax.bar(xs, est, width=width * 0.9, color=color, alpha=0.75, label=str(lv) if lv is not None else None)
         ax.errorbar(xs, est, yerr=[lo, hi], fmt="none", ecolor="black", elinewidth=1, capsize=3)
-        for x, e, t in zip(xs, est, txt, strict=True):
-            ax.text(
-                x,
-                0.02,
-                t,
-                ha="center",
-                va="bottom",
-                fontsize=7,
-                rotation=90 if len(series) > 2 else 0,
-                color="white" if e > 0.15 else "black",
-            )
+        for x, e, h, t in zip(xs, est, hi, txt, strict=True):
+            ax.text(x, e + h + 0.015, t, ha="center", va="bottom", fontsize=7)
     ax.set_xticks(range(len(cond_ids)), [_wrap(lbl, 16) for _, lbl in conditions])
-    ax.set_ylim(0, 1.1)
+    ax.set_ylim(0, 1.14)
     ax.set_ylabel(f"{label} (95% Wilson interval)")
     ax.grid(axis="y", alpha=0.3)
     if levels:
@@ -305,8 +296,8 @@ def likert_figure(
             es.append(float(row["se"].iloc[0]) if np.isfinite(row["se"].iloc[0]) else 0.0)
         ax.bar(xs, ys, width=width * 0.9, color=PALETTE[ci % len(PALETTE)], alpha=0.8, label=clabel)
         ax.errorbar(xs, ys, yerr=es, fmt="none", ecolor="black", elinewidth=0.8, capsize=2)
-        for x, y in zip(xs, ys, strict=True):
-            ax.text(x, y + 0.05, f"{y:.1f}", ha="center", va="bottom", fontsize=7)
+        for x, y, e in zip(xs, ys, es, strict=True):
+            ax.text(x, y + e + 0.04, f"{y:.1f}", ha="center", va="bottom", fontsize=7)
     ax.set_xticks(range(len(items)), [i.replace("_", " ") for i in items], fontsize=8)
     ax.set_ylim(1 if points > 1 else 0, points + 0.6)
     ax.set_ylabel(f"mean score (1–{points}) ± SE")

@@ -1,0 +1,204 @@
+"""Report writing: files, self-contained HTML, Markdown, partial marking, unwritable folders, lazy matplotlib."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from studyctl.analysis import ROW_COLUMNS, MetricTable, run_plan
+from studyctl.analysis.plan import load_plan
+from studyctl.analysis.results import FigureData
+from studyctl.errors import ConfigError
+from studyctl.report import ensure_writable, write_report
+
+PLAN = """\
+version: 1
+study: toy
+title: Toy study
+conditions: [{id: A, label: Condition A}, {id: B, label: Condition B}, {id: C, label: Condition C}]
+groups: [g1, g2]
+metrics:
+  time: {metric: completion_time}
+  found: {metric: sensitivity}
+  score: {metric: likert}
+tests:
+  - id: groups
+    test: rank_sum
+    metrics: [time]
+    compare: group
+    by: [condition]
+  - id: kw
+    test: kruskal_wallis
+    metrics: [time]
+    compare: condition
+    posthoc: {test: dunn, when: always}
+  - id: se
+    test: wilson
+    metrics: [found]
+    compare: condition
+  - id: pct
+    test: percent_change
+    metrics: [time]
+    compare: condition
+    reference: A
+  - id: likert
+    test: likert_table
+    metrics: [score]
+    compare: condition
+    by: [item]
+figures:
+  - {id: box, kind: box, metrics: [time], by: [condition, group], marks: kw, title: Times}
+  - {id: prop, kind: proportion, metrics: [found], by: [condition, nodule], title: Found}
+  - {id: change, kind: percent_change, metrics: [time], title: Change, options: {test: pct}}
+  - {id: lik, kind: likert, metrics: [score], by: [condition, item], title: Likert}
+  - {id: trace, kind: force_trace, title: Trace}
+"""
+
+
+def toy_table(rng: np.random.Generator) -> pd.DataFrame:
+    rows = []
+    for i in range(12):
+        g = "g1" if i < 6 else "g2"
+        for k, c in enumerate("ABC"):
+            base = {"participant": f"P{i}", "group": g, "condition": c, "trial": f"{i}{c}", "repetition": 1}
+            rows.append(
+                {
+                    **base,
+                    "metric": "completion_time",
+                    "level": None,
+                    "value": 30 + 5 * k + rng.normal(0, 4),
+                    "denominator": np.nan,
+                }
+            )
+            for n in ("n1", "n2"):
+                rows.append(
+                    {
+                        **base,
+                        "metric": "sensitivity",
+                        "level": n,
+                        "value": float(rng.random() < 0.7),
+                        "denominator": 1.0,
+                    }
+                )
+            for item in ("easy", "confident"):
+                rows.append(
+                    {
+                        **base,
+                        "metric": "likert",
+                        "level": item,
+                        "value": float(rng.integers(1, 6)),
+                        "denominator": np.nan,
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory):
+    path = tmp_path_factory.mktemp("plan") / "toy.yaml"
+    path.write_text(PLAN)
+    return run_plan(load_plan(path), MetricTable(frame=toy_table(np.random.default_rng(5)), source="toy table"))
+
+
+@pytest.fixture(scope="module")
+def written(result, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    trace = FigureData(
+        pd.DataFrame(
+            {
+                "panel": "A",
+                "x": np.linspace(-1, 1, 50),
+                "force_n": np.linspace(0, 2, 50),
+                "contact": np.linspace(0, 2, 50) > 1,
+            }
+        ),
+        meta={"channels": [("force_n", "force (N)", "left")], "shade": "contact", "threshold": 1.0},
+    )
+    return write_report(result, out, figure_data={"trace": trace})
+
+
+def test_files_written(written):
+    out = written.out_dir
+    names = sorted(p.name for p in out.iterdir())
+    for name in (
+        "tests.csv",
+        "cells.csv",
+        "units.csv",
+        "proportions.csv",
+        "percent_change.csv",
+        "likert.csv",
+        "missing.csv",
+        "report.html",
+        "report.md",
+        "summary.json",
+        "figures",
+    ):
+        assert name in names, name
+    assert sorted(p.name for p in (out / "figures").iterdir()) == sorted(
+        f"{i}.png" for i in ("box", "prop", "change", "lik", "trace")
+    )
+    for png in (out / "figures").iterdir():
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not [p for p in out.rglob(".*") if p.is_file()], "temporary files left behind"
+
+
+def test_tests_csv_is_tidy(written, result):
+    frame = pd.read_csv(written.out_dir / "tests.csv")
+    assert list(frame.columns) == list(ROW_COLUMNS)
+    assert len(frame) == len(result.rows)
+    assert set(frame["test_id"]) == {"groups", "kw", "se"}
+    assert frame.loc[frame.test_id == "kw", "kind"].tolist() == ["omnibus", "posthoc", "posthoc", "posthoc"]
+
+
+def test_html_is_self_contained(written):
+    html = written.html.read_text()
+    assert html.count("data:image/png;base64,") == 5
+    assert "src='http" not in html and 'src="http' not in html and "<link" not in html
+    assert "Toy study" in html and "Kruskal-Wallis" in html
+    assert "Within-subject" not in html  # the toy plan has no within-subject entries
+
+
+def test_markdown_links_figures_and_has_tables(written):
+    md = written.markdown.read_text()
+    assert "![Times](figures/box.png)" in md
+    assert "| metric | split | kind | groups |" in md
+    assert "| item | A | B | C |" in md  # the Likert table: items × conditions
+
+
+def test_missing_figure_data_marks_the_report_partial(result, tmp_path):
+    files = write_report(result, tmp_path)
+    assert files.partial
+    assert any(p.startswith("figure trace:") for p in files.problems)
+    assert "PARTIAL RESULTS" in files.html.read_text()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["partial"] is True and summary["problems"]
+
+
+def test_complete_report_is_not_marked_partial(written):
+    assert not written.partial
+    assert "PARTIAL RESULTS" not in written.html.read_text()
+
+
+def test_unwritable_output_folder(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    with pytest.raises(ConfigError, match=r"cannot write the report to '.*a_file/out'.*choose a writable folder"):
+        ensure_writable(blocker / "out")
+    with pytest.raises(ConfigError, match="it exists and is not a folder"):
+        ensure_writable(blocker)
+
+
+def test_matplotlib_is_imported_only_by_report_figures():
+    code = textwrap.dedent("""
+        import sys
+        import studyctl.analysis, studyctl.report, studyctl.cli.app
+        print('matplotlib' in sys.modules)
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
