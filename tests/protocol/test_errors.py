@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from studyctl.cli.app import main
 from studyctl.errors import NotFoundError, ProtocolError
-from studyctl.protocol import check_protocol, load_protocol
+from studyctl.protocol import check_protocol, find_problems, load_protocol
 
 
 def _problems(write, text: str) -> list[str]:
@@ -211,3 +213,32 @@ def test_cli_check_exit_codes(write, valid_text, capsys):
         "allowed at most 2 items",
     ]
     assert "Traceback" not in err
+
+
+_EDITS = st.sampled_from(["delete", "duplicate", "garble", "indent", "null"])
+
+
+@given(edit=_EDITS, line=st.integers(0, 40), junk=st.text(max_size=12))
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+def test_any_edit_gives_problems_or_a_protocol_never_a_crash(valid_text, edit, line, junk):
+    lines = valid_text.splitlines()
+    i = line % len(lines)
+    if edit == "delete":
+        del lines[i]
+    elif edit == "duplicate":
+        lines.insert(i, lines[i])
+    elif edit == "garble":
+        lines[i] = lines[i][: len(lines[i]) // 2] + junk
+    elif edit == "indent":
+        lines[i] = " " + lines[i]
+    else:
+        head = lines[i].split(":")[0]
+        lines[i] = f"{head}: null" if ":" in lines[i] else lines[i]
+    text = "\n".join(lines) + "\n"
+    model, problems = find_problems(text, "p.yaml")
+    assert (model is None) == bool(problems)
+    for problem in problems:
+        message = str(problem)
+        assert message.startswith(f"p.yaml:{problem.mark.line}:{problem.mark.column}: ")
+        assert ": found " in message and ", allowed " in message
+        assert 1 <= problem.mark.line <= len(text.splitlines()) + 1
