@@ -240,8 +240,8 @@ def init_workspace(
             _link_new(toml_tmp, folder / WORKSPACE_FILE)
             database_desc = str(folder / DB_FILE)
         else:
-            stored_url = url.set(password=None).render_as_string(hide_password=False) if url.password else \
-                url.render_as_string(hide_password=False)
+            # Never write the password into the workspace: libpq reads it from PGPASSWORD or ~/.pgpass.
+            stored_url = url._replace(password=None).render_as_string(hide_password=False)
             if sqlite_path(url) is not None:
                 raise UsageError("--db with init is for PostgreSQL; for SQLite the workspace creates study.db")
             temps.append(toml_tmp)
