@@ -28,8 +28,9 @@ def register(app: typer.Typer) -> None:
             typer.echo(json.dumps(frame.to_dict(orient="records")))
         else:
             table = Table(title="studyctl plugins")
-            for col in ("kind", "name", "package", "version", "status", "detail"):
-                table.add_column(col, overflow="fold")
+            for col in ("kind", "name", "package", "version", "status"):
+                table.add_column(col, no_wrap=True)
+            table.add_column("detail", overflow="fold")
             for row in frame.itertuples(index=False):
                 style = None if row.status == "ok" else "red"
                 table.add_row(row.kind, row.name, row.package, row.version, row.status, row.detail, style=style)
