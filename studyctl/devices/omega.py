@@ -1,0 +1,178 @@
+"""Force Dimension omega.6 adapter through the ``forcedimension_core`` Python bindings (optional extra).
+
+Install with ``pip install 'studyctl[omega]'`` (and the vendor's SDK, whose ``libdhd`` the bindings load).
+The bindings are imported when the device is opened, never at import time, so studyctl runs without them.
+
+Frames and units: the SDK reports metres and the wrist's rotation matrix; this adapter reports the
+handle position in mm (``x_mm``… after ``scale`` and ``offset_mm``), the SDK's windowed velocity estimate
+in mm/s, the pen axis (``dir_x``… — a column of the wrist rotation, ``pen_axis``), and ``button`` (index
+0). Forces are written in N in the device frame; the SDK's own clamp (``setMaxForce``) and watchdog
+(forces off and brakes on when no command arrives for ``watchdog_ms``) stay on underneath the safety layer.
+
+A 1 kHz loop in Python must not share the interpreter with a user interface or logging: run trials on
+this device through :func:`studyctl.devices.servo.run_trial_in_servo_process`, which runs the loop in its
+own process and measures the period jitter.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from studyctl.errors import DeviceError, ModelParameterError
+from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
+
+EXTRA_HINT = "pip install 'studyctl[omega]'"
+
+DEFAULTS: dict[str, Any] = {
+    "max_force_n": 12.0,  # omega.6 peak force (CHAI3D driver spec)
+    "scale": 1.0,  # device mm → scene mm
+    "offset_mm": [0.0, 0.0, 0.0],  # scene position of the device origin
+    "pen_axis": "-x",  # wrist-frame axis that points along the needle (sign and column)
+    "button": 0,
+    "watchdog_ms": 10.0,  # SDK watchdog: forces off when no command for this long (0 = off)
+    "ramp_up_s": 1.0,
+    "max_force_rate_n_per_s": 2000.0,  # slew limit: a puncture drop takes ≥ 0.5 ms per newton
+    "device_id": -1,  # -1: the first available device
+}
+
+
+def load_sdk() -> Any:
+    """The ``forcedimension_core.dhd`` module, or a DeviceError naming the extra to install."""
+    try:
+        from forcedimension_core import dhd  # noqa: PLC0415 - optional dependency, imported on open
+    except ImportError as exc:
+        raise DeviceError(
+            f"device omega6 needs the Force Dimension bindings (forcedimension-core): {EXTRA_HINT} "
+            f"and install the Force Dimension SDK ({exc})"
+        ) from None
+    except OSError as exc:  # the bindings are there but the vendor library (libdhd) is not
+        raise DeviceError(
+            f"device omega6: the Force Dimension SDK library could not be loaded ({exc}); install the SDK "
+            f"from Force Dimension and the bindings with {EXTRA_HINT}"
+        ) from None
+    return dhd
+
+
+class Omega6Device(Device):
+    """omega.6 (3 active translational DoF, passive wrist) behind the plugin Device interface."""
+
+    name = "omega6"
+    simulated = False
+
+    def __init__(
+        self,
+        params: Mapping[str, Any] | None = None,
+        scene: Scene | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        super().__init__(params, scene, rng)
+        p = {**DEFAULTS}
+        for key, value in (params or {}).items():
+            if key not in DEFAULTS:
+                raise ModelParameterError(f"device omega6: unknown parameter {key!r}; allowed: {', '.join(DEFAULTS)}")
+            p[key] = value
+        axis = str(p["pen_axis"])
+        if axis not in ("x", "y", "z", "-x", "-y", "-z"):
+            raise ModelParameterError(f"device omega6: pen_axis = {axis!r}; allowed: x, y, z, -x, -y, -z")
+        for key in ("max_force_n", "scale"):
+            v = p[key]
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (v > 0 and math.isfinite(v)):
+                raise ModelParameterError(f"device omega6: {key} = {v!r} must be a finite number > 0")
+        if float(p["max_force_n"]) > 12.0:
+            raise ModelParameterError(
+                f"device omega6: max_force_n = {p['max_force_n']} exceeds the omega.6 peak force of 12 N"
+            )
+        self.params = p
+        self._col = "xyz".index(axis[-1])
+        self._sign = -1.0 if axis.startswith("-") else 1.0
+        self._offset = tuple(float(v) for v in p["offset_mm"])
+        self._scale = float(p["scale"])
+        self.max_force_n = float(p["max_force_n"])
+        rate = p["max_force_rate_n_per_s"]
+        self.limits = DeviceLimits(
+            outputs=tuple(
+                ChannelLimit(ch, -self.max_force_n, self.max_force_n, 0.0, rate, "N") for ch in ("fx_n", "fy_n", "fz_n")
+            ),
+            max_force_n=self.max_force_n,
+            sensor_stale_s=0.01,
+            ramp_up_s=float(p["ramp_up_s"]),
+        )
+        self._dhd: Any = None
+        self._id = -1
+        self._pos = [0.0, 0.0, 0.0]
+        self._vel = [0.0, 0.0, 0.0]
+        self._rot = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+        self._force = [0.0, 0.0, 0.0]
+        self._feedback = {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0}
+
+    def _check(self, ret: int, op: str) -> None:
+        if ret is not None and ret < 0:
+            raise DeviceError(f"device omega6: {op} failed: {self._dhd.errorGetLastStr()}")
+
+    def open(self) -> None:
+        dhd = load_sdk()
+        self._dhd = dhd
+        want = int(self.params["device_id"])
+        self._id = dhd.open() if want < 0 else dhd.openID(want)
+        if self._id < 0:
+            raise DeviceError(
+                f"device omega6: no Force Dimension device could be opened ({dhd.errorGetLastStr()}); "
+                "check the USB cable, power and that no other program holds it"
+            )
+        self._check(dhd.setMaxForce(self.max_force_n, ID=self._id), "setMaxForce")
+        watchdog = float(self.params["watchdog_ms"])
+        expert = getattr(dhd, "expert", None)
+        if watchdog > 0 and expert is not None and hasattr(expert, "setWatchdog"):
+            self._check(expert.setWatchdog(max(1, round(watchdog * 8)), ID=self._id), "setWatchdog")  # 125 µs units
+        self._check(dhd.enableForce(True, ID=self._id), "enableForce")
+
+    def read(self, t: float) -> Observation:
+        dhd = self._dhd
+        if dhd is None:
+            raise DeviceError("device omega6: read before open()")
+        self._check(dhd.getPosition(out=self._pos, ID=self._id), "getPosition")
+        self._check(dhd.getLinearVelocity(out=self._vel, ID=self._id), "getLinearVelocity")
+        self._check(dhd.getOrientationFrame(out=self._rot, ID=self._id), "getOrientationFrame")
+        button = dhd.getButton(index=int(self.params["button"]), ID=self._id)
+        self._check(button, "getButton")
+        k, o, s = 1000.0 * self._scale, self._offset, self._sign
+        p, v, r, c = self._pos, self._vel, self._rot, self._col
+        values = {
+            "x_mm": o[0] + k * p[0],
+            "y_mm": o[1] + k * p[1],
+            "z_mm": o[2] + k * p[2],
+            "vx_mm_s": k * v[0],
+            "vy_mm_s": k * v[1],
+            "vz_mm_s": k * v[2],
+            "dir_x": s * r[0][c],
+            "dir_y": s * r[1][c],
+            "dir_z": s * r[2][c],
+            "button": 1.0 if button else 0.0,
+        }
+        return Observation(t, values, sample_t=t)
+
+    def write(self, command: Channels) -> None:
+        if self._dhd is None:
+            raise DeviceError("device omega6: write before open()")
+        f = self._force
+        f[0], f[1], f[2] = command.get("fx_n", 0.0), command.get("fy_n", 0.0), command.get("fz_n", 0.0)
+        self._check(self._dhd.setForce(f, ID=self._id), "setForce")
+        fb = self._feedback
+        fb["fx_n"], fb["fy_n"], fb["fz_n"] = f
+
+    def feedback(self) -> dict[str, float]:
+        return self._feedback
+
+    def close(self) -> None:
+        dhd, self._dhd = self._dhd, None
+        if dhd is None:
+            return
+        try:
+            dhd.setForce([0.0, 0.0, 0.0], ID=self._id)
+            dhd.enableForce(False, ID=self._id)
+        finally:
+            dhd.close(self._id)

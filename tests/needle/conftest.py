@@ -1,0 +1,27 @@
+"""Fixtures for the needle-insertion tests (seed 001); makes ``needle_helpers`` importable."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from studyctl.models.needle import NeedleGeometry
+from studyctl.scenes.needle_liver import NeedleLiverScene
+
+HERE = str(Path(__file__).parent)
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+
+
+@pytest.fixture
+def vertical_geometry() -> NeedleGeometry:
+    """Liver sphere of radius 55 mm centred on the tumour at (0, 0, −25); incision straight above."""
+    return NeedleGeometry((0.0, 0.0, -25.0), 55.0, (0.0, 0.0, -25.0), 1.25, (0.0, 0.0, 30.0))
+
+
+@pytest.fixture
+def scene() -> NeedleLiverScene:
+    return NeedleLiverScene.build({}, {"sites": {"tumour": 1}}, frozenset({"layers", "view"}), np.random.default_rng(0))

@@ -1,0 +1,24 @@
+"""Shared helpers of the needle tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def insert_at_constant_speed(model, geometry, speed_mm_s=15.0, start_mm=-10.0, end_mm=None, dt=1e-3):
+    """Drive the tip along the planned path at a constant speed; return arrays of depth and axial force."""
+    a = np.array(geometry.incision_mm)
+    u = np.array(geometry.planned_direction)
+    end = geometry.planned_length_mm + 1.0 if end_mm is None else end_mm
+    s = start_mm
+    depth, f_axial, layer, s_track = [], [], [], []
+    while s <= end:
+        p = a + s * u
+        v = speed_mm_s * u
+        model.step(*p, *v, *u, True)
+        depth.append(model.depth_mm)
+        f_axial.append(model.f_axial)
+        layer.append(model.layer)
+        s_track.append(s)
+        s += speed_mm_s * dt
+    return np.array(s_track), np.array(depth), np.array(f_axial), np.array(layer)
