@@ -1,0 +1,165 @@
+"""Metrics from logged data, the controller against the shipped protocol, and whole virtual trials."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from studyctl.controllers.needle import NeedleHybridController
+from studyctl.devices.force3d import SimulatedForceDevice
+from studyctl.engine.clock import SimulatedClock
+from studyctl.engine.trial_loop import run_trial
+from studyctl.errors import AnalysisError, ModelParameterError
+from studyctl.models.needle import TABLE1, NeedleParams
+from studyctl.models.needle_metrics import (
+    NeedleTrialMetrics,
+    count_scans,
+    mean_tracking_error,
+    needle_trial_metrics,
+    targeting_error,
+    trial_duration,
+)
+from studyctl.participants.needle_operator import VirtualNeedleOperator
+from studyctl.plugins.interfaces import TrialInfo
+from studyctl.scenes.needle_liver import NeedleLiverScene
+
+PROTOCOL = Path(__file__).resolve().parents[2] / "protocols" / "needle_insertion.yaml"
+TRUTH = {
+    "incision_mm": [0.0, 0.0, 30.0],
+    "tumour_center_mm": [0.0, 0.0, -25.0],
+    "liver_center_mm": [0.0, 0.0, -25.0],
+    "liver_radius_mm": 55.0,
+}
+
+
+# ---------------------------------------------------------------- metrics
+def test_metrics_on_a_known_path():
+    t = np.arange(0, 10.0, 0.001)
+    z = 40.0 - 7.0 * t  # from 10 mm above the incision to 30 mm past the tumour centroid… clipped below
+    z = np.maximum(z, -24.0)  # stops 1 mm above the centroid
+    x = np.where(z < 30.0, 2.0, 5.0)  # 2 mm off the path inside the liver, 5 mm outside
+    samples = pd.DataFrame({"t": t, "x_mm": x, "y_mm": 0.0, "z_mm": z})
+    events = [{"t": 1.0, "kind": "scan"}, {"t": 4.0, "kind": "scan"}, {"t": 9.9995, "kind": "trial_loop_end"}]
+    m = needle_trial_metrics(samples, events, TRUTH)
+    assert m.scans == 2 and count_scans(events) == 2
+    assert m.duration_s == pytest.approx(9.9995)
+    assert m.tracking_error_mm == pytest.approx(2.0)  # only samples inside the liver count
+    assert m.targeting_error_mm == pytest.approx(math.hypot(2.0, 1.0))
+    assert m.insertion_samples == int(((z < 30.0) & (np.hypot(x, z + 25) < 55)).sum())
+    frame = m.to_frame()
+    assert list(frame.columns) == list(NeedleTrialMetrics.COLUMNS) and len(frame) == 1
+    # past the tumour the distance is to the segment's end (the centroid)
+    beyond = pd.DataFrame({"t": [0.0], "x_mm": [0.0], "y_mm": [0.0], "z_mm": [-28.0]})
+    assert mean_tracking_error(beyond, TRUTH) == pytest.approx(3.0)
+    assert targeting_error(beyond, TRUTH) == pytest.approx(3.0)
+
+
+def test_duration_is_capped_and_errors_are_clear():
+    samples = pd.DataFrame({"t": [0.0, 95.0], "x_mm": 0.0, "y_mm": 0.0, "z_mm": 50.0})
+    assert trial_duration(samples, [], 90.0) == 90.0
+    assert trial_duration(samples, [{"kind": "trial_loop_end", "t": 12.5}], 90.0) == 12.5
+    assert math.isnan(mean_tracking_error(samples, TRUTH))  # never inserted
+    with pytest.raises(AnalysisError, match="x_mm"):
+        needle_trial_metrics(pd.DataFrame({"t": [0.0]}), [], TRUTH)
+    with pytest.raises(AnalysisError, match="tumour_center_mm"):
+        targeting_error(samples, {"incision_mm": [0, 0, 0]})
+
+
+# ---------------------------------------------------------------- controller and protocol
+def test_shipped_protocol_conditions_are_table1():
+    data = yaml.safe_load(PROTOCOL.read_text())
+    conds = {c["id"]: c for c in data["conditions"]}
+    assert set(conds) == set(TABLE1)
+    for cid, cond in conds.items():
+        assert cond["controller"] == "needle_hybrid"
+        assert NeedleParams.from_mapping(cond["params"]) == NeedleParams.from_mapping({"scenario": cid})
+        assert cond["visual"] == ("realtime" if cid == "RT" else "on_request")
+
+
+def test_controller_needs_the_liver_scene_and_reports_diagnostics(scene):
+    with pytest.raises(ModelParameterError, match="needle_liver"):
+        NeedleHybridController({"scenario": "BL"}, None)
+    ctrl = NeedleHybridController({"scenario": "ES"}, scene)
+    assert ctrl.rate_hz == 1000.0 and NeedleHybridController.needs({}) == frozenset({"layers"})
+    from studyctl.plugins.interfaces import Observation
+
+    g = scene.geometry()
+    a, u = np.array(g.incision_mm), np.array(g.planned_direction)
+    p = a + 5.0 * u
+    cmd = ctrl.step(Observation(0.0, {"x_mm": p[0], "y_mm": p[1], "z_mm": p[2], "dir_x": u[0],
+                                      "dir_y": u[1], "dir_z": u[2]}))  # fmt: skip
+    assert set(cmd) == {"fx_n", "fy_n", "fz_n"}
+    assert ctrl.diagnostics["layer"] == 1.0 and ctrl.diagnostics["depth_mm"] == pytest.approx(5.0, abs=0.01)
+    assert [e["kind"] for e in ctrl.events] == ["capsule_contact"]
+    # a faulted device gets no force
+    assert ctrl.step(Observation(0.001, {"x_mm": p[0], "y_mm": p[1], "z_mm": p[2], "fault": 1.0})) == {
+        "fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0}  # fmt: skip
+
+
+# ---------------------------------------------------------------- whole virtual trials
+def _trial(condition: str, participant: VirtualNeedleOperator, site: int, seed: int):
+    rng = np.random.default_rng(seed)
+    scene = NeedleLiverScene.build({}, {"sites": {"tumour": site}}, frozenset({"layers", "view"}), rng)
+    ctrl = NeedleHybridController({"scenario": condition}, scene)
+    device = SimulatedForceDevice({"device_class": "omega6"}, scene)
+    device.open()
+    rows: list[tuple[float, float, float, float]] = []
+    visual = "realtime" if condition == "RT" else "on_request"
+    out = run_trial(
+        info=TrialInfo(condition, 90.0, 1000.0, visual),
+        controller=ctrl,
+        device=device,
+        participant=participant,
+        clock=SimulatedClock(),
+        rng=rng,
+        on_sample=lambda t, s: rows.append((t, s["x_mm"], s["y_mm"], s["z_mm"])),
+        view=scene.view,
+    )
+    samples = pd.DataFrame(rows, columns=["t", "x_mm", "y_mm", "z_mm"])
+    return out, needle_trial_metrics(samples, out.events, scene.truth())
+
+
+def test_virtual_operator_reaches_the_tumour_through_the_simulator():
+    op = VirtualNeedleOperator({})
+    out, m = _trial("BL", op, site=2, seed=11)
+    assert out.ended_by == "finish"
+    assert m.scans == out.scans >= 2  # at least the planning scan and one check
+    assert m.targeting_error_mm < 3.0 and m.tracking_error_mm < 3.0
+    kinds = [e["kind"] for e in out.events]
+    assert kinds.index("scan") < kinds.index("capsule_contact") < kinds.index("capsule_puncture")
+    # same seed, fresh operator: the same trial
+    out2, m2 = _trial("BL", VirtualNeedleOperator({}), site=2, seed=11)
+    assert m2 == m
+
+
+def test_realtime_view_needs_no_scans_and_enhanced_sensing_gives_a_cue():
+    op = VirtualNeedleOperator({})
+    out, m = _trial("RT", op, site=3, seed=5)
+    assert m.scans == 0 and out.ended_by == "finish" and m.targeting_error_mm < 3.0
+    es = VirtualNeedleOperator({})
+    felt = []
+    for rep in range(3):
+        out, m = _trial("ES", es, site=4 + rep, seed=20 + rep)
+        felt.append(es.history[-1]["cue"])
+        assert out.ended_by == "finish"
+    assert any(felt)  # the magnified tumour force is noticed
+    bl = VirtualNeedleOperator({})
+    for rep in range(3):
+        _trial("BL", bl, site=4 + rep, seed=20 + rep)
+    assert not any(h["cue"] for h in bl.history)  # the compliant tumour is not
+
+
+def test_likert_answers_are_valid_codes():
+    op = VirtualNeedleOperator({})
+    for cond in ("BL", "ESG"):
+        _trial(cond, op, site=1, seed=3)
+    rng = np.random.default_rng(0)
+    for item in ("improved_vs_baseline", "easy_to_navigate", "confidence_increase", "haptic_equals_visual",
+                 "easier_with_haptics", "quick_to_learn", "something else"):  # fmt: skip
+        code = op.answer({"id": item, "text": "", "codes": [1, 2, 3, 4, 5], "condition": "ESG"}, rng)
+        assert code in (1, 2, 3, 4, 5)
