@@ -233,6 +233,7 @@ class Planner:
 
     def __init__(self, protocol: Protocol) -> None:
         self.protocol = protocol
+        self._protocol_id, self._protocol_sha256 = protocol.study.id, protocol.sha256
         cb = protocol.counterbalance
         self.fixed = tuple(cb.fixed_first)
         ordered = cb.conditions if cb.conditions is not None else [
@@ -279,6 +280,8 @@ class Planner:
         self._stratum_keys = {s: stratum_key(s) for s in self.strata}
         admins = protocol.questionnaires
         self.q_start = tuple(a.instrument for a in admins if a.when == "start")
+        self.n_trials = len(self.fixed + self.ordered) * self.repetitions * self.blocks
+        self._place_batch = max(8, 2 * self.n_trials)
         self.needs_rng = self.sequences is None or bool(self.items) or bool(self.orient_choices)
         self._skeletons: dict[tuple[str, ...], tuple[tuple[Any, ...], ...]] = {}
         self._plain_entries: dict[tuple[str, ...], tuple[PlanEntry, ...]] = {}
@@ -305,6 +308,31 @@ class Planner:
     def expand(self, *, seed: int, slot: int, stratum: str | None = None) -> Schedule:
         """The plan of the participant in allocation slot ``slot`` of ``stratum`` (see module docs)."""
         stratum = self._check(seed, slot, stratum)
+        rng, sequence, order = self._start(seed, stratum, slot)
+        placements = self._placements(rng, self.n_trials) if self.items else None  # type: ignore[arg-type]
+        return self._finish(seed, stratum, slot, sequence, order, rng, placements)
+
+    def expand_batch(self, *, seed: int, pairs: Sequence[tuple[str | None, int]]) -> list[Schedule]:
+        """Plans of many ``(stratum, slot)`` participants; identical to :meth:`expand` for each.
+
+        Faster for previews and benchmarks: the first batch of placement candidates of every
+        participant is drawn from that participant's own generator, then ranked in one numpy call.
+        """
+        checked = [(self._check(seed, slot, stratum), slot) for stratum, slot in pairs]
+        if not self.items:
+            return [self.expand(seed=seed, slot=slot, stratum=stratum) for stratum, slot in checked]
+        started = [self._start(seed, stratum, slot) for stratum, slot in checked]
+        draws = np.stack([rng.random((self._place_batch, self.sites)) for rng, _, _ in started])  # type: ignore[union-attr]
+        firsts = (np.argsort(draws, axis=2, kind="stable")[:, :, : len(self.items)] + 1).tolist()
+        return [
+            self._finish(seed, stratum, slot, sequence, order, rng,
+                         self._placements(rng, self.n_trials, first=first))  # type: ignore[arg-type]
+            for (stratum, slot), (rng, sequence, order), first in zip(checked, started, firsts, strict=True)
+        ]
+
+    def _start(self, seed: int, stratum: str, slot: int) -> tuple[np.random.Generator | None, int | None,
+                                                                   tuple[str, ...]]:
+        """The participant's generator (None when nothing is drawn), sequence index and condition order."""
         key = self._stratum_keys[stratum] if self.within_strata else 0
         # Only protocols that draw anything pay for a generator.
         rng = participant_rng(seed, key, slot) if self.needs_rng else None
@@ -314,11 +342,13 @@ class Planner:
             order = self.fixed + tuple(self.ordered[i] for i in perm)
         else:
             order = self.sequences[sequence]  # type: ignore[index]
+        return rng, sequence, order
+
+    def _finish(self, seed: int, stratum: str, slot: int, sequence: int | None, order: tuple[str, ...],
+                rng: np.random.Generator | None, placements: list[tuple[tuple[str, int], ...]] | None) -> Schedule:
         skeleton = self._skeletons.get(order)
         if skeleton is None:
             skeleton = self._skeletons[order] = self._skeleton(order)
-        n_trials = len(skeleton)
-        placements = self._placements(rng, n_trials) if self.items else None  # type: ignore[arg-type]
         orientations = self._orientations(rng, skeleton) if self.orient_choices else None  # type: ignore[arg-type]
         if placements is None and orientations is None:
             entries = self._plain_entries.get(order)
@@ -334,8 +364,8 @@ class Planner:
                 for t, p, b, c, r, tl, fam, brk, after in skeleton
             )
         return Schedule(
-            protocol_id=self.protocol.study.id,
-            protocol_sha256=self.protocol.sha256,
+            protocol_id=self._protocol_id,
+            protocol_sha256=self._protocol_sha256,
             algorithm_version=SCHEDULE_ALGORITHM_VERSION,
             seed=int(seed),
             stratum=stratum,
@@ -400,14 +430,22 @@ class Planner:
                 out.append(instrument)
         return tuple(out)
 
-    def _placements(self, rng: np.random.Generator, n_trials: int) -> list[tuple[tuple[str, int], ...]]:
-        """Item→site placements per trial, each different from the previous one by the protocol's rule."""
+    def _placements(self, rng: np.random.Generator, n_trials: int,
+                    first: list[list[int]] | None = None) -> list[tuple[tuple[str, int], ...]]:
+        """Item→site placements per trial, each different from the previous one by the protocol's rule.
+
+        Candidates come in batches of ``_place_batch`` rows of uniforms, ranked per row (the first
+        ``len(items)`` ranks are the 1-based sites); ``first`` is the first batch already ranked.
+        """
         k, n, rule, items = len(self.items), self.sites, self.place_rule, self.items
         out: list[tuple[tuple[str, int], ...]] = []
         previous: list[int] | None = None
-        batch = max(8, 2 * n_trials)
         while len(out) < n_trials:
-            candidates = (np.argsort(rng.random((batch, n)), axis=1, kind="stable")[:, :k] + 1).tolist()
+            if first is not None:
+                candidates, first = first, None
+            else:
+                candidates = (np.argsort(rng.random((self._place_batch, n)), axis=1, kind="stable")[:, :k]
+                              + 1).tolist()
             for cand in candidates:
                 if previous is not None:
                     if rule == "assignment" and cand == previous:
@@ -493,9 +531,7 @@ def allocate_strata(protocol: Protocol, participants: int) -> list[tuple[str, in
 
 def expand_many(protocol: Protocol, *, seed: int, participants: int) -> list[Schedule]:
     """Plans of participants 1..N allocated by :func:`allocate_strata` (for previews and benchmarks)."""
-    planner = Planner(protocol)
-    return [planner.expand(seed=seed, slot=slot, stratum=stratum)
-            for stratum, slot in allocate_strata(protocol, participants)]
+    return Planner(protocol).expand_batch(seed=seed, pairs=allocate_strata(protocol, participants))
 
 
 def schedule_balance(protocol: Protocol, schedules: Iterable[Schedule]) -> cbal.BalanceReport:

@@ -179,6 +179,29 @@ def test_allocate_strata_by_target(mini):
     assert rows["participant"].tolist() == [1] * 4 + [2] * 4 + [3] * 4
 
 
+@pytest.mark.parametrize("name", ["bio_inspired_palpation", "needle_insertion", "data_driven_palpation",
+                                  "pseudo_haptic_palpation"])
+def test_batch_expansion_equals_one_by_one(name):
+    protocol = load_protocol(resolve_protocol(name))
+    pairs = allocate_strata(protocol, 60)
+    planner = Planner(protocol)
+    assert planner.expand_batch(seed=17, pairs=pairs) == [
+        Planner(protocol).expand(seed=17, slot=slot, stratum=stratum) for stratum, slot in pairs
+    ]
+
+
+def test_batch_expansion_with_scarce_candidates(valid_text):
+    # 2 sites, 2 items, every item moves: only the swap is accepted, so most batches run dry
+    protocol = _variant(valid_text, "sites: 7, items: [soft, medium, hard], differ_from_previous: every_item",
+                        "sites: 2, items: [soft, medium], differ_from_previous: every_item")
+    protocol = _variant(protocol.source_text, "  scheme: williams", "  scheme: williams\ndesign: {repetitions: 9}")
+    pairs = [("novice", k) for k in range(10)]
+    batch = Planner(protocol).expand_batch(seed=5, pairs=pairs)
+    assert batch == [expand_schedule(protocol, seed=5, slot=k, stratum="novice") for _, k in pairs]
+    sites = [e.placement_map["soft"] for e in batch[0].entries]
+    assert len(sites) == 36 and all(a != b for a, b in zip(sites, sites[1:], strict=False))
+
+
 def test_counterbalancing_across_strata(valid_text):
     protocol = _variant(valid_text, "  scheme: williams", "  scheme: williams\n  within_strata: false")
     assert allocate_strata(protocol, 4) == [("novice", 0), ("novice", 1), ("expert", 2), ("expert", 3)]
