@@ -356,6 +356,11 @@ class ForceRenderer:
         self._retracting = False
         self._anchor: tuple[float, float] | None = None
         self._dir = (0.0, 0.0)
+        # The last tick's contact point (tissue frame) and clamped table forces before the retraction rule:
+        # what a pseudo-haptic cursor and a deformation view need, without a second mesh query.
+        self.last_contact_xy = (0.0, 0.0)
+        self.last_table_n = 0.0
+        self.last_table_h = 0.0
 
     def render(self, x: float, y: float, z: float) -> tuple[float, float, float, float, float, float, bool, bool]:
         """One tick for a probe at device-frame (x, y, z) mm.
@@ -385,12 +390,16 @@ class ForceRenderer:
         if hit is None:
             self._depth_ref = 0.0
             self._retracting = False
+            self.last_table_n = self.last_table_h = 0.0
             return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, False)
         depth, qx, qy, _qz, nx, ny, nz = hit
         fn, fh = self._lookup(qx, qy, depth)
         fmax = self._fmax
         fn = 0.0 if fn < 0.0 else (fmax if fn > fmax else fn)
         fh = 0.0 if fh < 0.0 else (fmax if fh > fmax else fh)
+        self.last_contact_xy = (qx, qy)
+        self.last_table_n = fn
+        self.last_table_h = fh
         if depth > self._depth_ref:
             self._depth_ref = depth
             self._retracting = False

@@ -1,0 +1,473 @@
+"""A virtual participant who palpates a stiffness-map tissue (seeds 002 and 003) through the simulated
+device and the screen, and reports nodules from what it perceived.
+
+What it may use: the visible tissue surface (``TrialInfo.public["surface"]`` or the view's ``surface``,
+device frame), the cursor on screen (the view's ``cursor_mm`` in visual conditions), what its hand feels
+(the device's delivered ``fx_n``/``fy_n``/``fz_n``) and where its hand is (the device's ``x_mm``/``y_mm``/
+``z_mm``: proprioception). Never the scene's truth.
+
+Strategy: a survey of presses along parallel lines (``line_spacing_mm`` apart, ``press_spacing_mm`` between
+presses, every other line shifted by half a spacing, boustrophedon), then a 3 × 3 follow-up grid
+(``follow_up_spacing_mm``) around each spot whose survey evidence exceeds ``follow_up_z`` (at most
+``follow_up_count`` spots). A press brings the watched point — the cursor when one is visible, else the hand —
+from ``hover_mm`` above the visible surface to ``press_depth_mm`` below it with a saturated proportional law
+on its error (``gain_per_s``), so the cursor's lag (pseudo-haptics) and the rendered force pushing the hand
+back (the device's spring-held hand) are compensated the way a person does, by moving the hand further.
+Moves in the air are planned straight-line hand motions.
+
+Perception per press (noise multiplicative, drawn from the trial's rng):
+
+* force cue (FF, PHF+FF): the largest force felt at the bottom over the indentation seen there, the way
+  people judge stiffness (force per displacement; ``force_weber``, ``depth_weber``);
+* cursor cue (PHF, PHF+FF): hand travel over cursor travel during the last ``ratio_window_mm`` of the
+  cursor's descent into the tissue, ``q ≈ 1/R_n = (f_n + 1)/R₀``, read as a force ``R₀·q − 1`` with ``R₀``
+  taken from how the cursor follows the hand in the air (``visual_weber``).
+
+A cue is used only if it is perceivable: the force cue if forces were felt at all, the cursor cue if the
+cursor visibly lagged the hand (median ``R₀·q − 1`` above 0.05 N). Each press's contrast is its cue over the
+median of the survey presses within ``baseline_radius_mm``, minus one; cues are fused by inverse-variance
+weighting (the maximum-likelihood integration seed 003 cites), noise levels being robust SDs over the survey.
+Evidence at a press averages the presses within half ``cluster_radius_mm``; spots above ``z_threshold`` SDs
+are reported at their contrast-weighted centroid (at most ``max_reports``, or the nodule count when told),
+one report per tick, then the participant finishes.
+
+Parameters (``params=``): see :data:`PARAMS`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from studyctl.errors import ModelParameterError
+from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
+from studyctl.plugins.params import Param, validate_params
+
+PARAMS = (
+    Param("line_spacing_mm", 8.0, low=1.0, high=50.0, unit="mm", source="chosen: below a nodule's reach"),
+    Param(
+        "press_spacing_mm",
+        8.0,
+        low=1.0,
+        high=50.0,
+        unit="mm",
+        source="chosen: every other line shifted by half this, so no spot is farther than 5 mm from a press",
+    ),
+    Param("margin_mm", 6.0, low=0.0, high=50.0, unit="mm", source="chosen: stay off the tissue's edge"),
+    Param("press_depth_mm", 5.0, low=0.5, high=15.0, unit="mm", source="chosen: inside the 2-7 mm maps"),
+    Param("depth_noise_mm", 0.2, low=0.0, high=5.0, unit="mm", source="chosen: press-to-press depth scatter"),
+    Param("hover_mm", 2.0, low=0.5, high=30.0, unit="mm", source="chosen"),
+    Param("move_speed_mm_s", 60.0, low=1.0, high=500.0, unit="mm/s", source="chosen"),
+    Param("press_speed_mm_s", 40.0, low=1.0, high=500.0, unit="mm/s", source="seed 003: 30 mm/s rolling scans"),
+    Param(
+        "gain_per_s",
+        8.0,
+        low=0.5,
+        high=200.0,
+        unit="1/s",
+        source="chosen: 125 ms hand-eye time constant, stable with the device's spring-held hand (4 Hz)",
+    ),
+    Param("tolerance_mm", 0.3, low=0.01, high=5.0, unit="mm", source="chosen: depth accuracy at the press bottom"),
+    Param("settle_s", 0.05, low=0.0, high=5.0, unit="s", source="chosen: a pause before pressing"),
+    Param("phase_timeout_s", 1.5, low=0.1, high=30.0, unit="s", source="chosen"),
+    Param("dwell_s", 0.08, low=0.0, high=5.0, unit="s", source="chosen"),
+    Param(
+        "force_weber",
+        0.06,
+        low=0.0,
+        high=1.0,
+        source="σ of one judgement = JND/(√2·0.954) for a force JND of 8% (Jones 1989), 75% correct 2AFC",
+    ),
+    Param(
+        "ratio_window_mm",
+        2.0,
+        low=0.2,
+        high=20.0,
+        unit="mm",
+        source="chosen: the cursor's slowing is judged over the last part of its travel",
+    ),
+    Param("visual_weber", 0.074, low=0.0, high=1.0, source="the same relation for a visual speed JND of 10%"),
+    Param("depth_weber", 0.05, low=0.0, high=1.0, source="chosen: reading the indentation depth off the screen"),
+    Param("max_press_force_n", 3.0, low=0.1, high=20.0, unit="N", source="chosen: below the Omni's 3.3 N"),
+    Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm", source="chosen"),
+    Param("cluster_radius_mm", 10.0, low=1.0, high=100.0, unit="mm", source="chosen: a nodule's reach"),
+    Param("z_threshold", 3.0, low=0.5, high=20.0, source="chosen: 3 robust SDs of the averaged contrast"),
+    Param("follow_up_z", 1.5, low=0.0, high=20.0, source="chosen: survey presses this suspicious are re-palpated"),
+    Param("follow_up_count", 5, low=0, high=50, kind=int, source="chosen: spots re-palpated at most"),
+    Param("follow_up_spacing_mm", 4.0, low=0.5, high=20.0, unit="mm", source="chosen: a 3 × 3 local grid"),
+    Param("max_reports", 6, low=1, high=100, kind=int, source="chosen"),
+)
+
+
+def _surface_sampler(surface: Mapping[str, Any]):
+    xs = np.asarray(surface["xs_mm"], dtype=float)
+    ys = np.asarray(surface["ys_mm"], dtype=float)
+    h = np.asarray(surface["heights_mm"], dtype=float)
+    if xs.ndim != 1 or ys.ndim != 1 or h.shape != (xs.size, ys.size) or xs.size < 2 or ys.size < 2:
+        raise ModelParameterError("virtual_tissue_palpator: the visible surface must be xs_mm, ys_mm, heights_mm grids")
+    x0, dx, y0, dy = float(xs[0]), float(xs[1] - xs[0]), float(ys[0]), float(ys[1] - ys[0])
+    rows = h.tolist()
+    nx, ny = xs.size, ys.size
+
+    def height(x: float, y: float) -> float:
+        """Bilinear height of the visible surface; NaN off the tissue."""
+        u = (x - x0) / dx
+        v = (y - y0) / dy
+        if u < 0 or v < 0 or u > nx - 1 or v > ny - 1:
+            return math.nan
+        i = min(int(u), nx - 2)
+        j = min(int(v), ny - 2)
+        tu, tv = u - i, v - j
+        return (
+            rows[i][j] * (1 - tu) * (1 - tv)
+            + rows[i + 1][j] * tu * (1 - tv)
+            + rows[i][j + 1] * (1 - tu) * tv
+            + rows[i + 1][j + 1] * tu * tv
+        )
+
+    return height, (float(xs[0]), float(xs[-1]), float(ys[0]), float(ys[-1])), np.isfinite(h), xs, ys
+
+
+class VirtualTissuePalpator(Participant):
+    """Presses a grid over the visible tissue, perceives force and cursor resistance, reports stiff spots."""
+
+    name = "virtual_tissue_palpator"
+    virtual = True
+    PARAMS: ClassVar[tuple[Param, ...]] = PARAMS
+
+    def __init__(self, params: Mapping[str, Any] | None = None) -> None:
+        super().__init__(params)
+        self.params = validate_params("virtual_tissue_palpator participant", params, PARAMS)
+
+    # ------------------------------------------------------------------ trial set-up
+    def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
+        self.info = info
+        self.rng = rng
+        self._ticks = 0
+        self._t_prev = 0.0
+        self._height = None
+        start = info.public.get("start_mm")
+        self._hand = [float(v) for v in start] if start is not None else None
+        self._presses: list[dict[str, float]] = []
+        self._plan: list[tuple[float, float]] = []
+        self._phase = "setup"
+        self._phase_t = 0.0
+        self._target = (0.0, 0.0, 0.0)
+        self._goal: tuple[float, float, float] | None = None
+        self._settle_at = math.inf
+        self._replan = False
+        self._press: dict[str, Any] = {}
+        self._air_moves: list[tuple[float, float]] = []
+        self._last_cursor: tuple[float, float, float] | None = None
+        self._last_handle: tuple[float, float, float] | None = None
+        self._reports: list[tuple[float, float]] = []
+        self.perceived: dict[str, Any] = {}
+
+    def _setup(self, surface: Mapping[str, Any]) -> None:
+        p = self.params
+        self._height, (x0, x1, y0, y1), valid, xs, ys = _surface_sampler(surface)
+        m = p["margin_mm"]
+        plan = []
+        ylines = np.arange(y0 + m, y1 - m + 1e-9, p["line_spacing_mm"])
+        for k, y in enumerate(ylines):
+            shift = 0.5 * p["press_spacing_mm"] if k % 2 else 0.0  # a staggered (triangular) lattice
+            xline = np.arange(x0 + m + shift, x1 - m + 1e-9, p["press_spacing_mm"])
+            if k % 2:
+                xline = xline[::-1]
+            for x in xline:
+                # only where the visible tissue is, with the margin all round
+                if all(
+                    math.isfinite(self._height(float(x) + ox, float(y) + oy))
+                    for ox, oy in ((0, 0), (m, 0), (-m, 0), (0, m), (0, -m))
+                ):
+                    plan.append((float(x), float(y)))
+        if not plan:
+            raise ModelParameterError(
+                "virtual_tissue_palpator: no press point fits on the visible surface; lower margin_mm or the spacings"
+            )
+        self._plan = plan[::-1]  # pop() from the end
+        self._stage = "survey"
+        self._next_press()
+
+    def _next_press(self) -> None:
+        if not self._plan and self._stage == "survey":
+            self._stage = "follow_up"
+            self._plan = self._follow_up_plan()[::-1]
+        if not self._plan:
+            self._phase = "decide"
+            return
+        x, y = self._plan.pop()
+        h = self._height(x, y)
+        self._press = {"x": x, "y": y, "h": h}
+        self._phase = "travel"
+        self._phase_t = 0.0
+        self._target = (x, y, h + self.params["hover_mm"])
+        self._replan = True
+
+    # ------------------------------------------------------------------ the tick
+    def act(self, t: float, percept: Mapping[str, Any]) -> Action:
+        dt = max(t - self._t_prev, 0.0)
+        self._t_prev = t
+        self._ticks += 1
+        view = percept.get("view") if isinstance(percept.get("view"), Mapping) else None
+        if self._height is None:
+            surface = (view or {}).get("surface") or self.info.public.get("surface")
+            if surface:
+                self._setup(surface)
+            elif self._ticks > 3:
+                raise ModelParameterError(
+                    "virtual_tissue_palpator: the tissue surface is not visible; run the condition with visual: "
+                    "realtime or pass the scene's public() surface in TrialInfo.public"
+                )
+        if "x_mm" in percept:
+            handle = (float(percept["x_mm"]), float(percept["y_mm"]), float(percept["z_mm"]))
+        else:
+            handle = None
+        if self._hand is None:
+            self._hand = list(handle) if handle is not None else [0.0, 0.0, 100.0]
+        if self._height is None:
+            return Action(inputs=self._inputs())
+        cursor = view.get("cursor_mm") if view is not None else None
+        cursor = tuple(float(v) for v in cursor) if cursor is not None else None
+        ctrl = cursor if cursor is not None else (handle if handle is not None else tuple(self._hand))
+        force = 0.0
+        if "fx_n" in percept:
+            force = math.sqrt(percept["fx_n"] ** 2 + percept["fy_n"] ** 2 + percept["fz_n"] ** 2)
+        self._observe_air(cursor, handle, ctrl)
+        self._phase_t += dt
+        requests: tuple[Request, ...] = ()
+        if self._phase == "decide":
+            self._reports = self._decide()
+            self._phase = "report"
+        if self._phase == "report":
+            if self._reports:
+                x, y = self._reports.pop(0)
+                requests = (Request("report", {"x_mm": x, "y_mm": y}),)
+            else:
+                self._phase = "done"
+                requests = (Request("finish"),)
+            return Action(inputs=self._inputs(), requests=requests)
+        if self._phase == "done":
+            return Action(inputs=self._inputs(), requests=(Request("finish"),))
+        self._advance(ctrl, cursor, handle, force)
+        self._move_hand(ctrl, dt)
+        return Action(inputs=self._inputs())
+
+    def _inputs(self) -> dict[str, float]:
+        h = self._hand
+        return {"x_mm": h[0], "y_mm": h[1], "z_mm": h[2]}
+
+    def _move_hand(self, ctrl: tuple[float, float, float], dt: float) -> None:
+        """Moves in the air are planned (open loop, straight, at ``move_speed_mm_s``); presses are steered by
+        a saturated proportional law on what the participant watches (cursor or hand)."""
+        p = self.params
+        h = self._hand
+        if self._goal is not None:
+            gx, gy, gz = self._goal
+            ex, ey, ez = gx - h[0], gy - h[1], gz - h[2]
+            dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+            step = p["move_speed_mm_s"] * dt
+            k = 1.0 if dist <= step else step / dist
+            h[0] += k * ex
+            h[1] += k * ey
+            h[2] += k * ez
+            return
+        tx, ty, tz = self._target
+        ex, ey, ez = tx - ctrl[0], ty - ctrl[1], tz - ctrl[2]
+        k = p["gain_per_s"] * dt
+        vx, vy, vz = ex * k, ey * k, ez * k
+        lateral = p["move_speed_mm_s"] * dt
+        vertical = p["press_speed_mm_s"] * dt
+        lat = math.hypot(vx, vy)
+        if lat > lateral:
+            vx, vy = vx * lateral / lat, vy * lateral / lat
+        vz = max(-vertical, min(vertical, vz))
+        h[0] += vx
+        h[1] += vy
+        h[2] += vz
+
+    def _plan_move(self, ctrl: tuple[float, float, float]) -> None:
+        """Hand goal that brings the watched point to the target, never lower than the target height (a
+        force pushing the hand back in the tissue vanishes in the air)."""
+        t, h = self._target, self._hand
+        self._goal = (h[0] + t[0] - ctrl[0], h[1] + t[1] - ctrl[1], max(h[2] + t[2] - ctrl[2], t[2]))
+
+    def _goal_reached(self) -> bool:
+        return self._goal is not None and math.dist(self._goal, self._hand) < 1e-9
+
+    def _observe_air(self, cursor, handle, ctrl) -> None:
+        """Out of contact, how far the cursor moves per hand millimetre (the participant's sense of R₀)."""
+        if cursor is not None and handle is not None and self._last_cursor is not None and self._height is not None:
+            h = self._height(cursor[0], cursor[1])
+            if not math.isfinite(h) or cursor[2] > h + 0.5:
+                dc = math.dist(cursor, self._last_cursor)
+                dh = math.dist(handle, self._last_handle)
+                if dh > 1e-3:
+                    self._air_moves.append((dc, dh))
+        self._last_cursor = cursor
+        self._last_handle = handle
+
+    def _advance(self, ctrl, cursor, handle, force) -> None:
+        p = self.params
+        press = self._press
+        if self._replan:
+            self._plan_move(ctrl)
+            self._replan = False
+        near = math.dist(ctrl, self._target) <= p["tolerance_mm"]
+        timed_out = self._phase_t >= p["phase_timeout_s"]
+        settled = self._goal_reached() and self._phase_t >= self._settle_at
+        if self._phase == "travel":
+            if self._goal_reached() and self._settle_at == math.inf:
+                self._settle_at = self._phase_t + p["settle_s"]
+            if settled or timed_out:
+                depth = p["press_depth_mm"] + p["depth_noise_mm"] * float(self.rng.normal())
+                self._target = (press["x"], press["y"], press["h"] - max(depth, 0.2))
+                self._goal, self._settle_at = None, math.inf
+                self._phase, self._phase_t = "press", 0.0
+                press.update(track=[], peak_force=0.0)
+        elif self._phase == "press":
+            if cursor is not None and handle is not None and ctrl[2] <= press["h"]:
+                track = press["track"]
+                if not track or cursor[2] < track[-1][0]:
+                    track.append((cursor[2], handle[2]))  # the cursor's descent and the hand's, in contact
+            if near or timed_out or force >= p["max_press_force_n"]:
+                self._phase, self._phase_t = "dwell", 0.0
+                press["bx"], press["by"], press["bz"] = ctrl[0], ctrl[1], ctrl[2]
+                self._target = ctrl  # hold still where the press ended
+        elif self._phase == "dwell":
+            press["peak_force"] = max(press["peak_force"], force)
+            if self._phase_t >= p["dwell_s"]:
+                self._record(press)
+                self._target = (ctrl[0], ctrl[1], press["h"] + p["hover_mm"])
+                self._phase, self._phase_t = "lift", 0.0
+                self._replan = True
+        elif self._phase == "lift":
+            if self._goal_reached() or timed_out:
+                self._goal, self._settle_at = None, math.inf
+                self._next_press()
+
+    def _record(self, press: dict[str, Any]) -> None:
+        p = self.params
+        rng = self.rng
+        row = {"x": press["bx"], "y": press["by"], "force": math.nan, "ratio": math.nan, "stage": self._stage}
+        depth = press["h"] - press["bz"]  # the indentation the participant sees (cursor) or feels (hand)
+        if press["peak_force"] > 0.0 and depth > 0.2:
+            # Stiffness as people judge it: the force felt per indentation seen (Srinivasan & LaMotte 1995).
+            felt = press["peak_force"] * (1.0 + p["force_weber"] * float(rng.normal()))
+            seen = depth * (1.0 + p["depth_weber"] * float(rng.normal()))
+            row["force"] = felt / seen
+        track = press["track"]
+        if len(track) >= 2 and track[0][0] - track[-1][0] > 0.5:
+            bc, bh = track[-1]
+            # the last ratio_window_mm of the cursor's descent (or all of it when it was shorter)
+            k = next((i for i in range(len(track) - 1, -1, -1) if track[i][0] - bc >= p["ratio_window_mm"]), 0)
+            oc, oh = track[k]
+            if oc - bc > 0.2:
+                row["ratio"] = (oh - bh) / (oc - bc) * (1.0 + p["visual_weber"] * float(rng.normal()))
+        self._presses.append(row)
+
+    # ------------------------------------------------------------------ the decision
+    def _evidence(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Per press: position, combined stiffness contrast and its noise (inverse-variance cue fusion).
+
+        Baselines (local medians) and noise levels (robust SDs) come from the survey presses only, so that
+        the follow-up presses around a suspicious spot do not raise their own baseline.
+        """
+        p = self.params
+        rows = self._presses
+        if len(rows) < 5:
+            return None
+        pts = np.array([[r["x"], r["y"]] for r in rows])
+        survey = np.array([r["stage"] == "survey" for r in rows])
+        cues: list[tuple[np.ndarray, str]] = []
+        force = np.array([r["force"] for r in rows])
+        if np.isfinite(force[survey]).sum() >= 5 and np.nanmedian(force[survey]) > 0.02:
+            cues.append((force, "force"))
+        ratio = np.array([r["ratio"] for r in rows])
+        if np.isfinite(ratio[survey]).sum() >= 5:
+            moves = np.array(self._air_moves) if self._air_moves else np.ones((1, 2))
+            r0 = float(np.median(moves[:, 0] / moves[:, 1]))
+            visual_force = r0 * ratio - 1.0
+            if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
+                cues.append((visual_force, "cursor"))
+        self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum())}
+        if not cues:
+            return None
+        d2 = ((pts[:, None, :] - pts[None, survey, :]) ** 2).sum(axis=2)
+        near = d2 <= p["baseline_radius_mm"] ** 2
+        num = np.zeros(len(pts))
+        den = np.zeros(len(pts))
+        for values, _name in cues:
+            sv = values[survey]
+            base = np.array([np.nanmedian(np.where(near[i], sv, np.nan)) for i in range(len(pts))])
+            contrast = values / base - 1.0
+            ok = np.isfinite(contrast)
+            cs = contrast[survey & ok]
+            if cs.size < 5:
+                continue
+            sigma = max(1.4826 * float(np.median(np.abs(cs - np.median(cs)))), 1e-3)
+            w = 1.0 / sigma**2
+            num += np.where(ok, contrast * w, 0.0)
+            den += np.where(ok, w, 0.0)
+        keep = den > 0
+        if keep.sum() < 5:
+            return None
+        return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep])
+
+    def _clusters(self, pts: np.ndarray, contrast: np.ndarray, sigma: np.ndarray, threshold: float, limit: int):
+        """Spots whose averaged contrast (presses within half a cluster radius) exceeds ``threshold`` SDs."""
+        p = self.params
+        rc = p["cluster_radius_mm"]
+        d2 = ((pts[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2)
+        local = d2 <= (rc / 2.0) ** 2
+        w = 1.0 / sigma**2
+        mean = (local * (w * contrast)[None, :]).sum(axis=1) / (local * w[None, :]).sum(axis=1)
+        z = mean * np.sqrt((local * w[None, :]).sum(axis=1))
+        self.perceived["z_max"] = float(np.max(z)) if z.size else math.nan
+        out: list[tuple[float, float, float]] = []
+        taken = np.zeros(len(pts), dtype=bool)
+        for i in np.argsort(-z):
+            if len(out) >= limit or z[i] < threshold:
+                break
+            if taken[i]:
+                continue
+            members = (d2[i] <= rc * rc) & (contrast > 0)
+            weights = np.where(members, contrast * w, 0.0)
+            if weights.sum() <= 0:
+                continue
+            cx, cy = (weights[:, None] * pts).sum(axis=0) / weights.sum()
+            out.append((float(cx), float(cy), float(z[i])))
+            taken |= d2[i] <= 4.0 * rc * rc
+        return out
+
+    def _follow_up_plan(self) -> list[tuple[float, float]]:
+        p = self.params
+        ev = self._evidence()
+        if ev is None or p["follow_up_count"] == 0:
+            return []
+        spots = self._clusters(*ev, threshold=p["follow_up_z"], limit=p["follow_up_count"])
+        plan = []
+        s = p["follow_up_spacing_mm"]
+        for cx, cy, _z in spots:
+            for ox in (-s, 0.0, s):
+                for oy in (-s, 0.0, s):
+                    x, y = cx + ox, cy + oy
+                    if math.isfinite(self._height(x, y)):
+                        plan.append((x, y))
+        self.perceived["follow_up_spots"] = [(x, y) for x, y, _ in spots]
+        return plan
+
+    def _decide(self) -> list[tuple[float, float]]:
+        p = self.params
+        ev = self._evidence()
+        if ev is None:
+            return []
+        count = self.info.public.get("nodule_count")
+        limit = int(count) if count is not None else p["max_reports"]
+        threshold = p["z_threshold"] if count is None else -math.inf
+        spots = self._clusters(*ev, threshold=threshold, limit=limit)
+        self.perceived["reports"] = spots
+        return [(x, y) for x, y, _ in spots]
