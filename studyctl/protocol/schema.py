@@ -15,6 +15,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr
 
+from studyctl.errors import ProtocolError
+
 FORMAT_VERSION = 1
 ID_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]*$"
 
@@ -228,7 +230,8 @@ class Instrument(StrictModel):
         """The scale an item is answered on (its own, else the instrument's)."""
         scale = item.scale or self.scale
         if scale is None:  # checks.py reports this; a loaded protocol never gets here
-            raise ValueError(f"item {item.id!r} of instrument {self.id!r} has no scale")
+            raise ProtocolError(f"item {item.id!r} of instrument {self.id!r} has no scale; give the instrument "
+                                "(or the item) a scale")
         return scale
 
 
