@@ -116,20 +116,22 @@ class StudyStore:
         self.close()
 
     # -- transactions -----------------------------------------------------------------------------
-    def in_transaction(self, lock: str | None = None) -> contextlib.AbstractContextManager[OrmSession]:
+    def in_transaction(
+        self, lock: str | None = None, *, durable: bool = True
+    ) -> contextlib.AbstractContextManager[OrmSession]:
         """One atomic write transaction (see :meth:`Database.in_transaction`); pass it as ``tx=``."""
-        return self.db.in_transaction(lock=lock)
+        return self.db.in_transaction(lock=lock, durable=durable)
 
     def reading(self) -> contextlib.AbstractContextManager[OrmSession]:
         """A read-only snapshot session."""
         return self.db.reading()
 
     @contextlib.contextmanager
-    def _tx(self, tx: OrmSession | None, lock: str | None = None) -> Iterator[OrmSession]:
+    def _tx(self, tx: OrmSession | None, lock: str | None = None, durable: bool = True) -> Iterator[OrmSession]:
         if tx is not None:
             yield tx
             return
-        with self.db.in_transaction(lock=lock) as s:
+        with self.db.in_transaction(lock=lock, durable=durable) as s:
             yield s
 
     # -- studies ----------------------------------------------------------------------------------
@@ -427,11 +429,12 @@ class StudyStore:
         t_mono: float,
         t_wall: datetime | None = None,
         trial_id: int | None = None,
+        durable: bool = False,
         tx: OrmSession | None = None,
     ) -> int:
         """Append one event to a session's log; returns its ``seq`` (1, 2, … per session)."""
         return self.append_events(session_id, [(t_mono, kind, payload or {})], trial_id=trial_id, t_wall=t_wall,
-                                  tx=tx)[0]
+                                  durable=durable, tx=tx)[0]
 
     def append_events(
         self,
@@ -440,13 +443,18 @@ class StudyStore:
         *,
         trial_id: int | None = None,
         t_wall: datetime | None = None,
+        durable: bool = False,
         tx: OrmSession | None = None,
     ) -> list[int]:
-        """Append ``(t_mono, kind, payload)`` events in one transaction; returns their ``seq`` numbers."""
+        """Append ``(t_mono, kind, payload)`` events in one transaction; returns their ``seq`` numbers.
+
+        Like sample flushes, event commits survive the process being killed; pass ``durable=True`` to
+        also fsync (power-cut safe) right away. Batch events that arrive together: one commit each.
+        """
         if not events:
             return []
         wall = t_wall or utcnow()
-        with self._tx(tx) as s:
+        with self._tx(tx, durable=durable) as s:
             last = s.scalar(select(func.max(Event.seq)).where(Event.session_id == session_id))
             start = (last or 0) + 1
             rows = []
