@@ -26,6 +26,8 @@ import numpy as np
 from studyctl.errors import DeviceError, ModelParameterError
 from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
 
+_ROUND = 6755399441055744.0  # 1.5 * 2**52
+
 # Device classes: peak force (N), from the CHAI3D driver specs (see research/haptics.md).
 DEVICE_CLASSES = {"omni": 3.3, "omega6": 12.0}
 
@@ -105,6 +107,7 @@ class SimulatedForceDevice(Device):
         self._kh = float(p["hand_stiffness_n_per_m"])
         self._bh = float(p["hand_damping_ns_per_m"])
         self._res = float(p["resolution_mm"])
+        self._inv_res = 1.0 / self._res
         self._win = max(1, round(float(p["velocity_window_s"]) * self.rate_hz))
         self._max_jump = float(p["max_jump_mm"])
         self._opened = False
@@ -147,9 +150,10 @@ class SimulatedForceDevice(Device):
         """Take the hand's wanted position (and pen axis, button) from a virtual participant."""
         if not self._opened:
             raise DeviceError("device sim_force3d: apply_input before open()")
-        x, y, z = inputs.get("x_mm"), inputs.get("y_mm"), inputs.get("z_mm")
+        x = inputs.get("x_mm")
         if x is not None:
-            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):  # type: ignore[arg-type]
+            y, z = inputs.get("y_mm", 0.0), inputs.get("z_mm", 0.0)
+            if x - x != 0.0 or y - y != 0.0 or z - z != 0.0:  # NaN or ±inf (x − x is NaN for both)
                 self._enter_safe_state(f"non-finite input position ({x}, {y}, {z})")
                 return
             if self._target is None:
@@ -199,15 +203,18 @@ class SimulatedForceDevice(Device):
     def read(self, t: float) -> Observation:
         last = self._t_last
         if last is not None:
-            n = round((t - last) * self.rate_hz)
+            n = int((t - last) * self.rate_hz + 0.5)
             if n == 1:
                 self._integrate(self._dt)
             else:
                 for _ in range(min(max(n, 0), 50)):
                     self._integrate(self._dt)
         self._t_last = t
-        pos, r = self._pos, self._res
-        qx, qy, qz = round(pos[0] / r) * r, round(pos[1] / r) * r, round(pos[2] / r) * r
+        # encoder quantisation: adding and removing 1.5·2**52 rounds to the nearest integer without a call
+        pos, r, ir = self._pos, self._res, self._inv_res
+        qx = ((pos[0] * ir + _ROUND) - _ROUND) * r
+        qy = ((pos[1] * ir + _ROUND) - _ROUND) * r
+        qz = ((pos[2] * ir + _ROUND) - _ROUND) * r
         px, py, pz = self._meas
         jump = self._max_jump
         if not (-jump <= qx - px <= jump and -jump <= qy - py <= jump and -jump <= qz - pz <= jump):

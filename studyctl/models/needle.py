@@ -470,6 +470,7 @@ class NeedleTissueModel:
         self._hold = (0.0, 0.0, 0.0)
         self._pressed = True
         self._axis = (0.0, 0.0, -1.0)
+        self._raw_axis = self._axis
         self._frame = body_frame(0.0, 0.0, -1.0)
         self.events.clear()
         self.f_axial = 0.0
@@ -536,12 +537,13 @@ class NeedleTissueModel:
         """One servo tick: the device-frame force (N) for tip position/velocity and pen axis ``a``."""
         tr = self._track
         if tr is None:
-            n = math.sqrt(ax * ax + ay * ay + az * az)
-            if n > 1e-9 and (ax, ay, az) != self._axis:
-                ax, ay, az = ax / n, ay / n, az / n
-                if (ax, ay, az) != self._axis:
-                    self._axis = (ax, ay, az)
-                    self._frame = body_frame(ax, ay, az)
+            raw = self._raw_axis
+            if ax != raw[0] or ay != raw[1] or az != raw[2]:  # the pen moved: new axis and body frame
+                n = math.sqrt(ax * ax + ay * ay + az * az)
+                if n > 1e-9:
+                    self._raw_axis = (ax, ay, az)
+                    self._axis = (ax / n, ay / n, az / n)
+                    self._frame = body_frame(*self._axis)
             cx, cy, cz = self._lc
             wx, wy, wz = px - cx, py - cy, pz - cz
             if wx * wx + wy * wy + wz * wz < self._lr2:
@@ -559,6 +561,7 @@ class NeedleTissueModel:
                 # retracted out of the liver: the track (and its hole in the capsule) stays for reuse
                 self.events.append(("needle_withdrawn", 0.0))
                 self._track = tr = None
+                self._raw_axis = (math.nan, math.nan, math.nan)  # follow the pen again from the next tick
                 self._fric_state = _SLIP
                 self._f_fric = 0.0
                 s = 0.0

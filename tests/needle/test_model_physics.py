@@ -244,6 +244,10 @@ def test_needle_angle_is_frozen_inside_tissue(vertical_geometry):
     a, u = np.array(vertical_geometry.incision_mm), np.array(vertical_geometry.planned_direction)
     m.step(*(a + 20 * u), 0.0, 0.0, 0.0, 0.3, 0.2, -0.9, True)  # the pen tilts
     assert m.axis == frozen
+    m.step(*(a - 5 * u), 0.0, 0.0, 0.0, 0.3, 0.2, -0.9, True)  # withdrawn: the needle follows the pen again
+    assert not m.in_tissue
+    m.step(*(a - 6 * u), 0.0, 0.0, 0.0, 0.3, 0.2, -0.9, True)
+    assert np.allclose(m.axis, np.array([0.3, 0.2, -0.9]) / np.linalg.norm([0.3, 0.2, -0.9]))
 
 
 def test_maintain_mode_transition_is_smooth_and_holds(vertical_geometry):
