@@ -249,7 +249,7 @@ def test_27_studentized_range(xref):
     qs = np.linspace(0.1, 12, 60)
     assert np.all(np.diff(stats.studentized_range_sf(qs, 5, 20)) < 0)
     assert abs(stats.studentized_range_ppf(0.95, 3, 10) - 3.8768) < 1e-4
-    for (case, key), v in xref.items():
+    for (case, _key), v in xref.items():
         if case.startswith("range_sf:"):
             _, w, k = case.split(":")
             from studyctl.stats.studentized_range import log_range_sf

@@ -88,14 +88,14 @@ def signedrank_p(d: list[float], zero_method: str, brute: bool) -> dict[str, Fra
         r2 = doubled_midranks([abs(v) for v in d])
     else:  # pratt: rank with zeros, then drop them
         r_all = doubled_midranks([abs(v) for v in d])
-        r2 = [r for r, v in zip(r_all, d) if v != 0]
+        r2 = [r for r, v in zip(r_all, d, strict=True) if v != 0]
         d = [v for v in d if v != 0]
-    t = sum(r for r, v in zip(r2, d) if v > 0)
+    t = sum(r for r, v in zip(r2, d, strict=True) if v > 0)
     total_sum = sum(r2)
     if brute:
         counts: dict[int, int] = defaultdict(int)
         for signs in itertools.product((0, 1), repeat=len(r2)):
-            counts[sum(r for r, s in zip(r2, signs) if s)] += 1
+            counts[sum(r for r, s in zip(r2, signs, strict=True) if s)] += 1
     else:
         counts = {0: 1}
         for r in r2:
@@ -206,8 +206,9 @@ def main() -> None:
             logc = mp.log(2) + dd / 2 * mp.log(dd / 2) - mp.loggamma(dd / 2)
             peak = mp.sqrt(dd / (dd + qq * qq / 2))
             sd = 1 / mp.sqrt(2 * dd + qq * qq)
-            pts = sorted({mp.mpf(0), mp.inf} | {peak + j * sd for j in (-12, -6, -3, -1, 0, 1, 3, 6, 12) if peak + j * sd > 0})
-            val = mp.quad(lambda s: mp.exp(logc + (dd - 1) * mp.log(s) - dd * s * s / 2) * range_sf(qq * s, k), pts)
+            near = {peak + j * sd for j in (-12, -6, -3, -1, 0, 1, 3, 6, 12)}
+            pts = sorted({mp.mpf(0), mp.inf} | {p for p in near if p > 0})
+            val = mp.quad(lambda s: mp.exp(logc + (dd - 1) * mp.log(s) - dd * s * s / 2) * range_sf(qq * s, k), pts)  # noqa: B023
             put(f"ptukey_sf:{q}:{k}:{df}", "sf", val)
     out = HERE / "exact_reference.csv"
     with open(out, "w") as fh:
