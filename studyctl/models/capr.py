@@ -523,49 +523,36 @@ class CaprModel:
 
     # -- construction --------------------------------------------------------------------------------
     def _build(self) -> None:
-        blocks_a, blocks_b, blocks_c = [], [], []
-        deep_states: list[int] = []
-        for pop in self.populations:
-            a, b, c, _ = state_space(pop.afferent)
-            for path in range(2):  # path 0: F, path 1: max(0, F − F_crit)
-                offset = sum(x.shape[0] for x in blocks_a)
-                if path == 1:
-                    deep_states.extend(range(offset, offset + a.shape[0]))
-                blocks_a.append(a)
-                blocks_b.append(b)
-                blocks_c.append(c)
-        self._deep_states = np.array(deep_states)
-        a_all = linalg.block_diag(*blocks_a)
-        c_all = linalg.block_diag(*blocks_c)
-        n_paths = len(blocks_a)
-        b_all = np.zeros((a_all.shape[0], n_paths))
-        row = 0
-        for i, b in enumerate(blocks_b):
-            b_all[row:row + b.shape[0], i] = b[:, 0]
-            row += b.shape[0]
-        ad, bd, cd, dd, _ = signal.cont2discrete((a_all, b_all, c_all, np.zeros((n_paths, n_paths))), self.dt, "foh")
-        self.discrete_system = (ad, bd, cd, dd)
-        self.n_paths = n_paths
-        n_types = len(self.populations)
         m = self.m
-        self._am, self._obs, toe, ctrl = _lift(ad, bd, cd, dd, m)
+        n_types = len(self.populations)
+        # One continuous system per type; discretised (FOH) once, then lifted over the m sub-samples.
+        blocks = [state_space(pop.afferent) for pop in self.populations]
+        a_all = linalg.block_diag(*(b[0] for b in blocks))
+        c_all = linalg.block_diag(*(b[2] for b in blocks))
+        b_all = linalg.block_diag(*(b[1] for b in blocks))  # (states, types): input t drives type t
+        ad, bd, cd, dd, _ = signal.cont2discrete((a_all, b_all, c_all, np.zeros((n_types, n_types))), self.dt, "foh")
+        self.discrete_system = (ad, bd, cd, dd)
+        am, obs, toe, ctrl = _lift(ad, bd, cd, dd, m)
+        n = am.shape[0]
         frac = np.arange(1, m + 1) / m
-        toe3 = toe.reshape(m * n_paths, m, n_paths)
-        ctrl3 = ctrl.reshape(-1, m, n_paths)
-        # Force paths (even) all take the interpolated force F_prev + (F_new − F_prev)·k/m: two vectors.
-        lin_toe = toe3[:, :, 0::2].sum(axis=2)
-        lin_ctrl = ctrl3[:, :, 0::2].sum(axis=2)
-        self._toe_prev, self._toe_new = lin_toe @ (1 - frac), lin_toe @ frac
-        self._ctrl_prev, self._ctrl_new = lin_ctrl @ (1 - frac), lin_ctrl @ frac
-        # Deep paths (odd) take max(0, F − F_crit) of their own type: a (sub-sample, type) input block.
-        self._toe_deep = toe3[:, :, 1::2].reshape(m * n_paths, m * n_types)
-        self._ctrl_deep = ctrl3[:, :, 1::2].reshape(-1, m * n_types)
+        toe3 = toe.reshape(m * n_types, m, n_types)
+        ctrl3 = ctrl.reshape(n, m, n_types)
+        # Force path: every type sees F_prev + (F_new − F_prev)·k/m, so the input block is two numbers.
+        lin_toe = toe3.sum(axis=2)
+        lin_ctrl = ctrl3.sum(axis=2)
+        self._lin = np.block([
+            [obs, (lin_toe @ (1 - frac))[:, None], (lin_toe @ frac)[:, None]],
+            [am, (lin_ctrl @ (1 - frac))[:, None], (lin_ctrl @ frac)[:, None]],
+        ])  # [y (m·T); x⁺ (n)] = _lin @ [x; F_prev; F_new]
+        self._n_states = n
+        # Deep path (same filters, input max(0, F − F_crit) of each type): a second copy of the states.
+        self._deep_sys = (am, obs, toe, ctrl)
         self._frac = frac
         sizes = [p.size for p in self.populations]
         n_units = sum(sizes)
         gk = np.zeros((n_units, n_types))
         gm = np.zeros((n_units, n_types))
-        negw, vh, scale, wts = (np.empty(n_units) for _ in range(4))
+        negw, vh, scale = (np.empty((n_units, 1)) for _ in range(3))
         members = np.zeros((n_types, n_units))
         self._slices: dict[str, slice] = {}
         start = 0
@@ -574,24 +561,26 @@ class CaprModel:
             gk[sl, i] = pop.gain_contact
             gm[sl, i] = pop.gain_deep
             negw[sl], vh[sl], scale[sl] = -pop.afferent.w_neg, pop.afferent.v_h, pop.afferent.k_f / V_L
-            wts[sl] = pop.weights
             members[i, sl] = pop.weights
             self._slices[pop.afferent.name] = sl
             start += pop.size
         self._gk, self._gm = gk, gm
-        self._negw, self._vh = negw[:, None], vh[:, None]
-        self._scale_mean = scale / m  # K_f/V_L and the 1/m of the sub-sample mean in one factor
+        self._negw, self._vh = negw, vh
+        self._scale_mean = scale[:, 0] / m  # K_f/V_L and the 1/m of the sub-sample mean in one factor
         self._members = members
-        self._weights = wts
         self.n_units = n_units
         self._crit = np.array([p.force_crit_n for p in self.populations])
         self._crit_min = float(self._crit.min())
         self._ones_m = np.ones(m)
+        self._drive = np.empty((n_units, m))
+        self._tmp = np.empty((n_units, m))
+        self._rate = np.empty(n_units)
+        self._sum_thr = self.activation_hz * self.window_ticks  # window sum above which a unit is active
 
     def reset(self) -> None:
         """Rest: zero filter state, empty window, no previous force."""
-        self._x = np.zeros(self._am.shape[0])
-        self._prev = 0.0
+        self._z = np.zeros(self._n_states + 2)  # [x; F_prev; F_new]
+        self._xd = np.zeros(self._n_states)  # deep-path states
         self._ring = np.zeros((self.window_ticks, self.n_units))
         self._sum = np.zeros(self.n_units)
         self._pos = 0
@@ -601,49 +590,56 @@ class CaprModel:
     # -- streaming -----------------------------------------------------------------------------------
     def step(self, force_n: float) -> dict[str, float]:
         """Advance by one input sample; return the activated-mean rate (Hz) of each simulated type."""
-        f_prev, f_new = self._prev, float(force_n)
-        x = self._x
-        y = self._obs @ x + self._toe_prev * f_prev + self._toe_new * f_new
-        x_next = self._am @ x + self._ctrl_prev * f_prev + self._ctrl_new * f_new
+        z = self._z
+        f_new = float(force_n)
+        f_prev = z[-2]
+        z[-1] = f_new
+        out = self._lin @ z
+        n_y = self.m * len(self.types)
+        z[:-2] = out[n_y:]
+        z[-2] = f_new
+        drive = np.matmul(self._gk, out[:n_y].reshape(self.m, -1).T, out=self._drive)  # (N, m)
         deep = max(f_prev, f_new) > self._crit_min
-        if deep:
+        if deep or self._deep_live:
+            am, obs, toe, ctrl = self._deep_sys
             u = f_prev + (f_new - f_prev) * self._frac
             u2 = np.maximum(u[:, None] - self._crit[None, :], 0.0).ravel()  # (sub-sample, type)
-            y = y + self._toe_deep @ u2
-            x_next = x_next + self._ctrl_deep @ u2
-        self._x = x_next
-        self._prev = f_new
-        ys = y.reshape(self.m, self.n_paths)
-        drive = self._gk @ ys[:, 0::2].T  # (N, m)
-        if deep or self._deep_live:
-            drive += self._gm @ ys[:, 1::2].T
+            yd = obs @ self._xd + toe @ u2
+            self._xd = am @ self._xd + ctrl @ u2
+            drive += self._gm @ yd.reshape(self.m, -1).T
             # The deep paths ring down after the force drops below F_crit; once their state is below
             # 1e-12 (drives < 1e-9 V against a 15 mV threshold) it is set to exactly zero and skipped.
-            self._deep_live = deep or bool(np.abs(x_next[self._deep_states]).max() > 1e-12)
+            self._deep_live = deep or bool(np.abs(self._xd).max() > 1e-12)
             if not self._deep_live:
-                x_next[self._deep_states] = 0.0
+                self._xd[:] = 0.0
         rate = self._tick_rate(drive)
         pos = self._pos
-        self._sum += rate - self._ring[pos]
-        self._ring[pos] = rate
+        ring = self._ring[pos]
+        self._sum += rate
+        self._sum -= ring
+        ring[:] = rate
         self._pos = (pos + 1) % self.window_ticks
-        return self._readout(self._sum * (1.0 / self.window_ticks))
+        return self._readout()
 
     def _tick_rate(self, drive: np.ndarray) -> np.ndarray:
-        """Mean rate (Hz) of each unit over the tick's sub-samples."""
-        v = drive * self._negw
+        """Mean rate (Hz) of each unit over the tick's sub-samples (rectify, saturate, K_f·V/V_L)."""
+        v = np.multiply(drive, self._negw, out=self._tmp)
         np.maximum(drive, v, out=v)
         np.minimum(v, self._vh, out=v)
-        return (v @ self._ones_m) * self._scale_mean
+        rate = np.dot(v, self._ones_m, out=self._rate)
+        rate *= self._scale_mean
+        return rate
 
-    def _readout(self, window_rate: np.ndarray) -> dict[str, float]:
-        active = window_rate > self.activation_hz
+    def _readout(self) -> dict[str, float]:
+        active = self._sum > self._sum_thr
         counts = self._members @ active
-        sums = self._members @ np.where(active, window_rate, 0.0)
+        sums = self._members @ (self._sum * active)
         out: dict[str, float] = {}
+        w = self.window_ticks
         for i, name in enumerate(self.types):
-            self.last_active[name] = float(counts[i])
-            out[name] = float(sums[i] / counts[i]) if counts[i] > 0 else 0.0
+            c = float(counts[i])
+            self.last_active[name] = c
+            out[name] = float(sums[i]) / (c * w) if c > 0 else 0.0
         return out
 
     # -- batch ---------------------------------------------------------------------------------------

@@ -9,11 +9,15 @@ Behaviour (the paper's instructions: "follow the grid, checking each location on
 as quickly as possible):
 
 1. **Sweep**: for every cell in raster order, move above the cell centre (aim noise), press to the target
-   depth at a fixed speed (depth noise), hold, release. The strongest balloon pressure and vibration
-   felt during the press are observed once each, with Weber noise and a detection threshold.
-2. **Screen**: each channel's reference is the median percept over all cells (normal tissue); a cell whose
-   log-percept exceeds it by ``screen_z`` noise SDs on any channel (or that is felt where normal
-   tissue is not) is re-probed ``confirm_presses`` times.
+   depth at a fixed speed (depth noise: the participant believes it pressed to the intended depth),
+   hold, release. What the balloon and the motor deliver is noted when the believed depth passes each
+   checkpoint (fractions of the target depth) and at its strongest; each note is one observation
+   with Weber noise and a detection threshold. Noting the feel at several depths lets a participant use
+   whatever depth range a controller conveys best (below saturation, across a piecewise step).
+2. **Screen**: for each (channel, checkpoint) the reference is the median over all cells (normal tissue);
+   a cell whose mean log-percept exceeds it by ``screen_z`` noise SDs of the mean (or, where normal tissue
+   is mostly not felt, that is felt more often than the binomial base rate allows, as a z-score) is
+   re-probed ``confirm_presses`` times.
 3. **Report**: cells whose mean evidence stays above ``report_z`` (noise SDs of the mean), keeping only
    the strongest of neighbouring cells; then ``finish``. When nothing stood out, it guesses
    ``guesses`` distinct random cells (what a participant without feedback does when told to report).
@@ -29,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from studyctl.errors import ModelParameterError
 from studyctl.models.perception import Sense
@@ -46,12 +51,14 @@ class _Segment:
     end: tuple[float, float, float]
     cell: tuple[int, int] | None = None
     ramp: float = 0.0
+    intended: float = 0.0  # the depth the participant means to reach
+    scale: float = 1.0  # actual / intended depth (motor error)
 
 
 @dataclass
 class _CellEvidence:
-    logs: dict[str, list[float]] = field(default_factory=lambda: {c: [] for c in CHANNELS})
-    felt: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
+    logs: dict[tuple[str, str], list[float]] = field(default_factory=dict)  # (channel, checkpoint) -> log percepts
+    felt: dict[tuple[str, str], int] = field(default_factory=dict)
     presses: int = 0
 
 
@@ -61,7 +68,8 @@ class VirtualPalpator(Participant):
     name = "virtual_palpator"
     virtual = True
     PARAMS = (
-        Param("depth_mm", 2.5, 0.2, 20.0, unit="mm", source="CHOSEN: ~1.3 N on the sponge, inside the sensor range"),
+        Param("depth_mm", 4.0, 0.2, 20.0, unit="mm", source="CHOSEN: ~2 N on the sponge, the controllers' range"),
+        Param("checkpoints", (0.4, 0.6, 0.8, 1.0), kind=tuple, source="CHOSEN: fractions of the target depth"),
         Param("depth_cv", 0.08, 0.0, 0.5, source="CHOSEN: press-to-press variability of depth"),
         Param("aim_sd_mm", 2.0, 0.0, 10.0, unit="mm", source="CHOSEN: scatter of the probe about the cell centre"),
         Param("press_speed_mm_s", 6.0, 0.5, 100.0, unit="mm/s", source="CHOSEN: indentation speed"),
@@ -71,8 +79,8 @@ class VirtualPalpator(Participant):
         Param("balloon_weber", 0.10, 0.01, 2.0, source="CHOSEN: pressure/force discrimination 7-15 %"),
         Param("vibration_threshold_ms2", 0.2, 0.0, 20.0, unit="m/s²", source="CHOSEN: ~0.1 µm at 200 Hz is ~0.2 m/s²"),
         Param("vibration_weber", 0.25, 0.01, 2.0, source="CHOSEN: vibrotactile amplitude discrimination ~20-30 %"),
-        Param("screen_z", 1.5, 0.0, 10.0, source="CHOSEN"),
-        Param("report_z", 2.5, 0.0, 10.0, source="CHOSEN"),
+        Param("screen_z", 2.0, 0.0, 10.0, source="CHOSEN: re-probe above this (max over 10 channel-depth notes)"),
+        Param("report_z", 3.5, 0.0, 10.0, source="CHOSEN: ~0.1 false reports per 49-cell sweep (10 notes per cell)"),
         Param("confirm_presses", 2, 0, 10, kind=int, source="CHOSEN"),
         Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: the paper's trials had 3 tumours"),
         Param("cell_mm", 20.0, 1.0, 100.0, unit="mm", source="used when the trial's public info has no grid size"),
@@ -88,6 +96,12 @@ class VirtualPalpator(Participant):
             "balloon_psi": Sense("balloon pressure", p["balloon_threshold_psi"], p["balloon_weber"], "psi"),
             "vibration_ms2": Sense("vibration", p["vibration_threshold_ms2"], p["vibration_weber"], "m/s²"),
         }
+        cps = tuple(checked["checkpoints"])
+        if not cps or not all(isinstance(c, int | float) and 0 < c <= 1 for c in cps) or list(cps) != sorted(set(cps)):
+            raise ModelParameterError(
+                f"virtual_palpator participant: checkpoints {list(cps)} must be increasing fractions in (0, 1]"
+            )
+        self.checkpoints = tuple(float(c) for c in cps)
         self._rng: np.random.Generator | None = None
 
     # -- trial --------------------------------------------------------------------------------------
@@ -100,7 +114,8 @@ class VirtualPalpator(Participant):
         self._plan: list[_Segment] = []
         self._phase = "sweep"
         self._pose = (self.origin[0] - 5.0, self.origin[1] - 5.0, -5.0)
-        self._peak = dict.fromkeys(CHANNELS, 0.0)
+        self._notes: dict[tuple[str, str], float] = {}
+        self._belief_depth = 0.0
         self._finished = False
         for row in range(1, self.rows + 1):
             cols = range(1, self.columns + 1) if row % 2 else range(self.columns, 0, -1)  # boustrophedon
@@ -112,10 +127,7 @@ class VirtualPalpator(Participant):
     def act(self, t: float, percept: Mapping[str, Any]) -> Action:
         if self._finished:
             return Action(requests=(Request("finish"),))
-        for ch in CHANNELS:
-            v = percept.get(ch)
-            if isinstance(v, int | float) and math.isfinite(v) and v > self._peak[ch]:
-                self._peak[ch] = float(v)
+        self._note(percept)
         # Leave time to report before a time limit ends the trial.
         if t >= self.info.time_limit_s - 2.0 / max(self.info.rate_hz, 1.0) - 1.0:
             return self._decide_and_finish()
@@ -138,6 +150,9 @@ class VirtualPalpator(Participant):
         frac = 0.0 if seg.duration <= 0 else min(max(elapsed / seg.duration, 0.0), 1.0)
         pose = _lerp(seg.start, seg.end, frac) if seg.kind == "move" else _press_pose(seg, elapsed)
         self._pose = pose
+        # what the participant believes its depth is: the actual depth without its own motor error
+        self._belief_depth = pose[2] / seg.scale if seg.kind == "press" else 0.0
+        self._pressing = seg if seg.kind == "press" else None
         return Action(inputs={"x_mm": pose[0], "y_mm": pose[1], "depth_mm": pose[2]})
 
     # -- planning -----------------------------------------------------------------------------------
@@ -146,49 +161,82 @@ class VirtualPalpator(Participant):
         p = self.params
         cx = self.origin[0] + (cell[0] - 0.5) * self.cell_mm + p["aim_sd_mm"] * rng.standard_normal()
         cy = self.origin[1] + (cell[1] - 0.5) * self.cell_mm + p["aim_sd_mm"] * rng.standard_normal()
-        depth = max(p["depth_mm"] * (1.0 + p["depth_cv"] * rng.standard_normal()), 0.1)
+        scale = max(1.0 + p["depth_cv"] * rng.standard_normal(), 0.05)
+        depth = p["depth_mm"] * scale
         last = self._plan[-1].end if self._plan else self._pose
         above = (cx, cy, -2.0)
         self._plan.append(_Segment("move", p["move_s"], (last[0], last[1], -2.0), above))
         ramp = depth / p["press_speed_mm_s"]
-        self._plan.append(_Segment("press", 2 * ramp + p["hold_s"], above, (cx, cy, depth), cell, ramp))
+        self._plan.append(
+            _Segment("press", 2 * ramp + p["hold_s"], above, (cx, cy, depth), cell, ramp, p["depth_mm"], scale)
+        )
+
+    def _note(self, percept: Mapping[str, Any]) -> None:
+        """Note what the actuators deliver (this tick's percept is the feel at the previous tick's depth)."""
+        seg = getattr(self, "_pressing", None)
+        if seg is None:
+            return
+        believed = self._belief_depth
+        for ch in CHANNELS:
+            v = percept.get(ch)
+            v = float(v) if isinstance(v, int | float) and math.isfinite(v) else 0.0
+            key = (ch, "peak")
+            self._notes[key] = max(self._notes.get(key, 0.0), v)
+            for c in self.checkpoints:
+                ck = (ch, f"{c:g}")
+                if ck not in self._notes and believed >= c * seg.intended - 1e-9:
+                    self._notes[ck] = v
 
     def _end_segment(self, seg: _Segment) -> None:
-        if seg.kind == "move":
-            self._peak = dict.fromkeys(CHANNELS, 0.0)  # feel only what happens during the press
+        if seg.kind != "press":
+            self._notes = {}
             return
         ev = self.evidence.setdefault(seg.cell, _CellEvidence())
         ev.presses += 1
-        for ch in CHANNELS:
-            seen = self.senses[ch].observe(self._peak[ch], self._rng)
+        for key, value in self._notes.items():
+            seen = self.senses[key[0]].observe(value, self._rng)
             if seen > 0:
-                ev.felt[ch] += 1
-                ev.logs[ch].append(math.log(seen))
-        self._peak = dict.fromkeys(CHANNELS, 0.0)
+                ev.felt[key] = ev.felt.get(key, 0) + 1
+                ev.logs.setdefault(key, []).append(math.log(seen))
+        self._notes = {}
+        self._pressing = None
 
-    def _reference(self) -> dict[str, float | None]:
-        """Median log-percept over the swept cells per channel, or None when normal tissue is not felt."""
-        ref: dict[str, float | None] = {}
-        for ch in CHANNELS:
-            first = [ev.logs[ch][0] if ev.felt[ch] and ev.logs[ch] else -math.inf for ev in self.evidence.values()]
+    def _keys(self) -> list[tuple[str, str]]:
+        return [(ch, f"{c:g}") for ch in CHANNELS for c in self.checkpoints] + [(ch, "peak") for ch in CHANNELS]
+
+    def _reference(self) -> dict[tuple[str, str], float | None]:
+        """Median log-percept over the swept cells per (channel, checkpoint); None when normal tissue is not felt.
+
+        Also sets ``_felt_rate``: the share of cells felt at each note on the first press (add-one smoothed),
+        the base rate for the "felt here but not on normal tissue" test.
+        """
+        ref: dict[tuple[str, str], float | None] = {}
+        self._felt_rate = {}
+        n = len(self.evidence)
+        for key in self._keys():
+            first = [ev.logs[key][0] if ev.logs.get(key) else -math.inf for ev in self.evidence.values()]
             med = float(np.median(first)) if first else -math.inf
-            ref[ch] = med if math.isfinite(med) else None
+            ref[key] = med if math.isfinite(med) else None
+            felt = sum(1 for v in first if math.isfinite(v))
+            self._felt_rate[key] = (felt + 1) / (n + 2)
         return ref
 
-    def _score(self, ev: _CellEvidence, ref: dict[str, float | None]) -> float:
+    def _score(self, ev: _CellEvidence, ref: dict[tuple[str, str], float | None]) -> float:
         """Evidence that a cell differs from normal tissue, in noise SDs of its mean (inf: felt only here)."""
         best = -math.inf
-        for ch in CHANNELS:
-            sigma = self.senses[ch].sigma
-            if ref[ch] is None:
-                if ev.felt[ch] * 2 > ev.presses:  # felt in most presses where normal tissue is not felt
-                    return math.inf
+        for key in self._keys():
+            sigma = self.senses[key[0]].sigma
+            logs = ev.logs.get(key)
+            if ref[key] is None:
+                # normal tissue mostly not felt here: how surprising is being felt in k of n presses?
+                k = ev.felt.get(key, 0)
+                if k:
+                    p_tail = float(stats.binom.sf(k - 1, ev.presses, self._felt_rate[key]))
+                    best = max(best, float(stats.norm.isf(max(p_tail, 1e-300))))
                 continue
-            if not ev.logs[ch]:
+            if not logs:
                 continue
-            n = len(ev.logs[ch])
-            z = (float(np.mean(ev.logs[ch])) - ref[ch]) / (sigma / math.sqrt(n))
-            best = max(best, z)
+            best = max(best, (float(np.mean(logs)) - ref[key]) / (sigma / math.sqrt(len(logs))))
         return best
 
     def _queue_confirmations(self) -> None:

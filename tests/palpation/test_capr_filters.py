@@ -137,11 +137,11 @@ def test_lifted_model_equals_sample_by_sample_filtering():
                                                zip(np.r_[0.0, forces[:-1]], forces, strict=True)])])
     y_ref = _dlsim((ad, bd, cd, dd), u)[1:]
     got = []
-    x = np.zeros(model._am.shape[0])
-    prev = 0.0
+    n = model._n_states
+    z = np.zeros(n + 2)
     for f in forces:
-        y = model._obs @ x + model._toe_prev * prev + model._toe_new * f
-        x = model._am @ x + model._ctrl_prev * prev + model._ctrl_new * f
-        got.append(y.reshape(model.m, model.n_paths)[:, 0])
-        prev = f
+        z[-1] = f
+        out = model._lin @ z
+        got.append(out[: model.m])
+        z[:n], z[-2] = out[model.m:], f
     assert np.max(np.abs(np.concatenate(got) - y_ref)) <= 1e-12 * np.max(np.abs(y_ref))
