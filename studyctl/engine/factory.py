@@ -10,20 +10,13 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Mapping
-from importlib.metadata import entry_points
 from typing import Any, Protocol
 
 import numpy as np
 
 from studyctl.errors import PluginError
+from studyctl.plugins import registry
 from studyctl.plugins.interfaces import Controller, Device, Participant, Scene
-
-GROUPS = {
-    "controller": "studyctl.controllers",
-    "device": "studyctl.devices",
-    "scene": "studyctl.scenes",
-    "participant": "studyctl.participants",
-}
 
 
 class PluginFactory(Protocol):
@@ -91,50 +84,20 @@ def controller_needs(factory: PluginFactory, name: str | None, params: Mapping[s
 
 
 class EntryPointFactory:
-    """Plugins from the ``studyctl.*`` entry-point groups (the same path for built-ins and third parties)."""
+    """Plugins from the ``studyctl.*`` entry-point groups via :mod:`studyctl.plugins.registry`
+    (the same path for built-ins and third parties; unknown names list the known ones)."""
 
     def __init__(self) -> None:
         self._cache: dict[tuple[str, str], type] = {}
 
-    def _group(self, kind: str) -> str:
-        if kind not in GROUPS:
-            raise PluginError(f"unknown plugin kind {kind!r}; kinds: {', '.join(GROUPS)}")
-        return GROUPS[kind]
-
     def known(self, kind: str) -> list[str]:
-        return sorted(ep.name for ep in entry_points(group=self._group(kind)))
+        return registry.known_names(kind)
 
     def load(self, kind: str, name: str) -> type:
         key = (kind, name)
-        if key in self._cache:
-            return self._cache[key]
-        registry = _registry_loader()
-        if registry is not None:
-            cls = registry(kind, name)
-        else:
-            matches = [ep for ep in entry_points(group=self._group(kind)) if ep.name == name]
-            if not matches:
-                raise PluginError(
-                    f"no {kind} plugin named {name!r}; known {kind}s: {', '.join(self.known(kind)) or 'none'}"
-                )
-            try:
-                cls = matches[0].load()
-            except Exception as exc:  # a broken plugin package must not hide which one it is
-                raise PluginError(
-                    f"{kind} plugin {name!r} ({matches[0].value}) failed to import: {type(exc).__name__}: {exc}"
-                ) from None
-        self._cache[key] = cls
-        return cls
-
-
-def _registry_loader():
-    """The plugin registry's loader when the plugin layer provides one (it adds validation and caching)."""
-    try:
-        from studyctl.plugins import registry  # type: ignore[attr-defined]
-    except ImportError:
-        return None
-    fn = getattr(registry, "load_plugin", None)
-    return fn if callable(fn) else None
+        if key not in self._cache:
+            self._cache[key] = registry.load_plugin(kind, name)
+        return self._cache[key]
 
 
 class MappingFactory:

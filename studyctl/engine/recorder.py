@@ -46,9 +46,11 @@ class SessionState:
     answers: dict[tuple[int, str], int] = field(default_factory=dict)  # (step position, item id) → code
     resumes: int = 0
     last_t: float = 0.0  # latest session-clock time recorded (a resumed clock continues from here)
+    virtual: bool = True  # run by a virtual participant (a resume keeps the mode)
 
     def attempts(self, position: int) -> list[TrialRecord]:
-        return [t for t in self.trials if t.position == position]
+        """Started attempts at the trial step ``position`` (planned rows are not attempts)."""
+        return [t for t in self.trials if t.position == position and t.status != "planned"]
 
 
 class SampleSink(Protocol):

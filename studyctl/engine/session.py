@@ -41,6 +41,9 @@ from studyctl.engine.ui import Control, SessionUI
 from studyctl.errors import DeviceError, SessionError, SessionInterrupted, StudyctlError
 from studyctl.plugins.interfaces import Participant, TrialInfo
 
+# A trial without a time limit (completion time is the measure) still needs an end when nobody can stop it:
+# virtual and scripted runs stop such a trial here and record it as timed out.
+UNATTENDED_TRIAL_CAP_S = 1800.0
 INTERRUPTED_REASON = "interrupted: the session stopped during this trial (crash, kill or power loss)"
 ProgressFn = Callable[[int, int, Step], None]
 
@@ -321,11 +324,16 @@ class SessionRunner:
                                           "trials": [a.trial_id for a in attempts]})
         self.rec.step_completed(step.position, self.now(), {"status": "invalid", "replaced_by": new.position})
 
+    def _time_limit(self, step: Step) -> float:
+        if step.duration_s:
+            return float(step.duration_s)
+        return float("inf") if (self.ui.interactive and not self.virtual) else UNATTENDED_TRIAL_CAP_S
+
     def _trial_info(self, step: Step, cond: ConditionSpec, rate_hz: float) -> TrialInfo:
         plan = self.plan
         return TrialInfo(
             condition=cond.id,
-            time_limit_s=float(step.duration_s or 0.0) or float("inf"),
+            time_limit_s=self._time_limit(step),
             rate_hz=rate_hz,
             visual=cond.visual,
             public={
@@ -343,8 +351,6 @@ class SessionRunner:
         cond = plan.conditions[step.condition]
         rate = self._rate(cond)
         info = self._trial_info(step, cond, rate)
-        if info.time_limit_s == float("inf") and (self.virtual or not self.ui.interactive):
-            raise SessionError(f"{step.label()} has no time limit; a virtual or scripted run needs one")
         streams = trial_streams(self._seed, step.position)
         self.rec.step_started(step.position, self.now())
         tid = self.rec.trial_started(
@@ -454,6 +460,19 @@ class SessionRunner:
             "step": step.position,
             "rate_hz": rate,
         }
+        if outcome.ended_by == "fault":
+            error = next((e.get("error") or e.get("rule") for e in reversed(outcome.events)
+                          if e.get("kind") == "device_fault"), "the safety layer held the device in its safe state")
+            reason = f"device fault: {error}"
+            self.rec.trial_finished(tid, "aborted", summary, reports, position=step.position, t=self.now(),
+                                    reason=reason, complete_step=False)
+            self.rec.set_status("interrupted", reason)
+            sid = self.rec.state().session_id
+            self.ui.trial_end(step, {**summary, "status": "aborted", "reason": reason})
+            raise SessionError(
+                f"{reason} in {step.label()}. The device was put in its safe state, the trial is recorded as "
+                f"aborted and nothing else is lost; fix the device, then `studyctl resume {sid}`"
+            )
         stop: Control | None = flag["stop"]
         if stop is not None:
             reason = f"{'paused' if stop.kind == 'pause' else 'aborted'} by the coordinator: {stop.reason}"

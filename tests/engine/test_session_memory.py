@@ -193,7 +193,7 @@ def test_ctrl_c_is_a_safe_resumable_stop():
 def test_device_disconnect_marks_trial_and_session_resumes():
     rec = MemoryRecorder(toy_plan(), seed=4)
     ToyDevice.disconnect_at = 1.0
-    with pytest.raises(SessionError, match="device fault .* USB link lost"):
+    with pytest.raises(SessionError, match="device fault: .*USB link lost"):
         runner(rec).run()
     dev = ToyDevice.instances[-1]
     assert dev.closed == 1 and dev.written[-1] == {"balloon_pct": 0.0}

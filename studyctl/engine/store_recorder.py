@@ -1,0 +1,333 @@
+"""The :class:`~studyctl.engine.recorder.Recorder` that writes a session to the study database.
+
+Layout in the store (see :mod:`studyctl.store.models`):
+
+* the session plan: event ``session_plan`` (payload ``{"plan": …}``), later ``plan_amended`` events;
+* one ``trial`` row per planned trial (status ``planned``) created with the session, one more row per
+  repeat attempt (``replaces_trial_id`` → the aborted row); ``outcome`` holds ``step`` (plan step
+  position) and ``attempt`` from the start, the loop's outcome at the end;
+* step transitions: events ``step_enter`` / ``step_done`` with ``{"position": …}``;
+* event times (``t_mono``): events tagged with a trial (``scan``, ``report``, safety events …) carry the
+  trial time in seconds since the trial loop started; all others the session time in seconds;
+* answers: ``questionnaire_response`` rows with ``context = "step:<position>"`` and an ``answer`` event
+  (with the response time) in the same transaction;
+* samples: :class:`~studyctl.store.samples.SampleWriter` chunks (flushed at least every second).
+
+The recorder mirrors the session's state in memory (it is the only writer of its session) and
+rebuilds it from the database in :meth:`StoreRecorder.load`.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Mapping
+from typing import Any
+
+from sqlalchemy import select
+
+from studyctl.engine.plan import SessionPlan
+from studyctl.engine.recorder import SessionState, TrialRecord
+from studyctl.errors import NotFoundError, SessionError
+from studyctl.store import StudyStore
+from studyctl.store.models import Event, Participant, QuestionnaireResponse, Trial, utcnow
+
+PLAN_EVENTS = ("session_plan", "plan_amended")
+
+
+class _StoreSamples:
+    """Adapts the store's SampleWriter to the engine's ``write(t, values)`` / ``close()``."""
+
+    def __init__(self, store: StudyStore, trial_id: int) -> None:
+        self._writer = store.sample_writer(trial_id, None, flush_interval_s=1.0)
+        self.write = self._writer.append
+
+    def close(self) -> None:
+        self._writer.close()
+
+
+def _context(position: int) -> str:
+    return f"step:{position}"
+
+
+class StoreRecorder:
+    """A session's durable record in a :class:`~studyctl.store.StudyStore`.
+
+    Create a new session with :meth:`create`, reopen one with :meth:`load`.
+    """
+
+    def __init__(self, store: StudyStore, state: SessionState, participant_id: int) -> None:
+        self.store = store
+        self._state = state
+        self.participant_id = participant_id
+        self._pending: list[tuple[int | None, tuple[float, str, Mapping[str, Any]]]] = []
+
+    @property
+    def session_id(self) -> int:
+        return self._state.session_id
+
+    # -- creation / loading ------------------------------------------------------------------------
+    @classmethod
+    def create(
+        cls,
+        store: StudyStore,
+        participant_id: int,
+        plan: SessionPlan,
+        *,
+        seed: int,
+        virtual: bool,
+        site: str | None = None,
+    ) -> StoreRecorder:
+        """Start a new session: the session row, its plan and one planned row per trial, in one transaction."""
+        with store.in_transaction() as tx:
+            participant = tx.get(Participant, participant_id)
+            if participant is None:
+                raise NotFoundError(f"no participant with id {participant_id}")
+            code = participant.code
+            sess = store.start_session(participant_id, seed=seed, site=site, tx=tx)
+            store.append_event(sess.id, "session_plan", {"plan": plan.to_json(), "virtual": bool(virtual)},
+                               t_mono=0.0, tx=tx)
+            trials: list[TrialRecord] = []
+            for step in plan.trials():
+                row = store.add_trial(
+                    sess.id, plan_position=int(step.trial_index or step.position), condition=step.condition,
+                    block=step.block, repetition=step.repetition, placement=step.data.get("placement"),
+                    time_limit_s=step.duration_s, status="planned", tx=tx,
+                )
+                store.update_trial(row.id, outcome={"step": step.position, "attempt": 1}, tx=tx)
+                trials.append(TrialRecord(row.id, step.position, 1, "planned", condition=step.condition))
+            if participant.status == "enrolled":
+                store.set_participant_status(participant_id, "active", tx=tx)
+        state = SessionState(session_id=sess.id, participant=code, seed=seed, status="running", plan=plan,
+                             trials=trials, virtual=bool(virtual))
+        rec = cls(store, state, participant_id)
+        rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=0.0)
+        return rec
+
+    @classmethod
+    def load(cls, store: StudyStore, session_id: int) -> StoreRecorder:
+        """Rebuild a session's state from the database (for resume, status and export)."""
+        sess = store.get_session(session_id)
+        with store.reading() as s:
+            participant = s.get(Participant, sess.participant_id)
+            events = s.execute(
+                select(Event.kind, Event.payload, Event.t_mono, Event.trial_id)
+                .where(Event.session_id == session_id).order_by(Event.seq)
+            ).all()
+            rows = list(s.scalars(select(Trial).where(Trial.session_id == session_id).order_by(Trial.id)))
+            answers = s.execute(
+                select(QuestionnaireResponse.context, QuestionnaireResponse.item, QuestionnaireResponse.code)
+                .where(QuestionnaireResponse.session_id == session_id).order_by(QuestionnaireResponse.id)
+            ).all()
+        plan_json = None
+        virtual = True
+        completed: set[int] = set()
+        started: set[int] = set()
+        last_t = 0.0
+        for kind, payload, t_mono, trial_id in events:
+            if kind in PLAN_EVENTS:
+                plan_json = (payload or {}).get("plan")
+                if kind == "session_plan":
+                    virtual = bool((payload or {}).get("virtual", True))
+            elif kind == "step_enter":
+                started.add(int(payload["position"]))
+            elif kind == "step_done":
+                completed.add(int(payload["position"]))
+            if trial_id is None and t_mono is not None:
+                last_t = max(last_t, float(t_mono))
+        if plan_json is None:
+            raise SessionError(f"session {session_id} has no stored plan; it was not started by the session engine")
+        plan = SessionPlan.from_json(plan_json)
+        trials = []
+        for r in rows:
+            out = dict(r.outcome or {})
+            if "step" not in out:
+                continue
+            trials.append(TrialRecord(r.id, int(out["step"]), int(out.get("attempt", 1)), r.status,
+                                      r.invalid_reason or "", out, r.condition))
+        state = SessionState(
+            session_id=session_id, participant=participant.code, seed=int(sess.seed or 0), status=sess.status,
+            plan=plan, completed=completed, started=started, trials=trials,
+            answers={(int(c.split(":", 1)[1]), item): int(code) for c, item, code in answers
+                     if c and c.startswith("step:")},
+            resumes=int(sess.resume_count or 0), last_t=last_t, virtual=virtual,
+        )
+        return cls(store, state, participant.id)
+
+    # -- Recorder ----------------------------------------------------------------------------------
+    def state(self) -> SessionState:
+        return self._state
+
+    def _flush_pending(self, tx) -> None:
+        if not self._pending:
+            return
+        # keep order; group consecutive events of the same trial into one insert
+        groups: list[tuple[int | None, list[tuple[float, str, Mapping[str, Any]]]]] = []
+        for trial_id, ev in self._pending:
+            if groups and groups[-1][0] == trial_id:
+                groups[-1][1].append(ev)
+            else:
+                groups.append((trial_id, [ev]))
+        for trial_id, evs in groups:
+            self.store.append_events(self.session_id, evs, trial_id=trial_id, tx=tx)
+        self._pending.clear()
+
+    def _append(self, tx, kind: str, payload: Mapping[str, Any] | None, t: float | None, trial_id: int | None):
+        self._flush_pending(tx)
+        self.store.append_event(self.session_id, kind, _jsonable(payload or {}),
+                                t_mono=float(t if t is not None else self._state.last_t), trial_id=trial_id, tx=tx)
+        if t is not None and trial_id is None:
+            self._state.last_t = max(self._state.last_t, float(t))
+
+    def event(self, kind, payload=None, *, t=None, position=None, trial_id=None, commit=True) -> None:
+        body = dict(payload or {})
+        if position is not None:
+            body.setdefault("position", position)
+        if not commit:
+            self._pending.append((trial_id, (float(t if t is not None else 0.0), kind, _jsonable(body))))
+            if len(self._pending) < 256:
+                return
+        with self.store.in_transaction() as tx:
+            if commit:
+                self._append(tx, kind, body, t, trial_id)
+            else:
+                self._flush_pending(tx)
+
+    def set_status(self, status: str, reason: str = "") -> None:
+        with self.store.in_transaction() as tx:
+            fields: dict[str, Any] = {"status": status}
+            if status in ("completed", "aborted"):
+                fields["ended_at"] = utcnow()
+            self.store.update_session(self.session_id, tx=tx, **fields)
+            self._append(tx, "session_status", {"status": status, "reason": reason}, None, None)
+            if status == "completed":
+                self.store.set_participant_status(self.participant_id, "completed", tx=tx)
+        self._state.status = status
+
+    def step_started(self, position: int, t: float) -> None:
+        self.event("step_enter", {"position": position}, t=t)
+        self._state.started.add(position)
+
+    def step_completed(self, position: int, t: float, summary=None) -> None:
+        with self.store.in_transaction() as tx:
+            self._append(tx, "step_done", {**dict(summary or {}), "position": position}, t, None)
+        self._state.completed.add(position)
+
+    def trial_started(self, position: int, attempt: int, t: float, info) -> int:
+        step = self._state.plan.step(position)
+        planned = [r for r in self._state.trials if r.position == position and r.status == "planned"]
+        outcome = {"step": position, "attempt": attempt}
+        with self.store.in_transaction() as tx:
+            if planned:
+                tid = planned[0].trial_id
+                self.store.update_trial(tid, status="running", started_at=utcnow(), outcome=outcome, tx=tx)
+            else:
+                previous = self._state.attempts(position)
+                replaces = previous[-1].trial_id if previous else None
+                row = self.store.add_trial(
+                    self.session_id, plan_position=int(step.trial_index or position), condition=step.condition,
+                    block=step.block, repetition=step.repetition, placement=step.data.get("placement"),
+                    time_limit_s=step.duration_s, status="running", replaces_trial_id=replaces,
+                    started_at=utcnow(), tx=tx,
+                )
+                tid = row.id
+                self.store.update_trial(tid, outcome=outcome, tx=tx)
+            self._append(tx, "trial_start", {**dict(info), "position": position, "trial_id": tid}, t, None)
+        self._state.trials = [r for r in self._state.trials if r.trial_id != tid]
+        self._state.trials.append(TrialRecord(tid, position, attempt, "running", "", outcome, step.condition))
+        self._state.trials.sort(key=lambda r: r.trial_id)
+        return tid
+
+    def _set_trial(self, trial_id: int, status: str, reason: str, outcome=None) -> None:
+        for i, r in enumerate(self._state.trials):
+            if r.trial_id == trial_id:
+                self._state.trials[i] = TrialRecord(r.trial_id, r.position, r.attempt, status, reason,
+                                                    dict(outcome) if outcome is not None else r.outcome, r.condition)
+                return
+
+    def trial_finished(self, trial_id, status, outcome, reports, *, position, t, reason="", complete_step=True):
+        with self.store.in_transaction() as tx:
+            self._flush_pending(tx)
+            out = _jsonable(dict(outcome))
+            self.store.update_trial(
+                trial_id, status=status, ended_at=utcnow(), outcome=out, timed_out=bool(outcome.get("timed_out")),
+                invalid_reason=reason or None, tx=tx,
+            )
+            for rep in reports:
+                body = {k: v for k, v in rep.items() if k != "t"}
+                self.store.record_location_report(trial_id, t=float(rep.get("t") or 0.0), payload=body, tx=tx)
+            self._append(tx, "trial_end", {"status": status, "reason": reason, "trial_id": trial_id, **out}, t, None)
+            if complete_step:
+                self._append(tx, "step_done", {"position": position, "trial_id": trial_id, "status": status}, t, None)
+        self._set_trial(trial_id, status, reason, out)
+        if complete_step:
+            self._state.completed.add(position)
+
+    def mark_trial(self, trial_id: int, status: str, reason: str) -> None:
+        with self.store.in_transaction() as tx:
+            self.store.update_trial(trial_id, status=status, invalid_reason=reason, tx=tx)
+            self._append(tx, "trial_marked", {"trial_id": trial_id, "status": status, "reason": reason}, None, None)
+        self._set_trial(trial_id, status, reason)
+
+    def samples(self, trial_id: int, channels: list[str]) -> _StoreSamples:
+        return _StoreSamples(self.store, trial_id)
+
+    def answer(self, position, instrument, version, item, code, response_time_s) -> None:
+        with self.store.in_transaction() as tx:
+            self.store.record_response(
+                self.participant_id, instrument=instrument, instrument_version=version, item=item, code=int(code),
+                session_id=self.session_id, context=_context(position), tx=tx,
+            )
+            self._append(tx, "answer", {"position": position, "instrument": instrument, "version": version,
+                                        "item": item, "code": int(code), "response_time_s": response_time_s},
+                         None, None)
+        self._state.answers[(position, item)] = int(code)
+
+    def amend_plan(self, plan: SessionPlan, reason: str) -> None:
+        known = {r.position for r in self._state.trials}
+        new_rows: list[TrialRecord] = []
+        with self.store.in_transaction() as tx:
+            self._append(tx, "plan_amended", {"plan": plan.to_json(), "reason": reason}, None, None)
+            for step in plan.trials():
+                if step.position in known:
+                    continue
+                prev = [r for r in self._state.trials if r.position == step.replaces]
+                row = self.store.add_trial(
+                    self.session_id, plan_position=int(step.trial_index or step.position), condition=step.condition,
+                    block=step.block, repetition=step.repetition, placement=step.data.get("placement"),
+                    time_limit_s=step.duration_s, status="planned",
+                    replaces_trial_id=prev[-1].trial_id if prev else None, tx=tx,
+                )
+                self.store.update_trial(row.id, outcome={"step": step.position, "attempt": 1}, tx=tx)
+                new_rows.append(TrialRecord(row.id, step.position, 1, "planned", condition=step.condition))
+        self._state.plan = plan
+        self._state.trials.extend(new_rows)
+
+    def audit(self, action: str, detail) -> None:
+        with self.store.in_transaction() as tx:
+            self.store.audit(f"session.{action}" if "." not in action else action, entity="session",
+                             entity_id=self.session_id, details=_jsonable(dict(detail)), tx=tx)
+            if action == "session_resumed":
+                self.store.update_session(self.session_id, resume_count=self._state.resumes + 1, tx=tx)
+        if action == "session_resumed":
+            self._state.resumes += 1
+
+
+def _jsonable(value: Any) -> Any:
+    """Plain JSON types (numpy scalars → Python; inf/nan → None; tuples → lists)."""
+    import math
+
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if hasattr(value, "item") and callable(value.item) and not isinstance(value, (str, bytes)):
+        try:
+            value = value.item()
+        except (TypeError, ValueError):
+            return str(value)
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    return str(value)
