@@ -1,0 +1,53 @@
+"""A built wheel carries the migrations, and an installed (non-editable) studyctl finds them."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.slow
+def test_wheel_ships_migrations_and_init_finds_them(tmp_path):
+    wheels = tmp_path / "wheels"
+    # Reuse the environment's setuptools when it has one (fast, offline); else pip fetches it.
+    isolation = ["--no-build-isolation"] if importlib.util.find_spec("setuptools") else []
+    build = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", *isolation, "-w", str(wheels), str(ROOT)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert build.returncode == 0, build.stderr[-2000:]
+    wheel = next(wheels.glob("studyctl-*.whl"))
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for needed in ("env.py", "script.py.mako", "versions/0001_initial_schema.py"):
+        assert f"studyctl/_resources/migrations/{needed}" in names
+    target = tmp_path / "site"
+    install = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target), str(wheel)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert install.returncode == 0, install.stderr[-2000:]
+    env = {**os.environ, "PYTHONPATH": str(target)}
+    env.pop("STUDYCTL_DB", None)
+    probe = subprocess.run(
+        [sys.executable, "-c", "import studyctl, studyctl.resources as r; print(studyctl.__file__); "
+         "print(r.resource_dir('migrations'))"],
+        capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120,
+    )
+    assert probe.returncode == 0, probe.stderr
+    module_file, migrations = probe.stdout.split()
+    assert module_file.startswith(str(target)) and migrations.startswith(str(target))
+    ws = tmp_path / "ws"
+    init = subprocess.run([sys.executable, "-m", "studyctl", "init", str(ws)], capture_output=True, text=True,
+                          env=env, cwd=tmp_path, timeout=120)
+    assert init.returncode == 0, init.stderr
+    current = subprocess.run([sys.executable, "-m", "studyctl", "db", "current", "-w", str(ws)],
+                             capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
+    assert current.returncode == 0 and "revision 0001" in current.stdout, current.stderr
