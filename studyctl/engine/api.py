@@ -1,0 +1,270 @@
+"""Run or resume a participant's session against a study database: the functions the CLI (and
+``studyctl simulate`` / ``studyctl demo``) call.
+
+Example: a virtual participant's whole session, deterministic given the seed::
+
+    from studyctl.store import StudyStore
+    from studyctl.engine import run_session
+
+    with StudyStore.open("study.db") as store:
+        result = run_session(store, "BIP-4KX7Q", virtual=True, seed=7)
+        print(result.to_frame())
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from sqlalchemy import select
+
+from studyctl.engine.clock import Clock, RealClock, SimulatedClock
+from studyctl.engine.factory import EntryPointFactory, PluginFactory, build_participant
+from studyctl.engine.plan import SessionPlan, Step
+from studyctl.engine.planning import plan_for_participant
+from studyctl.engine.preflight import preflight
+from studyctl.engine.seeding import answer_rng, session_seed
+from studyctl.engine.session import SessionResult, SessionRunner
+from studyctl.engine.store_recorder import StoreRecorder
+from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
+from studyctl.errors import NotFoundError, SessionError
+from studyctl.plugins.interfaces import Participant
+from studyctl.protocol.enrollment import study_protocol
+from studyctl.protocol.schedule import Schedule
+from studyctl.store import StudyStore
+from studyctl.store.models import Event
+
+UNFINISHED = ("running", "paused", "interrupted")
+ProgressFn = Callable[[int, int, Step], None]
+
+
+@dataclass
+class _Setup:
+    participant: Participant
+    ui: SessionUI
+    clock: Clock
+    cleanup: Callable[[], None]
+
+
+def _setup(
+    plan: SessionPlan,
+    seed: int,
+    *,
+    virtual: bool,
+    factory: PluginFactory,
+    participant: Participant | None,
+    ui: SessionUI | None,
+    clock: Clock | None,
+    script: Script | None,
+    log: Callable[[str], None] | None,
+) -> _Setup:
+    cleanup: Callable[[], None] = lambda: None  # noqa: E731
+    if virtual:
+        if participant is None:
+            ref = plan.virtual_participant
+            if not ref:
+                raise SessionError(f"the protocol of study {plan.study!r} names no virtual participant "
+                                   "(participants.virtual); run it with a person instead of --virtual")
+            participant = build_participant(factory, ref["plugin"], ref.get("params", {}))
+        if ui is None:
+            p = participant
+            ui = VirtualUI(p, lambda pos, n: answer_rng(seed, pos, n), log=log)
+        return _Setup(participant, ui, clock or SimulatedClock(), cleanup)
+    if script is not None:
+        from studyctl.engine.person import ScriptedParticipant
+
+        participant = participant or ScriptedParticipant(script, log=log)
+        ui = ui or ScriptedUI(script, log=log)
+        return _Setup(participant, ui, clock or SimulatedClock(), cleanup)
+    if ui is None or participant is None:
+        from studyctl.engine.person import TerminalParticipant
+        from studyctl.engine.terminal import Terminal, TerminalUI
+
+        term = Terminal()
+        tui = TerminalUI(term)
+        person = participant or factory.load("participant", "person")()
+        if isinstance(person, TerminalParticipant):
+            person.attach(term, tui)
+        participant, ui = person, ui or tui
+        cleanup = term.restore
+    return _Setup(participant, ui, clock or RealClock(), cleanup)
+
+
+def _run(
+    rec: StoreRecorder,
+    *,
+    factory: PluginFactory | None,
+    participant: Participant | None,
+    ui: SessionUI | None,
+    clock: Clock | None,
+    script: Script | None,
+    progress: ProgressFn | None,
+    log: Callable[[str], None] | None,
+) -> SessionResult:
+    state = rec.state()
+    factory = factory or EntryPointFactory()
+    virtual = state.virtual
+    report = preflight(state.plan, factory, virtual=virtual,
+                       person_participant=participant is None and script is None and ui is None)
+    report.raise_if_missing()
+    setup = _setup(state.plan, state.seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
+                   clock=clock, script=script, log=log)
+    runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock, factory=factory,
+                           virtual=virtual, progress=progress)
+    try:
+        return runner.run()
+    finally:
+        setup.cleanup()
+
+
+def run_session(
+    store: StudyStore,
+    participant_code: str,
+    *,
+    study: str | None = None,
+    virtual: bool = True,
+    seed: int | None = None,
+    participant: Participant | None = None,
+    ui: SessionUI | None = None,
+    clock: Clock | None = None,
+    script: Script | str | Path | None = None,
+    factory: PluginFactory | None = None,
+    progress: ProgressFn | None = None,
+    site: str | None = None,
+    log: Callable[[str], None] | None = None,
+) -> SessionResult:
+    """Run an enrolled participant's whole session, from instructions to the end-of-study questionnaire.
+
+    Parameters
+    ----------
+    store
+        The open study database.
+    participant_code
+        The participant's pseudonymous code (as printed by ``studyctl enroll``).
+    study
+        Study name when the database holds several.
+    virtual
+        True: the protocol's virtual participant acts through the simulated device on a simulated clock
+        (as fast as the computation allows). False: a person (terminal, or ``script``) on the hardware
+        device named by the protocol (the simulated device when it names none).
+    seed
+        Session seed; every trial's and answer's random stream derives from it and the plan position, so a
+        virtual session is reproducible and a resumed one continues identically. Default: derived from
+        the study seed and the participant code.
+    participant, ui, clock
+        Override the participant plugin instance, the prompts and the clock (tests, embedding).
+    script
+        Scripted answers (a :class:`~studyctl.engine.ui.Script` or a YAML/JSON file) for a person run
+        without a terminal (rehearsals, tests).
+    factory
+        Plugin source (default: installed entry points).
+    progress
+        Called after every step with (steps done, steps in plan, step).
+
+    Returns
+    -------
+    SessionResult
+        How the session ended (``status == "completed"`` unless it raised).
+
+    Raises
+    ------
+    NotFoundError
+        Unknown participant code.
+    SessionError
+        The participant already has a finished or unfinished session, preflight found a missing plugin,
+        or a device failed (the session is then resumable with :func:`resume_session`).
+    SessionInterrupted
+        Ctrl-C; the session is resumable.
+    """
+    target = store.get_study(study)
+    try:
+        person = store.get_participant(target.id, participant_code)
+    except NotFoundError:
+        codes = [p.code for p in store.list_participants(target.id)]
+        hint = f"; enrolled codes: {', '.join(codes[:10])}{' …' if len(codes) > 10 else ''}" if codes else ""
+        raise NotFoundError(f"no participant with code {participant_code!r} in study {target.name!r}"
+                            f"{hint}. Enroll one with `studyctl enroll`") from None
+    if person.status == "withdrawn":
+        raise SessionError(f"participant {participant_code} has withdrawn; their sessions cannot be run")
+    for sess in store.list_sessions(person.id):
+        if sess.status == "completed":
+            raise SessionError(f"participant {participant_code} already completed session {sess.id}; a participant "
+                               "takes part once (see `studyctl status`, `studyctl export DIR`)")
+        if sess.status in UNFINISHED:
+            raise SessionError(f"participant {participant_code} has an unfinished session {sess.id} ({sess.status}); "
+                               f"continue it with `studyctl resume {sess.id}`")
+    if not person.schedule:
+        raise SessionError(f"participant {participant_code} has no stored schedule; enroll with `studyctl enroll`")
+    protocol = study_protocol(target)
+    plan = plan_for_participant(protocol, Schedule.from_json(person.schedule))
+    if isinstance(script, (str, Path)):
+        script = Script.load(script)
+    factory = factory or EntryPointFactory()
+    # Check plugins before anything is written: a failed preflight leaves no half-started session.
+    preflight(plan, factory, virtual=virtual,
+              person_participant=participant is None and script is None and ui is None).raise_if_missing()
+    seed = session_seed(int(target.seed), participant_code) if seed is None else int(seed)
+    rec = StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site)
+    return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock, script=script,
+                progress=progress, log=log)
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def session_owner(store: StudyStore, session_id: int) -> tuple[int, str] | None:
+    """(pid, host) of the process that last ran the session, from its ``session_process`` event."""
+    with store.reading() as s:
+        payload = s.scalar(select(Event.payload).where(Event.session_id == session_id,
+                                                       Event.kind == "session_process")
+                           .order_by(Event.seq.desc()).limit(1))
+    if not payload:
+        return None
+    return int(payload.get("pid", 0)), str(payload.get("host", ""))
+
+
+def resume_session(
+    store: StudyStore,
+    session_id: int,
+    *,
+    participant: Participant | None = None,
+    ui: SessionUI | None = None,
+    clock: Clock | None = None,
+    script: Script | str | Path | None = None,
+    factory: PluginFactory | None = None,
+    progress: ProgressFn | None = None,
+    log: Callable[[str], None] | None = None,
+) -> SessionResult:
+    """Continue an interrupted session from its stored plan (see :func:`run_session` for parameters).
+
+    Completed steps, trials and answers are kept; a trial interrupted mid-way is handled by the protocol's
+    policy (``repeat`` it, or mark it invalid and append a replacement); the resume is audited. The session
+    keeps its mode (virtual or person) and seed.
+    """
+    sess = store.get_session(session_id)
+    if sess.status == "completed":
+        raise SessionError(f"session {session_id} is already complete; nothing to resume")
+    if sess.status == "aborted":
+        raise SessionError(f"session {session_id} was aborted; it cannot be resumed")
+    owner = session_owner(store, session_id)
+    if owner is not None and sess.status == "running":
+        pid, host = owner
+        if host == socket.gethostname() and pid != os.getpid() and _process_alive(pid):
+            raise SessionError(f"session {session_id} is being run by process {pid} on this machine; stop it "
+                               "first (Ctrl-C in its terminal) or wait for it to end")
+    rec = StoreRecorder.load(store, session_id)
+    rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=rec.state().last_t)
+    if isinstance(script, (str, Path)):
+        script = Script.load(script)
+    return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock, script=script,
+                progress=progress, log=log)
