@@ -91,7 +91,9 @@ class ThrowawayPostgres:
     # -- lifecycle --------------------------------------------------------------------------------
     def start(self) -> ThrowawayPostgres:
         initdb, pg_ctl = find_pg_binary("initdb"), find_pg_binary("pg_ctl")
-        self.datadir = Path(tempfile.mkdtemp(prefix="studyctl-pg-"))
+        # As root the server runs as another user, who must reach the folder: /tmp, not a private TMPDIR.
+        base = "/tmp" if self._as_root and Path("/tmp").is_dir() else None
+        self.datadir = Path(tempfile.mkdtemp(prefix="studyctl-pg-", dir=base))
         if self._as_root:
             user = _ensure_user(RUN_AS_WHEN_ROOT)
             os.chown(self.datadir, user.pw_uid, user.pw_gid)
