@@ -53,7 +53,9 @@ class PreflightReport:
                            "Install the missing plugin package or fix the device, then run again")
 
 
-def preflight(plan: SessionPlan, factory: PluginFactory, *, virtual: bool, person_participant: bool = True) -> PreflightReport:
+def preflight(
+    plan: SessionPlan, factory: PluginFactory, *, virtual: bool, person_participant: bool = True
+) -> PreflightReport:
     """Check the plugins the plan's conditions need.
 
     Parameters
