@@ -104,8 +104,9 @@ def _rank_sum_product(a: int, b: int, length: int) -> np.ndarray:
         acc = np.cumsum(buf.reshape(-1, i), axis=0).ravel()[:length]
         d = b + i
         if d < length:
-            acc[d:] -= acc[: length - d].copy()
-        p = acc * (i / (b + i))
+            acc[d:] -= acc[: length - d]  # numpy buffers overlapping operands: reads the old values
+        acc *= i / (b + i)
+        p = acc
     return p
 
 
@@ -161,13 +162,18 @@ def rank_sum_tied_le(r2: np.ndarray, m: int, limit2: int) -> float:
     C = np.zeros((m + 1, width))
     C[0, 0] = 1.0
     scale_exp = 0
+    r_prev = 0
     for p, r in enumerate(order.tolist()):
         # before this element p elements are processed: rows k ≤ min(m, p) are reachable and only
-        # rows k ≥ m − (N − p) can still reach m.
+        # rows k ≥ m − (N − p) can still reach m. Row k holds sums in [k(k+1), k·r_prev] (doubled
+        # mid-ranks of the k smallest add up to at least k(k+1)), so only those columns move.
         k_lo = max(0, m - (N - p))
         k_hi = min(m - 1, p)
-        if k_lo <= k_hi and r < width:
-            C[k_lo + 1 : k_hi + 2, r:] += C[k_lo : k_hi + 1, : width - r]
+        lo_c = k_lo * (k_lo + 1)
+        hi_c = min(width - r, k_hi * r_prev + 1)
+        if k_lo <= k_hi and lo_c < hi_c:
+            C[k_lo + 1 : k_hi + 2, lo_c + r : hi_c + r] += C[k_lo : k_hi + 1, lo_c:hi_c]
+        r_prev = r
         if p % 64 == 63:
             top = C.max()
             if top > _RESCALE_AT:
