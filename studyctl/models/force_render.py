@@ -15,11 +15,13 @@ Table edges and depths outside the table, explicitly (never extrapolated)
   ``d₀`` (no contact force at zero indentation).
 * Depth beyond the deepest matrix: the deepest matrix's force is held (then saturated at the maximum).
 * Inside the grid the cell index is clamped to ``n − 2`` and the fraction to [0, 1], so the last node is
-  reached exactly; cubic stencils replicate edge nodes rather than read past them.
+  reached exactly; cubic stencils at the edges use Keys' ghost nodes, which only complete the stencils
+  of queries inside the map.
 
 Interpolation variants (``interpolation=``), all on plain Python floats precomputed from the map:
 ``nearest`` (nearest node in x, y and depth), ``linear`` (trilinear, as the papers state),
-``cubic`` (Keys cubic convolution, a = −0.5, in x and y; 4-point Lagrange in depth),
+``cubic`` (Keys cubic convolution, a = −0.5, with Keys' ghost-node boundary rule, in x and y; 4-point
+Lagrange in depth),
 ``powerlaw`` (bilinear in x and y; between depth nodes ``f ∝ d^α`` with α fitted to the two nodes, exact
 for Hertz-like ``d^1.5`` growth; linear where a node force is ≤ 0). ``subsample=k`` keeps every k-th node in
 x and y (the cheaper tables of ``studyctl bench render``).
@@ -204,8 +206,9 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
             h_b = fh[b] * w00 + fh[b + ny] * w10 + fh[b + 1] * w01 + fh[b + ny + 1] * w11
             if power and n_a > 0.0 and n_b > 0.0:
                 # f = f_a (d/d_a)^α, α = ln(f_b/f_a)/ln(d_b/d_a): the exponent below is ln(d/d_a)/ln(d_b/d_a).
-                da = depths[k]
-                e = math.log(d / da) / math.log(depths[k + 1] / da)
+                da, db = depths[k], depths[k + 1]
+                dc = da + t * (db - da)  # the depth clamped to the table's range
+                e = math.log(dc / da) / math.log(db / da)
                 n = n_a * (n_b / n_a) ** e
                 h = h_a * (h_b / h_a) ** e if (h_a > 0.0 and h_b > 0.0) else h_a + (h_b - h_a) * t
                 return n, h
@@ -213,7 +216,7 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
 
         return lookup
 
-    # cubic: Keys in x and y (edge nodes replicated), 4-point Lagrange in depth.
+    # cubic: Keys in x and y, 4-point Lagrange in depth.
     def lagrange_stencil(d: float) -> tuple[list[int], list[float], float]:
         if d <= d0:
             return [0], [1.0], d / d0
@@ -231,6 +234,30 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
             ws.append(w)
         return ks, ws, 1.0
 
+    # Keys' boundary condition: one ghost node beyond each edge, f₋₁ = 3f₀ − 3f₁ + f₂, so the stencil stays
+    # third-order accurate (exact on quadratics) up to the edge. It only completes stencils of queries
+    # inside the map; queries outside were clamped or zeroed above.
+    pnx, pny = nx + 2, ny + 2
+    psxy = pnx * pny
+    fn_pad: list[float] = []
+    fh_pad: list[float] = []
+    for stack, out in ((smap.normal_n, fn_pad), (smap.horizontal_or_zero(), fh_pad)):
+        padded = np.empty((nd, pnx, pny))
+        padded[:, 1:-1, 1:-1] = stack
+        if nx >= 3:
+            padded[:, 0, 1:-1] = 3 * stack[:, 0] - 3 * stack[:, 1] + stack[:, 2]
+            padded[:, -1, 1:-1] = 3 * stack[:, -1] - 3 * stack[:, -2] + stack[:, -3]
+        else:
+            padded[:, 0, 1:-1] = 2 * stack[:, 0] - stack[:, 1]
+            padded[:, -1, 1:-1] = 2 * stack[:, -1] - stack[:, -2]
+        if ny >= 3:
+            padded[:, :, 0] = 3 * padded[:, :, 1] - 3 * padded[:, :, 2] + padded[:, :, 3]
+            padded[:, :, -1] = 3 * padded[:, :, -2] - 3 * padded[:, :, -3] + padded[:, :, -4]
+        else:
+            padded[:, :, 0] = 2 * padded[:, :, 1] - padded[:, :, 2]
+            padded[:, :, -1] = 2 * padded[:, :, -2] - padded[:, :, -3]
+        out.extend(float(v) for v in padded.ravel())
+
     def lookup(x: float, y: float, d: float) -> tuple[float, float]:
         if d <= 0.0:
             return 0.0, 0.0
@@ -246,27 +273,28 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
             j = ny - 2
         wu = _keys_weights(u - i)
         wv = _keys_weights(v - j)
-        ii = [min(max(i + o, 0), nx - 1) * ny for o in (-1, 0, 1, 2)]
-        jj = [min(max(j + o, 0), ny - 1) for o in (-1, 0, 1, 2)]
+        ii = [(i + o) * pny for o in (0, 1, 2, 3)]  # padded indices of nodes i−1 … i+2
+        jj = [j, j + 1, j + 2, j + 3]
         ks, ws, ramp = lagrange_stencil(d)
         n_sum = 0.0
         h_sum = 0.0
+        pn, ph = fn_pad, fh_pad
         for kk, wk in zip(ks, ws, strict=True):
-            base = kk * sxy
+            base = kk * psxy
             for a in range(4):
                 row = base + ii[a]
                 wa = wk * wu[a]
                 n_row = (
-                    fn[row + jj[0]] * wv[0]
-                    + fn[row + jj[1]] * wv[1]
-                    + fn[row + jj[2]] * wv[2]
-                    + fn[row + jj[3]] * wv[3]
+                    pn[row + jj[0]] * wv[0]
+                    + pn[row + jj[1]] * wv[1]
+                    + pn[row + jj[2]] * wv[2]
+                    + pn[row + jj[3]] * wv[3]
                 )
                 h_row = (
-                    fh[row + jj[0]] * wv[0]
-                    + fh[row + jj[1]] * wv[1]
-                    + fh[row + jj[2]] * wv[2]
-                    + fh[row + jj[3]] * wv[3]
+                    ph[row + jj[0]] * wv[0]
+                    + ph[row + jj[1]] * wv[1]
+                    + ph[row + jj[2]] * wv[2]
+                    + ph[row + jj[3]] * wv[3]
                 )
                 n_sum += wa * n_row
                 h_sum += wa * h_row

@@ -19,10 +19,10 @@ cursor therefore drifts back towards the hand's ``R₀``-mapped position at most
 
 Deformation view
 ----------------
-:class:`DeformationView` displaces the nodes of a display grid around the indenter: nodes inside the
-contact circle follow the sphere of radius ``r`` whose lowest point is ``d_A`` deep; outside, the surface
-sags as Hertz's elastic half-space does around a sphere, tapered to zero at ``taper_radius`` (chosen:
-the paper gives the construction and the demarcation depths, not the fall-off functions). The
+:class:`DeformationView` displaces the nodes of a display grid around the indenter: inside the contact
+the surface takes the indenter's shape, outside it sags as Hertz's elastic half-space does around a sphere,
+tapered to zero at ``taper_radius`` (chosen: the paper gives the construction and the demarcation depths,
+not the fall-off functions; see :func:`deformation_profile_array`). The
 geometric contact radius ``a = √(2 r d − d²)`` (``d < r``) reaches ``r/2`` at ``d = (2 − √3) r/2``, the
 first of the paper's demarcation depths (:func:`deformation_range`); the others are ``r`` (the
 equator reaches the surface) and ``2r`` (the sphere is fully submerged).
@@ -161,27 +161,26 @@ def deformation_profile(rho_mm: float, depth_mm: float, r_mm: float, taper_radiu
 def deformation_profile_array(rho_mm: np.ndarray, depth_mm: float, r_mm: float, taper_radius_mm: float) -> np.ndarray:
     """Surface displacement (mm, ≥ 0) at distances ``rho`` from the indentation centre, vectorised.
 
-    The larger of (i) the indenter sphere itself (lowest point ``depth`` deep) and (ii) Hertz's surface
-    displacement of an elastic half-space under a sphere (Johnson, *Contact Mechanics*, 1985, §3.4):
-    ``δ − ρ²/2r`` inside the Hertz contact radius ``a = √(r δ)``, ``((2a² − ρ²) asin(a/ρ) + a √(ρ² − a²))/(π r)``
-    outside, with ``δ`` capped at ``r`` and the result scaled by ``depth/δ`` beyond that; multiplied by
-    ``(1 − (ρ/ρ_t)²)²`` so that nothing moves beyond the taper radius ``ρ_t``.
+    Hertz's surface displacement of an elastic half-space under a sphere of radius ``r`` (Johnson, *Contact
+    Mechanics*, 1985, §3.4) for ``δ = min(depth, r)``: ``δ − ρ²/2r`` inside the contact radius ``a = √(r δ)``
+    (the indenter's shape), ``((2a² − ρ²) asin(a/ρ) + a √(ρ² − a²))/(π r)`` outside (continuous at ``a``, where
+    both are ``δ/2``); deeper than ``r`` the whole patch is pushed down by the remaining ``depth − r``. The
+    result is multiplied by ``(1 − (ρ/ρ_t)²)²`` so that nothing moves beyond the taper radius ``ρ_t``; it is
+    continuous, falls monotonically with ``ρ`` and equals ``depth`` at the centre.
     """
     rho = np.abs(np.asarray(rho_mm, dtype=float))
     if depth_mm <= 0.0:
         return np.zeros_like(rho)
     delta = min(depth_mm, r_mm)
     a = math.sqrt(r_mm * delta)
-    sphere = np.maximum(depth_mm - r_mm + np.sqrt(np.maximum(r_mm * r_mm - rho * rho, 0.0)), 0.0)
-    sphere = np.where(rho <= r_mm, sphere, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         outside = (
             (2 * a * a - rho * rho) * np.arcsin(np.clip(a / rho, 0.0, 1.0))
             + a * np.sqrt(np.maximum(rho * rho - a * a, 0.0))
         ) / (math.pi * r_mm)
-    hertz = np.where(rho <= a, delta - rho * rho / (2.0 * r_mm), outside) * (depth_mm / delta)
+    hertz = np.where(rho <= a, delta - rho * rho / (2.0 * r_mm), outside)
     taper = np.clip(1.0 - (rho / taper_radius_mm) ** 2, 0.0, 1.0) ** 2
-    return np.maximum(sphere, hertz * taper)
+    return np.maximum((depth_mm - delta) + hertz, 0.0) * taper
 
 
 def neighbour_depths(depth_a_mm: float, r_mm: float, taper_radius_mm: float | None = None) -> tuple[float, ...]:
