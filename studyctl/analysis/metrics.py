@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
+import numpy as np
 import pandas as pd
 from sqlalchemy import select
 
@@ -77,6 +78,9 @@ class TrialView:
         return min(d, float(self.time_limit_s)) if self.time_limit_s else d
 
 
+_SCENES: dict[str, type] = {}  # scene classes by plugin name (entry-point lookups are slow)
+
+
 def rebuild_truth(plan: Any, placement: Mapping[str, Any], seed: int, position: int) -> Mapping[str, Any]:
     """The scene's ground truth, rebuilt exactly as the engine built the scene for this trial."""
     from studyctl.engine.seeding import trial_streams
@@ -84,7 +88,9 @@ def rebuild_truth(plan: Any, placement: Mapping[str, Any], seed: int, position: 
 
     if not plan.scene:
         raise AnalysisError("the study's plan names no scene, so there is no ground truth to score against")
-    cls = registry.load_plugin("scene", plan.scene)
+    cls = _SCENES.get(plan.scene)
+    if cls is None:
+        cls = _SCENES[plan.scene] = registry.load_plugin("scene", plan.scene)
     scene = cls.build(plan.scene_spec, placement or {}, frozenset(), trial_streams(seed, position).scene)
     return scene.truth()
 
@@ -175,10 +181,97 @@ def _tissue(trial: TrialView, which: str, params: Mapping[str, Any]) -> list[Row
     raise AnalysisError(f"unknown tissue metric {which!r}")
 
 
-def _palpation(trial: TrialView, which: str, params: Mapping[str, Any]) -> list[Row]:
-    from studyctl.models import palpation_metrics as pm
+def _grid_index(label: Any, labels: Sequence[str]) -> int:
+    """1-based index of a reported grid label ('3', 'C') on the plan's report grid."""
+    text = str(label)
+    if text in labels:
+        return list(labels).index(text) + 1
+    try:
+        return int(text)
+    except ValueError:
+        raise AnalysisError(f"report names grid label {text!r}, not on the grid ({', '.join(labels)})") from None
 
-    return pm.trial_metric_rows(trial, which, params)
+
+def match_cells(
+    reports: Sequence[tuple[int, int]], targets: Sequence[tuple[int, int]], tolerance: float
+) -> tuple[list[bool], list[int]]:
+    """Greedy one-to-one matching of grid reports to target cells (Chebyshev distance ≤ ``tolerance``).
+
+    Each report claims the nearest target not claimed before (ties: the earlier target). Returns
+    (found flag per target, 1/0 per report).
+    """
+    found = [False] * len(targets)
+    hits = []
+    for col, row in reports:
+        best, best_d = None, math.inf
+        for i, (tc, tr) in enumerate(targets):
+            d = max(abs(col - tc), abs(row - tr))
+            if not found[i] and d <= tolerance and d < best_d:
+                best, best_d = i, d
+        if best is None:
+            hits.append(0)
+        else:
+            found[best] = True
+            hits.append(1)
+    return found, hits
+
+
+def _palpation_reports(trial: TrialView, tolerance: float) -> tuple[list[dict[str, Any]], list[bool], list[int]]:
+    tumours = list(trial.truth.get("tumours") or [])
+    if not tumours:
+        raise AnalysisError("the scene truth lists no tumours")
+    cols = trial.plan.report.columns if trial.plan is not None else ()
+    rows = trial.plan.report.rows if trial.plan is not None else ()
+    reports = [
+        (_grid_index(r["column"], cols), _grid_index(r["row"], rows))
+        for r in trial.reports
+        if "column" in r and "row" in r
+    ]
+    found, hits = match_cells(reports, [(int(t["col"]), int(t["row"])) for t in tumours], tolerance)
+    return tumours, found, hits
+
+
+def _contact(trial: TrialView, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample times, forces and the tumour-contact mask: probe footprint over a tumour, force above threshold.
+
+    "Over a tumour" is the sponge scene's rule (:func:`studyctl.scenes.sponge.tumour_under_probe`: centre
+    distance ≤ tumour radius + probe radius), evaluated for all samples at once.
+    """
+    cache = trial.__dict__.setdefault("_contact_cache", {})
+    if threshold in cache:
+        return cache[threshold]
+    s = trial.samples
+    need = ("t", "force_n", "probe_x_mm", "probe_y_mm")
+    if s.empty or any(c not in s for c in need):
+        raise AnalysisError(f"the trial's samples lack {', '.join(c for c in need if c not in s) or 'rows'}")
+    t = s["t"].to_numpy(dtype=float)
+    f = s["force_n"].to_numpy(dtype=float)
+    x = s["probe_x_mm"].to_numpy(dtype=float)
+    y = s["probe_y_mm"].to_numpy(dtype=float)
+    truth = trial.truth
+    reach = float(truth.get("probe_radius_mm", 0.0))
+    over = np.zeros(len(s), dtype=bool)
+    for tum in truth.get("tumours", ()):
+        over |= np.hypot(x - float(tum["x_mm"]), y - float(tum["y_mm"])) <= float(tum["radius_mm"]) + reach
+    cache[threshold] = (t, f, over & np.isfinite(f) & (f > threshold))
+    return cache[threshold]
+
+
+def _palpation(trial: TrialView, which: str, params: Mapping[str, Any]) -> list[Row]:
+    if which in ("localisation_accuracy", "detection"):
+        tumours, found, hits = _palpation_reports(trial, float(params.get("tolerance_cells", 1)))
+        if which == "detection":
+            return [(str(t["class"]), float(f), 1.0) for t, f in zip(tumours, found, strict=True)]
+        if not hits:
+            raise AnalysisError("no reports in this trial: localising accuracy (correct / reports) is undefined")
+        return [(None, sum(hits) / len(hits), math.nan)]
+    t, f, contact = _contact(trial, float(params.get("threshold_n", 0.5)))
+    if which == "tumour_contact_time":
+        dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if len(t) > 1 else 0.0))
+        return [(None, float(dt[contact].sum()), math.nan)]
+    if not contact.any():
+        raise AnalysisError("the probe never pressed on a tumour above the threshold: mean contact force undefined")
+    return [(None, float(f[contact].mean()), math.nan)]
 
 
 FAMILIES: dict[str, Callable[[TrialView, Mapping[str, Any]], list[Row]]] = {
