@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "studyctl.cli.protocol",
     "studyctl.cli.enroll",
     "studyctl.cli.study",
+    "studyctl.cli.session",
     "studyctl.cli.db",
     "studyctl.cli.audit",
     "studyctl.cli.analysis",

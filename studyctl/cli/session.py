@@ -1,0 +1,96 @@
+"""``studyctl run``, ``studyctl resume`` and ``studyctl export``: sessions and their data."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.engine.api import resume_session, run_session
+from studyctl.engine.export import export_study
+from studyctl.store.workspace import open_study
+
+
+class _Bar:
+    """A rich progress bar over the plan's steps for long virtual or scripted runs (silent when not a tty)."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.progress = None
+        self.task = None
+
+    def __enter__(self):
+        if self.enabled:
+            self.progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                     TimeElapsedColumn(), console=Console(stderr=True), transient=False)
+            self.progress.__enter__()
+            self.task = self.progress.add_task("session", total=None)
+        return self
+
+    def __call__(self, done: int, total: int, step) -> None:
+        if self.progress is not None:
+            self.progress.update(self.task, completed=done, total=total, description=step.label())
+
+    def __exit__(self, *exc):
+        if self.progress is not None:
+            self.progress.__exit__(*exc)
+
+
+def _summary(result) -> None:
+    typer.echo(f"Session {result.session_id} ({result.participant}): {result.status}; "
+               f"{result.trials_completed} trials completed, {result.trials_aborted} aborted, "
+               f"{result.trials_invalid} invalid, {result.answers} answers, {result.resumes} resume(s)")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("run")
+    def run(
+        participant: str = typer.Option(..., "--participant", "-p", help="Participant code (from `studyctl enroll`)."),
+        virtual: bool = typer.Option(False, "--virtual", help="Run the protocol's virtual participant (simulated "
+                                     "device and clock) instead of a person."),
+        seed: int = typer.Option(None, "--seed", help="Session seed (default: from the study seed and the code)."),
+        input_file: Path = typer.Option(None, "--input", help="Scripted answers (YAML/JSON) for a rehearsal or test "
+                                        "run without a terminal."),
+        db: str = DB_OPTION,
+        workspace: Path = WORKSPACE_OPTION,
+        study: str = STUDY_OPTION,
+    ) -> None:
+        """Run a participant's session: instructions, practice, trials, breaks and questionnaires."""
+        with open_study(db, workspace_arg(workspace), study) as opened, _Bar(virtual or input_file is not None) as bar:
+            result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
+                                 script=input_file, progress=bar, log=lambda m: typer.echo(m, err=True))
+        _summary(result)
+
+    @app.command("resume")
+    def resume(
+        session: int = typer.Argument(..., help="Session id to continue (shown by `studyctl status`)."),
+        input_file: Path = typer.Option(None, "--input", help="Scripted answers (YAML/JSON) for the rest of the "
+                                        "session (person sessions without a terminal)."),
+        db: str = DB_OPTION,
+        workspace: Path = WORKSPACE_OPTION,
+        study: str = STUDY_OPTION,
+    ) -> None:
+        """Continue an interrupted session from its stored plan (crash, kill, Ctrl-C or device fault)."""
+        with open_study(db, workspace_arg(workspace), study) as opened, _Bar(True) as bar:
+            result = resume_session(opened.store, session, script=input_file, progress=bar,
+                                    log=lambda m: typer.echo(m, err=True))
+        _summary(result)
+
+    @app.command("export")
+    def export(
+        folder: Path = typer.Argument(..., help="New or empty folder for the CSV files and data_dictionary.json."),
+        samples: bool = typer.Option(True, "--samples/--no-samples", help="Also write samples.csv (large)."),
+        db: str = DB_OPTION,
+        workspace: Path = WORKSPACE_OPTION,
+        study: str = STUDY_OPTION,
+    ) -> None:
+        """Export trials, events, responses, reports and samples as tidy CSV with a data dictionary."""
+        with open_study(db, workspace_arg(workspace), study) as opened:
+            result = export_study(opened.store, folder, study=opened.study.name, samples=samples)
+        for name, n in sorted(result.rows.items()):
+            typer.echo(f"{folder / name}: {n} rows")
+        typer.echo(f"{folder / 'data_dictionary.json'}: every column with its unit")

@@ -1,0 +1,113 @@
+"""Study progress for ``studyctl status``: per participant and condition, trials done, running and left,
+and the counterbalancing balance achieved so far.
+
+Balance counts participants who completed their session or are still taking part (not withdrawn), so a
+drop-out does not leave a slot counted (see research notes on allocation).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+
+import pandas as pd
+from sqlalchemy import select
+
+from studyctl.protocol.schedule import Schedule
+from studyctl.store import StudyStore
+from studyctl.store.models import Participant, Session, Trial
+
+
+@dataclass(frozen=True)
+class ProgressRow:
+    participant: str
+    stratum: str | None
+    participant_status: str
+    session_id: int | None
+    session_status: str | None
+    condition: str
+    planned: int
+    done: int
+    running: int
+    aborted: int
+    invalid: int
+    left: int
+
+
+@dataclass(frozen=True)
+class StudyProgress:
+    """Rows per participant × condition plus balance counts (first condition and position × condition)."""
+
+    study: str
+    rows: tuple[ProgressRow, ...]
+    first_condition: dict[str, dict[str, int]]  # stratum → condition → participants starting with it
+    position_counts: dict[str, dict[int, dict[str, int]]]  # stratum → position → condition → count
+
+    COLUMNS = ("participant", "stratum", "participant_status", "session_id", "session_status", "condition",
+               "planned", "done", "running", "aborted", "invalid", "left")
+
+    def to_frame(self) -> pd.DataFrame:
+        return pd.DataFrame([tuple(r.__dict__[c] for c in self.COLUMNS) for r in self.rows],
+                            columns=list(self.COLUMNS))
+
+    def balance_frame(self) -> pd.DataFrame:
+        """Columns stratum, position, condition, participants (condition order position, 1-based)."""
+        out = [(s, pos, cond, n) for s, by_pos in self.position_counts.items()
+               for pos, by_cond in sorted(by_pos.items()) for cond, n in sorted(by_cond.items())]
+        return pd.DataFrame(out, columns=["stratum", "position", "condition", "participants"])
+
+    def totals(self) -> dict[str, int]:
+        keys = ("planned", "done", "running", "aborted", "invalid", "left")
+        return {k: int(sum(getattr(r, k) for r in self.rows)) for k in keys}
+
+
+def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress:
+    """Progress of every participant of a study, by condition, with the balance so far.
+
+    ``done`` counts completed trials (invalid ones separately), ``left`` the planned trials whose plan
+    position has no completed or invalid attempt yet (from the stored schedule when no session exists).
+    """
+    target = store.get_study(study)
+    with store.reading() as s:
+        people = list(s.scalars(select(Participant).where(Participant.study_id == target.id)
+                                .order_by(Participant.id)))
+        sessions = list(s.scalars(select(Session).where(Session.participant_id.in_([p.id for p in people]))
+                                  .order_by(Session.id)))
+        trials = list(s.scalars(select(Trial).where(Trial.participant_id.in_([p.id for p in people]))))
+    latest = {x.participant_id: x for x in sessions}
+    rows: list[ProgressRow] = []
+    first: dict[str, Counter] = {}
+    positions: dict[str, dict[int, Counter]] = {}
+    for p in people:
+        schedule = Schedule.from_json(p.schedule) if p.schedule else None
+        planned = Counter(e.condition for e in schedule.entries) if schedule else Counter()
+        sess = latest.get(p.id)
+        mine = [t for t in trials if sess is not None and t.session_id == sess.id]
+        finished_positions = {(t.condition, t.plan_position) for t in mine if t.status in ("completed", "invalid")}
+        order = schedule.order if schedule else ()
+        conditions = list(dict.fromkeys([*order, *planned, *(t.condition for t in mine)]))
+        for cond in conditions:
+            c_trials = [t for t in mine if t.condition == cond]
+            done = sum(t.status == "completed" for t in c_trials)
+            planned_n = planned.get(cond, 0)
+            finished = sum(1 for (c, _pos) in finished_positions if c == cond)
+            rows.append(ProgressRow(
+                participant=p.code, stratum=p.stratum, participant_status=p.status,
+                session_id=None if sess is None else sess.id, session_status=None if sess is None else sess.status,
+                condition=cond, planned=planned_n, done=done,
+                running=sum(t.status == "running" for t in c_trials),
+                aborted=sum(t.status == "aborted" for t in c_trials),
+                invalid=sum(t.status == "invalid" for t in c_trials),
+                left=max(planned_n - finished, 0),
+            ))
+        if schedule and p.status != "withdrawn":
+            key = p.stratum or "all"
+            first.setdefault(key, Counter())[schedule.order[0]] += 1
+            for pos, cond in enumerate(schedule.order, start=1):
+                positions.setdefault(key, {}).setdefault(pos, Counter())[cond] += 1
+    return StudyProgress(
+        study=target.name,
+        rows=tuple(rows),
+        first_condition={k: dict(v) for k, v in first.items()},
+        position_counts={k: {pos: dict(c) for pos, c in v.items()} for k, v in positions.items()},
+    )
