@@ -64,6 +64,10 @@ def check_text(value: Any, what: str, *, max_len: int = MAX_TEXT, allow_none: bo
     if "\x00" in value:
         raise UsageError(f"{what} {value!r} contains a NUL character (\\x00), which PostgreSQL cannot store; "
                          "remove it")
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        raise UsageError(f"{what} {value!r} is not valid Unicode text (a lone surrogate); re-type it") from None
     return value
 
 

@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import hashlib
+import itertools
 from datetime import UTC, datetime
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from sqlalchemy import func, select
 
 from studyctl.errors import NotFoundError, UsageError
 from studyctl.store.models import Participant
+
+_names = itertools.count()
 
 NASTY_CODES = [
     "P'01",
@@ -194,3 +199,22 @@ def test_withdrawal_records_reason(store):
     store.set_participant_status(p.id, "withdrawn", reason="felt unwell")
     got = store.get_participant(study.id, "P1")
     assert got.status == "withdrawn" and got.withdrawal_reason == "felt unwell" and got.withdrawn_at is not None
+
+
+def test_lone_surrogates_are_refused(store):
+    study = store.create_study("s")
+    with pytest.raises(UsageError, match="not valid Unicode"):
+        store.add_participant(study.id, "P\udc80")
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(codes=st.lists(
+    st.text(alphabet=st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00"), min_size=1, max_size=60),
+    min_size=1, max_size=4, unique=True))
+def test_any_text_code_round_trips(store, codes):
+    study = store.create_study(f"s{next(_names)}")
+    for code in codes:
+        store.add_participant(study.id, code)
+    assert sorted(p.code for p in store.list_participants(study.id)) == sorted(codes)
+    for code in codes:
+        assert store.get_participant(study.id, code).code == code
