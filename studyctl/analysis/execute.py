@@ -463,7 +463,7 @@ class _EntryRunner:
         try:
             if test == "tukey_hsd":
                 conf = float(self.entry.options.get("confidence", 0.95))
-                res = stats.tukey_hsd(*samples, confidence=conf)
+                res = stats.tukey_hsd(*samples, confidence=conf, names=levels)
                 frame = res.to_frame()
                 for _, r in frame.iterrows():
                     i, j = _pair_index(r, levels)
@@ -493,10 +493,9 @@ class _EntryRunner:
                         )
                     )
             elif test == "dunn":
-                kwargs: dict[str, Any] = {"p_adjust": p_adjust_method}
-                if variant == "multcompare":
-                    kwargs["method"] = "multcompare"
-                res = stats.dunn(*samples, **kwargs)
+                # MATLAB multcompare after kruskalwallis: the studentized range on mean ranks (df = inf).
+                adjust = "tukey-kramer" if variant == "multcompare" else p_adjust_method
+                res = stats.dunn(*samples, p_adjust=adjust, names=levels)
                 frame = res.to_frame()
                 for _, r in frame.iterrows():
                     i, j = _pair_index(r, levels)
@@ -574,8 +573,24 @@ class _EntryRunner:
                     **base,
                 )
             elif self.name == "rm_anova":
-                row = self.row(metric, split, **_rm_anova(matrix), significant=None, warnings="; ".join(warns), **base)
-                row = row.with_(significant=bool(row.p < self.alpha) if np.isfinite(row.p) else None)
+                res = stats.rm_anova(*[matrix[:, j] for j in range(matrix.shape[1])])
+                eps, p_gg = _f(_get(res, "epsilon_gg")), _f(_get(res, "pvalue_gg"))
+                row = self.row(
+                    metric,
+                    split,
+                    statistic_name="F",
+                    statistic=_f(res.statistic),
+                    df=_f(_get(res, "df_effect")),
+                    p=p_gg,
+                    method=f"repeated-measures ANOVA F({_f(_get(res, 'df_effect')):g}, "
+                    f"{_f(_get(res, 'df_error')):g}), participants as blocks; p with the Greenhouse-Geisser "
+                    f"correction (epsilon = {eps:.3f}; uncorrected p = {_f(res.pvalue):.3g})",
+                    effect_size_name="partial_eta_squared",
+                    effect_size=_f(_get(res, "partial_eta_squared")),
+                    significant=bool(p_gg < self.alpha) if np.isfinite(p_gg) else None,
+                    warnings="; ".join(warns + _result_warnings(res)),
+                    **base,
+                )
             else:
                 raise StatsInputError(f"{self.name} is not a within-subject omnibus test")
         except StudyctlError as exc:
@@ -753,38 +768,6 @@ def _pair_index(r: pd.Series, levels: list[str]) -> tuple[int, int]:
             raise StatsInputError(f"pairwise result group number {iv} is outside 1..{len(levels)}")
         out.append(iv - 1)
     return out[0], out[1]
-
-
-def _rm_anova(matrix: np.ndarray) -> dict[str, Any]:
-    """One-way repeated-measures ANOVA on a complete participants × levels matrix (closed form)."""
-    n, k = matrix.shape
-    grand = matrix.mean()
-    ss_cond = n * ((matrix.mean(axis=0) - grand) ** 2).sum()
-    ss_subj = k * ((matrix.mean(axis=1) - grand) ** 2).sum()
-    ss_total = ((matrix - grand) ** 2).sum()
-    ss_err = ss_total - ss_cond - ss_subj
-    df1, df2 = k - 1, (k - 1) * (n - 1)
-    from scipy.special import fdtrc
-
-    if ss_err <= 0 or df2 <= 0:
-        f = math.inf if ss_cond > 0 else NAN
-        p = 0.0 if ss_cond > 0 else NAN
-        warn = "zero residual variance"
-    else:
-        f = (ss_cond / df1) / (ss_err / df2)
-        p = float(fdtrc(df1, df2, f))
-        warn = ""
-    eta_p = ss_cond / (ss_cond + ss_err) if (ss_cond + ss_err) > 0 else NAN
-    return {
-        "statistic_name": "F",
-        "statistic": float(f),
-        "df": float(df1),
-        "p": p,
-        "method": f"repeated-measures ANOVA F({df1}, {df2}), participants as blocks, no sphericity correction",
-        "effect_size_name": "partial_eta_squared",
-        "effect_size": float(eta_p),
-        **({"warnings": warn} if warn else {}),
-    }
 
 
 def describe(vals: np.ndarray) -> dict[str, float]:

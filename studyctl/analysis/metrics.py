@@ -133,51 +133,26 @@ def _time(trial: TrialView, params: Mapping[str, Any]) -> list[Row]:
     return [(None, trial.duration_s, math.nan)]
 
 
-def match_positions(
-    reports: Sequence[Mapping[str, Any]], targets: Sequence[Mapping[str, Any]], radius: float
-) -> tuple[list[bool], list[int]]:
-    """Greedy one-to-one matching of position reports to targets (in report order).
-
-    A report is a hit when it lies within ``radius`` mm of a target not found before; the nearest such
-    target is claimed. Returns (found flag per target, hit flags per report as 1/0).
-    """
-    found = [False] * len(targets)
-    hits = []
-    for rep in reports:
-        best, best_d = None, math.inf
-        for i, tgt in enumerate(targets):
-            if found[i]:
-                continue
-            d = math.hypot(float(rep["x_mm"]) - float(tgt["x_mm"]), float(rep["y_mm"]) - float(tgt["y_mm"]))
-            if d <= radius and d < best_d:
-                best, best_d = i, d
-        if best is None:
-            hits.append(0)
-        else:
-            found[best] = True
-            hits.append(1)
-    return found, hits
-
-
 def _tissue(trial: TrialView, which: str, params: Mapping[str, Any]) -> list[Row]:
-    nodules = list(trial.truth.get("nodules") or [])
-    if not nodules:
-        raise AnalysisError("the scene truth lists no nodules")
-    radius = params.get("hit_radius_mm")
-    if radius in (None, ""):
-        radius = trial.protocol.trial.report.hit_radius
-    if radius is None:
-        raise AnalysisError("no hit radius: set trial.report.hit_radius in the protocol")
-    reports = [r for r in trial.reports if "x_mm" in r and "y_mm" in r]
-    found, hits = match_positions(reports, nodules, float(radius))
+    """Seed 002/003 detection metrics through :func:`studyctl.models.palpation_metrics.score_trial`."""
+    from studyctl.models.palpation_metrics import score_trial
+
+    cache = trial.__dict__.setdefault("_tissue_cache", {})
+    if "score" not in cache:
+        radius = trial.protocol.trial.report.hit_radius if trial.protocol is not None else None
+        if radius is None:
+            raise AnalysisError("no hit radius: set trial.report.hit_radius in the protocol")
+        reports = [r for r in trial.reports if "x_mm" in r and "y_mm" in r]
+        cache["score"] = score_trial(reports, list(trial.truth.get("nodules") or []), float(radius), trial.duration_s)
+    sc = cache["score"]
     if which == "sensitivity":
-        return [(str(n.get("name", i + 1)), float(f), 1.0) for i, (n, f) in enumerate(zip(nodules, found, strict=True))]
+        return [(m.nodule, float(m.found), 1.0) for m in sc.per_nodule]
     if which == "ppv":
-        return [(None, float(sum(hits)), float(len(hits)))]
+        return [(None, float(sc.hits), float(sc.reports))]
     if which == "nodules_found":
-        return [(None, float(sum(found)), math.nan)]
+        return [(None, float(sc.nodules_found), math.nan)]
     if which == "false_reports":
-        return [(None, float(len(hits) - sum(hits)), math.nan)]
+        return [(None, float(sc.false_reports), math.nan)]
     raise AnalysisError(f"unknown tissue metric {which!r}")
 
 
@@ -564,4 +539,4 @@ def known_metrics() -> list[str]:
     return [m for m in BUILTIN if m in FAMILIES or m == "likert"]
 
 
-__all__ = ["FAMILIES", "TrialView", "compute_metrics", "known_metrics", "match_positions", "rebuild_truth"]
+__all__ = ["FAMILIES", "TrialView", "compute_metrics", "known_metrics", "match_cells", "rebuild_truth"]
