@@ -55,6 +55,8 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(None, "--seed", help="Session seed (default: from the study seed and the code)."),
         input_file: Path = typer.Option(None, "--input", help="Scripted answers (YAML/JSON) for a rehearsal or test "
                                         "run without a terminal."),
+        speed: float = typer.Option(None, "--speed", help="Virtual/scripted runs: at most this many times real "
+                                    "time (default: as fast as possible)."),
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
@@ -62,7 +64,8 @@ def register(app: typer.Typer) -> None:
         """Run a participant's session: instructions, practice, trials, breaks and questionnaires."""
         with open_study(db, workspace_arg(workspace), study) as opened, _Bar(virtual or input_file is not None) as bar:
             result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
-                                 script=input_file, progress=bar, log=lambda m: typer.echo(m, err=True))
+                                 script=input_file, progress=bar, speed=speed,
+                                 log=lambda m: typer.echo(m, err=True))
         _summary(result)
 
     @app.command("resume")
@@ -70,13 +73,15 @@ def register(app: typer.Typer) -> None:
         session: int = typer.Argument(..., help="Session id to continue (shown by `studyctl status`)."),
         input_file: Path = typer.Option(None, "--input", help="Scripted answers (YAML/JSON) for the rest of the "
                                         "session (person sessions without a terminal)."),
+        speed: float = typer.Option(None, "--speed", help="Virtual/scripted sessions: at most this many times real "
+                                    "time (default: as fast as possible)."),
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
         """Continue an interrupted session from its stored plan (crash, kill, Ctrl-C or device fault)."""
         with open_study(db, workspace_arg(workspace), study) as opened, _Bar(True) as bar:
-            result = resume_session(opened.store, session, script=input_file, progress=bar,
+            result = resume_session(opened.store, session, script=input_file, progress=bar, speed=speed,
                                     log=lambda m: typer.echo(m, err=True))
         _summary(result)
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from sqlalchemy import select
 
-from studyctl.engine.clock import Clock, RealClock, SimulatedClock
+from studyctl.engine.clock import Clock, PacedClock, RealClock, SimulatedClock
 from studyctl.engine.factory import EntryPointFactory, PluginFactory, build_participant
 from studyctl.engine.plan import SessionPlan, Step
 from studyctl.engine.planning import plan_for_participant
@@ -69,10 +69,10 @@ def _setup(
                 raise SessionError(f"the protocol of study {plan.study!r} names no virtual participant "
                                    "(participants.virtual); run it with a person instead of --virtual")
             participant = build_participant(factory, ref["plugin"], ref.get("params", {}))
+        clock = clock or SimulatedClock()
         if ui is None:
-            p = participant
-            ui = VirtualUI(p, lambda pos, n: answer_rng(seed, pos, n), log=log)
-        return _Setup(participant, ui, clock or SimulatedClock(), cleanup)
+            ui = VirtualUI(participant, lambda pos, n: answer_rng(seed, pos, n), clock=clock, log=log)
+        return _Setup(participant, ui, clock, cleanup)
     if script is not None:
         from studyctl.engine.person import ScriptedParticipant
 
@@ -134,6 +134,7 @@ def run_session(
     factory: PluginFactory | None = None,
     progress: ProgressFn | None = None,
     site: str | None = None,
+    speed: float | None = None,
     log: Callable[[str], None] | None = None,
 ) -> SessionResult:
     """Run an enrolled participant's whole session, from instructions to the end-of-study questionnaire.
@@ -163,6 +164,9 @@ def run_session(
         Plugin source (default: installed entry points).
     progress
         Called after every step with (steps done, steps in plan, step).
+    speed
+        Virtual or scripted runs only: hold the simulated clock to at most this many times real time
+        (to watch a run); results are identical to an unpaced run.
 
     Returns
     -------
@@ -208,6 +212,7 @@ def run_session(
               person_participant=participant is None and script is None and ui is None).raise_if_missing()
     seed = session_seed(int(target.seed), participant_code) if seed is None else int(seed)
     rec = StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site)
+    clock = clock or _paced(speed)
     return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock, script=script,
                 progress=progress, log=log)
 
@@ -243,6 +248,7 @@ def resume_session(
     script: Script | str | Path | None = None,
     factory: PluginFactory | None = None,
     progress: ProgressFn | None = None,
+    speed: float | None = None,
     log: Callable[[str], None] | None = None,
 ) -> SessionResult:
     """Continue an interrupted session from its stored plan (see :func:`run_session` for parameters).
@@ -266,5 +272,13 @@ def resume_session(
     rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=rec.state().last_t)
     if isinstance(script, (str, Path)):
         script = Script.load(script)
-    return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock, script=script,
+    return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock or _paced(speed), script=script,
                 progress=progress, log=log)
+
+
+def _paced(speed: float | None) -> Clock | None:
+    if speed is None:
+        return None
+    if not speed > 0:
+        raise SessionError(f"--speed must be > 0 (times real time), got {speed}")
+    return PacedClock(speed)

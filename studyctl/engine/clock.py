@@ -53,3 +53,36 @@ class SimulatedClock:
 
     def advance(self, dt: float) -> None:
         self._t += float(dt)
+
+    def child(self) -> SimulatedClock:
+        """A fresh clock of the same kind starting at 0 (one per trial: exact trial times)."""
+        return SimulatedClock(0.0)
+
+
+class PacedClock(SimulatedClock):
+    """A simulated clock held to at most ``speed`` × real time (watch a virtual run, or catch it mid-step).
+
+    Results are those of :class:`SimulatedClock` (the same simulated times); only wall time differs.
+    """
+
+    def __init__(self, speed: float, start: float = 0.0) -> None:
+        if not speed > 0:
+            raise ValueError(f"speed must be > 0, got {speed!r}")
+        super().__init__(start)
+        self.speed = float(speed)
+        self._origin_sim = float(start)
+        self._origin_wall = time.perf_counter()
+
+    def sleep_until(self, t: float) -> None:
+        if t <= self._t:
+            return
+        wait = self._origin_wall + (t - self._origin_sim) / self.speed - time.perf_counter()
+        if wait > 0:
+            time.sleep(wait)
+        self._t = float(t)
+
+    def advance(self, dt: float) -> None:
+        self.sleep_until(self._t + float(dt))
+
+    def child(self) -> PacedClock:
+        return PacedClock(self.speed, 0.0)

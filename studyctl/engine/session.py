@@ -282,6 +282,12 @@ class SessionRunner:
                 dict(t.outcome) for t in state.trials
                 if t.status == "completed" and (step.condition is None or t.condition == step.condition)
             ],
+            # every completed trial in plan order: a participant may base answers on it instead of memory,
+            # so a resumed session answers exactly as an uninterrupted one
+            "history": [
+                {"condition": t.condition, **dict(t.outcome)} for t in self._in_plan_order(state)
+                if t.status == "completed"
+            ],
         }
         for number, item in enumerate(instrument.items, start=1):
             if (step.position, item.id) in state.answers:
@@ -295,6 +301,11 @@ class SessionRunner:
             self.rec.answer(step.position, instrument.id, instrument.version, item.id, code, rt)
         self.rec.step_completed(step.position, self.now(), {"instrument": instrument.id,
                                                             "version": instrument.version})
+
+    @staticmethod
+    def _in_plan_order(state: SessionState) -> list:
+        order = {s.position: i for i, s in enumerate(state.plan.steps)}
+        return sorted(state.trials, key=lambda t: (order.get(t.position, 0), t.attempt))
 
     # -- trials --------------------------------------------------------------------------------------------
     def _trial(self, step: Step) -> None:
@@ -362,7 +373,7 @@ class SessionRunner:
         self.ui.trial_begin(step, info.time_limit_s)
         # A simulated trial runs on its own clock from 0, so trial times are exact multiples of the period
         # whatever the session time: a repeated or resumed trial sees bit-identical times.
-        trial_clock: Clock = SimulatedClock(0.0) if self.clock.simulated else self.clock
+        trial_clock: Clock = self._child_clock()
         t_start = trial_clock.now()
 
         def should_stop() -> str | None:
@@ -405,6 +416,12 @@ class SessionRunner:
             if trial_clock is not self.clock:  # the session clock moves on by the trial's duration
                 self.clock.sleep_until(self.clock.now() + (trial_clock.now() - t_start))
         self._finish_attempt(step, tid, attempt, outcome, flag, rate)
+
+    def _child_clock(self) -> Clock:
+        if not self.clock.simulated:
+            return self.clock
+        child = getattr(self.clock, "child", None)
+        return child() if callable(child) else SimulatedClock(0.0)
 
     def _rate(self, cond: ConditionSpec) -> float:
         if cond.rate_hz:

@@ -125,6 +125,9 @@ class _QuietUI:
         return None
 
 
+VIRTUAL_ANSWER_S = 4.0  # simulated seconds a virtual participant takes per questionnaire item
+
+
 class VirtualUI(_QuietUI):
     """Prompts answered by a virtual participant; breaks elapse on the (simulated) clock.
 
@@ -138,9 +141,11 @@ class VirtualUI(_QuietUI):
         rng_for: Callable[[int, int], np.random.Generator],
         *,
         practise: bool = False,
+        clock: Clock | None = None,
         log: Callable[[str], None] | None = None,
     ) -> None:
         super().__init__(log)
+        self.clock = clock
         self.participant = participant
         self.rng_for = rng_for
         self.practise = practise
@@ -169,7 +174,10 @@ class VirtualUI(_QuietUI):
             "reverse": item.reverse,
             **dict(context),
         }
-        return int(self.participant.answer(payload, rng)), 0.0
+        code = int(self.participant.answer(payload, rng))
+        if self.clock is not None:  # reading and answering takes time, also for a virtual participant
+            self.clock.sleep_until(self.clock.now() + VIRTUAL_ANSWER_S)
+        return code, VIRTUAL_ANSWER_S if self.clock is not None else 0.0
 
     def manual_outcome(self, step, report, clock) -> ManualOutcome:
         raise UsageError("a virtual participant cannot take a manual condition without a simulated device")
