@@ -66,17 +66,21 @@ class UdpDriverBoard(Device):
     def open(self) -> None:
         if self._sock is not None:
             return
+        self._latest = None
+        self.status = {}
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setblocking(False)
         try:
             sock.connect(self.address)
             self._send(sock, bp.HELLO, int(self.params["rate_hz"]), int(self.params["watchdog_ms"]))
             deadline = time.monotonic() + self.params["connect_timeout_s"]
-            while True:
+            # Wait for the board's STATUS and its first SENSOR packet, so the first tick has a fresh sample.
+            while self._latest is None or not self.status:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
+                    what = "no answer from" if not self.status else "no sensor data from"
                     raise DeviceError(
-                        f"udp_driver_board: no answer from the board at {self.address[0]}:{self.address[1]} within "
+                        f"udp_driver_board: {what} the board at {self.address[0]}:{self.address[1]} within "
                         f"{self.params['connect_timeout_s']:g} s; check that it is powered, on this network and the "
                         "port is right"
                     )
@@ -91,7 +95,9 @@ class UdpDriverBoard(Device):
                         "refused); start the board or its emulator"
                     ) from None
                 pkt = self._parse(data)
-                if pkt is not None and pkt.type == bp.STATUS:
+                if pkt is None:
+                    continue
+                if pkt.type == bp.STATUS:
                     fw, bits, rate, wd, rejected = pkt.fields
                     self.status = {"firmware": fw, "adc_bits": bits, "rate_hz": rate, "watchdog_ms": wd,
                                    "rejected": rejected}
@@ -100,13 +106,13 @@ class UdpDriverBoard(Device):
                             f"udp_driver_board: the board reports a {bits}-bit ADC; studyctl's A201 calibration "
                             f"expects {self.sensor.adc_bits} bits"
                         )
-                    break
+                elif pkt.type == bp.SENSOR:
+                    self._latest = (pkt.seq, *pkt.fields)
         except BaseException:
             sock.close()
             raise
         self._sock = sock
-        self._latest = None
-        self._sample_t = None
+        self._sample_t = None  # the first read() stamps the sample that arrived during open()
 
     def read(self, t: float) -> Observation:
         if self._sock is None:
@@ -125,8 +131,10 @@ class UdpDriverBoard(Device):
             if self._latest is None or _newer(pkt.seq, self._latest[0]):
                 self._latest = (pkt.seq, *pkt.fields)
                 fresh = True
-        if fresh or self._sample_t is None:
-            self._sample_t = t if fresh else -math.inf
+        if fresh or (self._sample_t is None and self._latest is not None):
+            self._sample_t = t
+        elif self._sample_t is None:
+            self._sample_t = -math.inf
         if self._latest is None:
             return Observation(t, {"adc": math.nan, "force_n": math.nan}, sample_t=self._sample_t,
                                faults=("no sensor packet received yet",))

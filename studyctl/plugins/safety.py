@@ -158,7 +158,9 @@ class SafetyLayer:
                 causes["stale_sensor"] = {"age_s": t - obs.sample_t, "limit_s": self.limits.sensor_stale_s}
             if obs.faults:
                 causes["sensor_fault"] = {"faults": list(obs.faults)}
-            bad = [k for k, v in obs.values.items() if not (type(v) is float and v - v == 0.0) and not _finite_number(v)]
+            bad = [
+                k for k, v in obs.values.items() if not (type(v) is float and v - v == 0.0) and not _finite_number(v)
+            ]
             if bad:
                 causes["sensor_non_finite"] = {"channels": bad}
         return causes

@@ -131,8 +131,9 @@ def test_reductions(full):
         capr.reduce_population(sa1, "tiny")
     with pytest.raises(ModelParameterError, match="density reduction factor 3 must be 2 or 4"):
         capr.reduce_population(sa1, "density", factor=3)
-    with pytest.raises(ModelParameterError, match="clusters = 0 must be in 1..164"):
+    with pytest.raises(ModelParameterError, match="clusters = 0 must be in 1..10000"):
         capr.reduce_population(sa1, "clusters", clusters=0)
+    assert capr.reduce_population(full[2], "clusters", clusters=64).size == 56
 
 
 @pytest.mark.parametrize(

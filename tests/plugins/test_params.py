@@ -46,4 +46,5 @@ def test_bad_values_name_the_parameter_and_what_is_allowed(params, message):
 
 def test_describe_lists_sources():
     rows = describe(SPEC)
-    assert rows[0] == {"name": "gain", "default": 1.0, "allowed": "a float in [0, 10] N", "unit": "N", "source": "paper"}
+    assert rows[0] == {"name": "gain", "default": 1.0, "allowed": "a float in [0, 10] N", "unit": "N",
+                       "source": "paper"}
