@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +32,7 @@ from sqlalchemy import exc as sa_exc
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
-from studyctl.errors import ConfigError, SchemaVersionError, StoreError
+from studyctl.errors import ConfigError, SchemaVersionError, StoreError, UsageError
 from studyctl.resources import resource_dir
 
 BUSY_TIMEOUT_MS = 30_000
@@ -274,6 +275,7 @@ class Database:
         self.engine = engine
         self.url = url
         self._sessions = sessionmaker(bind=engine, expire_on_commit=False)
+        self._local = threading.local()
 
     # -- opening --------------------------------------------------------------------------------
     @classmethod
@@ -379,6 +381,12 @@ class Database:
         (``pg_advisory_xact_lock``) that serialises every transaction using the same name; on SQLite the
         write lock already does that and ``lock`` is ignored.
         """
+        if getattr(self._local, "writing", False):
+            # A second write transaction from the same thread would wait for the first one forever
+            # (SQLite write lock, PostgreSQL row/advisory locks) or silently break atomicity.
+            raise UsageError("a write transaction is already open on this database in this thread; pass its "
+                             "session as tx= to the store call instead of opening another transaction")
+        self._local.writing = True
         try:
             with self.engine.connect() as conn:
                 if self.dialect == "sqlite":
@@ -392,6 +400,8 @@ class Database:
                     yield session
         except sa_exc.OperationalError as exc:
             raise _translate(exc, self.url) from None
+        finally:
+            self._local.writing = False
 
     @contextlib.contextmanager
     def reading(self) -> Iterator[Session]:

@@ -218,3 +218,14 @@ def test_any_text_code_round_trips(store, codes):
     assert sorted(p.code for p in store.list_participants(study.id)) == sorted(codes)
     for code in codes:
         assert store.get_participant(study.id, code).code == code
+
+
+def test_forgotten_tx_is_an_immediate_error_not_a_deadlock(store):
+    study = store.create_study("s")
+    with pytest.raises(UsageError, match="pass its session as tx="), store.in_transaction() as tx:
+        store.add_participant(study.id, "P1", tx=tx)
+        store.add_participant(study.id, "P2")  # forgot tx=: would wait for the outer transaction
+    assert store.list_participants(study.id) == []  # the outer transaction rolled back
+    with store.in_transaction() as tx:  # and the store is usable again
+        store.add_participant(study.id, "P3", tx=tx)
+    assert [p.code for p in store.list_participants(study.id)] == ["P3"]
