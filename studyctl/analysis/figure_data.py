@@ -110,7 +110,15 @@ def _first_trials(store: Any, study: Any, conditions: Sequence[str]) -> dict[str
 
 
 def force_trace(plan: AnalysisPlan, store: Any, study: Any, spec: FigureEntry) -> FigureData:
-    """Force and commands ±``window_s`` around the first time the force crosses the contact threshold."""
+    """Force and commands ±``window_s`` around the first tumour contact of one trial per condition.
+
+    Tumour contact is what the contact metrics use (:func:`studyctl.analysis.metrics.tumour_contact_mask`):
+    the probe over a tumour with the force above the threshold; those spans are shaded.
+    """
+    from studyctl.analysis.metrics import rebuild_truth, tumour_contact_mask
+    from studyctl.engine.plan import SessionPlan
+    from studyctl.store.models import Event, Session, Trial
+
     threshold = float(spec.options.get("threshold_n", _contact_threshold(plan)))
     window = float(spec.options.get("window_s", 3.0))
     conds = list(spec.options.get("conditions") or plan.condition_ids)
@@ -122,16 +130,21 @@ def force_trace(plan: AnalysisPlan, store: Any, study: Any, spec: FigureEntry) -
             problems.append(f"{cond}: no completed trial")
             continue
         samples = store.read_samples(trials[cond])
-        if samples.empty or FORCE not in samples:
-            problems.append(f"{cond}: trial {trials[cond]} has no {FORCE!r} samples")
+        try:
+            truth = _trial_truth(store, trials[cond], Event, Session, Trial, SessionPlan, rebuild_truth)
+            contact = tumour_contact_mask(samples, truth, threshold)
+        except StudyctlError as exc:
+            problems.append(f"{cond}: trial {trials[cond]}: {exc}")
             continue
-        f = samples[FORCE].to_numpy(dtype=float)
-        above = np.flatnonzero(f > threshold)
         t = samples["t"].to_numpy(dtype=float)
-        centre = t[above[0]] if len(above) else t[len(t) // 2]
+        f = samples[FORCE].to_numpy(dtype=float)
+        if not contact.any():
+            problems.append(f"{cond}: trial {trials[cond]} never pressed on a tumour above {threshold:g} N")
+            continue
+        centre = t[np.flatnonzero(contact)[0]]
         sel = (t >= centre - window) & (t <= centre + window)
         frame = pd.DataFrame(
-            {"panel": labels.get(cond, cond), "x": t[sel] - centre, FORCE: f[sel], "contact": f[sel] > threshold}
+            {"panel": labels.get(cond, cond), "x": t[sel] - centre, FORCE: f[sel], "contact": contact[sel]}
         )
         for name, _ in COMMANDS:
             frame[name] = samples[name].to_numpy(dtype=float)[sel] if name in samples else np.nan
@@ -143,7 +156,7 @@ def force_trace(plan: AnalysisPlan, store: Any, study: Any, spec: FigureEntry) -
         pd.concat(frames, ignore_index=True),
         meta={
             "panels": panels,
-            "x_label": "time from first contact above the threshold (s)",
+            "x_label": "time from the first tumour contact (s)",
             "shade": "contact",
             "threshold": threshold,
             "channels": [(FORCE, "sensor force (N)", "left"), *[(c, lbl, "right") for c, lbl in COMMANDS]],

@@ -206,29 +206,32 @@ def _palpation_reports(trial: TrialView, tolerance: float) -> tuple[list[dict[st
     return tumours, found, hits
 
 
-def _contact(trial: TrialView, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sample times, forces and the tumour-contact mask: probe footprint over a tumour, force above threshold.
+def tumour_contact_mask(samples: pd.DataFrame, truth: Mapping[str, Any], threshold: float) -> np.ndarray:
+    """Samples in tumour contact: probe footprint over a tumour and sensor force above ``threshold``.
 
     "Over a tumour" is the sponge scene's rule (:func:`studyctl.scenes.sponge.tumour_under_probe`: centre
     distance ≤ tumour radius + probe radius), evaluated for all samples at once.
     """
-    cache = trial.__dict__.setdefault("_contact_cache", {})
-    if threshold in cache:
-        return cache[threshold]
-    s = trial.samples
     need = ("t", "force_n", "probe_x_mm", "probe_y_mm")
-    if s.empty or any(c not in s for c in need):
-        raise AnalysisError(f"the trial's samples lack {', '.join(c for c in need if c not in s) or 'rows'}")
-    t = s["t"].to_numpy(dtype=float)
-    f = s["force_n"].to_numpy(dtype=float)
-    x = s["probe_x_mm"].to_numpy(dtype=float)
-    y = s["probe_y_mm"].to_numpy(dtype=float)
-    truth = trial.truth
+    if samples.empty or any(c not in samples for c in need):
+        raise AnalysisError(f"the trial's samples lack {', '.join(c for c in need if c not in samples) or 'rows'}")
+    f = samples["force_n"].to_numpy(dtype=float)
+    x = samples["probe_x_mm"].to_numpy(dtype=float)
+    y = samples["probe_y_mm"].to_numpy(dtype=float)
     reach = float(truth.get("probe_radius_mm", 0.0))
-    over = np.zeros(len(s), dtype=bool)
+    over = np.zeros(len(samples), dtype=bool)
     for tum in truth.get("tumours", ()):
         over |= np.hypot(x - float(tum["x_mm"]), y - float(tum["y_mm"])) <= float(tum["radius_mm"]) + reach
-    cache[threshold] = (t, f, over & np.isfinite(f) & (f > threshold))
+    return over & np.isfinite(f) & (f > threshold)
+
+
+def _contact(trial: TrialView, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample times, forces and the tumour-contact mask of a trial (cached per threshold)."""
+    cache = trial.__dict__.setdefault("_contact_cache", {})
+    if threshold not in cache:
+        s = trial.samples
+        mask = tumour_contact_mask(s, trial.truth, threshold)
+        cache[threshold] = (s["t"].to_numpy(dtype=float), s["force_n"].to_numpy(dtype=float), mask)
     return cache[threshold]
 
 
@@ -539,4 +542,12 @@ def known_metrics() -> list[str]:
     return [m for m in BUILTIN if m in FAMILIES or m == "likert"]
 
 
-__all__ = ["FAMILIES", "TrialView", "compute_metrics", "known_metrics", "match_cells", "rebuild_truth"]
+__all__ = [
+    "FAMILIES",
+    "TrialView",
+    "compute_metrics",
+    "known_metrics",
+    "match_cells",
+    "rebuild_truth",
+    "tumour_contact_mask",
+]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import typer
@@ -111,4 +110,117 @@ def register(app: typer.Typer) -> None:
             for p in files.problems:
                 err.print(f"  - {p}", markup=False)
 
-    _ = json  # reserved for --json outputs of simulate/demo
+    register_sim(app)
+
+
+def register_sim(app: typer.Typer) -> None:
+    @app.command("simulate")
+    def simulate(
+        protocol: str = typer.Argument(..., help="Shipped protocol name or protocol file."),
+        participants: int = typer.Option(..., "--participants", "-n", help="How many virtual participants."),
+        seed: int = typer.Option(..., "--seed", "-s", help="Master seed of the study (same seed, same data)."),
+        out: Path = typer.Option(None, "--out", "-o", help="New workspace folder (default: ./<protocol>-sim)."),
+        db: str = typer.Option(None, "--db", help="PostgreSQL URL to hold the study instead of a study.db file."),
+    ) -> None:
+        """Run seeded virtual participants through the real engine into a new study workspace."""
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from studyctl.analysis.simulate import simulate_study
+
+        folder = out or Path(f"{Path(protocol).stem}-sim")
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TextColumn("{task.fields[code]}"),
+            console=_console(err=True),
+        ) as progress:
+            task = progress.add_task(f"simulating {Path(protocol).stem}", total=participants, code="")
+            result = simulate_study(
+                protocol,
+                participants,
+                seed,
+                folder,
+                db=db,
+                on_progress=lambda i, n, code: progress.update(task, completed=i, code=code),
+            )
+        typer.echo(
+            f"Simulated {result.participants} participants of {result.study!r} in {result.seconds:.1f} s: "
+            f"{result.trials_completed} trials completed, {result.trials_not_completed} not"
+        )
+        typer.echo(f"  workspace: {result.workspace}")
+        typer.echo(f"  database:  {result.database}")
+        typer.echo(
+            f"  next:      studyctl report {Path(protocol).stem} --workspace {result.workspace} --out "
+            f"{result.workspace}/report"
+        )
+
+    @app.command("demo")
+    def demo(
+        out: Path = typer.Option(Path("reports"), "--out", "-o", help="Folder for the four reports and index.html."),
+        seed: int = typer.Option(2024, "--seed", "-s", help="Master seed of all four studies."),
+        workers: int = typer.Option(None, "--workers", help="Parallel worker processes (default: CPU cores)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the per-study summary as JSON."),
+    ) -> None:
+        """Simulate the four reference studies (paper-sized), analyse them and write their reports."""
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from studyctl.report.demo import REFERENCE_STUDIES, run_demo
+
+        err = _console(err=True)
+        with Progress(
+            TextColumn("{task.description:<26}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TextColumn("{task.fields[stage]}"),
+            console=err,
+        ) as progress:
+            tasks = {name: progress.add_task(name, total=n, stage="waiting") for name, n in REFERENCE_STUDIES}
+
+            def on_event(event) -> None:  # noqa: ANN001
+                study, stage, done, total, message = event
+                task = tasks[study]
+                if stage == "simulate":
+                    progress.update(task, completed=done, total=total, stage=f"simulating {message}")
+                elif stage == "analyse":
+                    progress.update(task, stage=f"analysing: {message}")
+                else:
+                    progress.update(
+                        task,
+                        completed=progress.tasks[task].total,
+                        stage=stage if stage != "failed" else f"FAILED: {message[:60]}",
+                    )
+
+            result = run_demo(out, seed=seed, workers=workers, on_event=on_event)
+        if as_json:
+            typer.echo(result.to_frame().to_json(orient="records"))
+        else:
+            console = _console()
+            table = Table(
+                title=f"studyctl demo (seed {result.seed}, {result.workers} workers, {result.total_s:.1f} s)",
+                title_justify="left",
+            )
+            for col in ("study", "participants", "trials", "tests", "significant", "time", "status"):
+                table.add_column(col)
+            for r in result.studies:
+                status = "FAILED" if r.error else ("partial" if r.partial else "complete")
+                table.add_row(
+                    r.study,
+                    str(r.participants),
+                    str(r.trials_completed),
+                    str(r.tests),
+                    str(r.significant),
+                    f"{r.total_s:.1f} s",
+                    status,
+                )
+            console.print(table)
+            for r in result.studies:
+                for line in r.headline:
+                    console.print(f"  {r.study}: {line}", markup=False)
+                if r.error:
+                    err.print(f"  {r.study} FAILED: {r.error.splitlines()[0]}", markup=False)
+            console.print(f"Reports: {result.index}", markup=False)
+        if not result.ok:
+            raise typer.Exit(1)

@@ -65,7 +65,6 @@ def ensure_writable(out_dir: Path | str) -> Path:
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "figures").mkdir(exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=out)
         os.close(fd)
         os.unlink(probe)
@@ -126,6 +125,7 @@ def write_report(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     out = ensure_writable(out_dir)
+    (out / "figures").mkdir(exist_ok=True)
     plan = result.plan
     problems = list(result.problems)
     tables: list[Path] = []
