@@ -28,6 +28,7 @@ from studyctl.errors import DeviceError, ModelParameterError
 from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
 from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
 from studyctl.plugins.params import Param, validate_params
+from studyctl.scenes.sponge import SpongePhantomScene
 
 FAULT_KINDS = ("stale", "adc_out_of_range", "nan")
 
@@ -108,15 +109,14 @@ class SimulatedPalpationDevice(Device):
         if fault == "stale" and self._last_sample is not None:
             sample_t, values = self._last_sample
             return Observation(t, values, sample_t=sample_t)
-        pose = {
-            "probe_x_mm": self._inputs.get("x_mm", -1.0),
-            "probe_y_mm": self._inputs.get("y_mm", -1.0),
-            "depth_mm": self._inputs.get("depth_mm", 0.0),
-        }
+        inputs = self._inputs
+        x, y, depth = inputs.get("x_mm", -1.0), inputs.get("y_mm", -1.0), inputs.get("depth_mm", 0.0)
         force = 0.0
         if self.scene is not None:
-            force = float(self.scene.sense({"x_mm": pose["probe_x_mm"], "y_mm": pose["probe_y_mm"],
-                                            "depth_mm": pose["depth_mm"]}).get("force_n", 0.0))
+            if isinstance(self.scene, SpongePhantomScene):  # its direct path skips two dicts per tick
+                force = self.scene.force_n(x, y, depth)
+            else:
+                force = float(self.scene.sense({"x_mm": x, "y_mm": y, "depth_mm": depth}).get("force_n", 0.0))
         noise = self.params["sensor_noise_lsb"]
         counts = self.sensor.count_of_force(force)
         if noise > 0:
@@ -132,7 +132,8 @@ class SimulatedPalpationDevice(Device):
         if fault == "nan":
             force_n = math.nan
         values = {"adc": float(counts), "force_n": force_n,
-                  "pressure_kpa": self.sensor.pressure_kpa(force_n) if math.isfinite(force_n) else math.nan, **pose}
+                  "pressure_kpa": self.sensor.pressure_kpa(force_n) if math.isfinite(force_n) else math.nan,
+                  "probe_x_mm": x, "probe_y_mm": y, "depth_mm": depth}
         self._last_sample = (t, values)
         return Observation(t, values, sample_t=t, faults=faults)
 

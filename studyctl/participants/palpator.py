@@ -102,6 +102,9 @@ class VirtualPalpator(Participant):
                 f"virtual_palpator participant: checkpoints {list(cps)} must be increasing fractions in (0, 1]"
             )
         self.checkpoints = tuple(float(c) for c in cps)
+        self._note_keys = tuple(
+            (ch, (ch, "peak"), tuple((c, (ch, f"{c:g}")) for c in self.checkpoints)) for ch in CHANNELS
+        )
         self._rng: np.random.Generator | None = None
 
     # -- trial --------------------------------------------------------------------------------------
@@ -177,15 +180,15 @@ class VirtualPalpator(Participant):
         if seg is None:
             return
         believed = self._belief_depth
-        for ch in CHANNELS:
+        notes = self._notes
+        for ch, peak_key, cp_keys in self._note_keys:
             v = percept.get(ch)
             v = float(v) if isinstance(v, int | float) and math.isfinite(v) else 0.0
-            key = (ch, "peak")
-            self._notes[key] = max(self._notes.get(key, 0.0), v)
-            for c in self.checkpoints:
-                ck = (ch, f"{c:g}")
-                if ck not in self._notes and believed >= c * seg.intended - 1e-9:
-                    self._notes[ck] = v
+            if v > notes.get(peak_key, 0.0) or peak_key not in notes:
+                notes[peak_key] = v
+            for c, ck in cp_keys:
+                if ck not in notes and believed >= c * seg.intended - 1e-9:
+                    notes[ck] = v
 
     def _end_segment(self, seg: _Segment) -> None:
         if seg.kind != "press":

@@ -87,6 +87,19 @@ def test_streaming_equals_batch(full):
                                    "active_SA1", "active_RA1", "active_PC"]
 
 
+def test_batch_replay_equals_streaming(full):
+    """run_batch (sosfilt + float32 nonlinear stage + cumulative-sum windows) against the streaming model."""
+    from studyctl.bench.capr import press_record
+
+    force = press_record(20.0)
+    model = capr.CaprModel(full)
+    stream, batch = model.run(force), model.run_batch(force)
+    for name in stream.rates:
+        np.testing.assert_allclose(batch.rates[name], stream.rates[name], rtol=1e-5, atol=1e-4)
+        assert np.array_equal(batch.active[name], stream.active[name])
+    assert force.max() > full[0].force_crit_n  # the deep path is exercised
+
+
 # Constant-force SA1 rates of the public BHF code replayed with its own stored data (research/capr.md §7):
 # it counts spikes of a 500 Hz integrate-and-fire loop in 0.2 s windows, which loses about one sample per
 # spike at high rates; our continuous rate is therefore up to ~20 % higher there.
