@@ -8,16 +8,10 @@ import pytest
 from sqlalchemy import text
 
 from studyctl.cli.app import main
-from studyctl.store import StudyStore
 from studyctl.store.audit import GENESIS_HASH, canonical_json, row_hash
 
-
-@pytest.fixture
-def store(isolated_db_url):
-    """Tampering disables triggers (a schema change), so each test gets a database of its own."""
-    s = StudyStore.open(isolated_db_url)
-    yield s
-    s.close()
+# Tampering drops (SQLite) or disables (PostgreSQL) the append-only triggers; SQLite databases are
+# per-test copies and the shared PostgreSQL test database re-enables them before each test.
 
 
 def _populate(store, n: int = 6) -> None:
