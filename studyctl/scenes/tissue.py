@@ -230,11 +230,23 @@ class StiffnessTissueScene(Scene):
         x0, x1, y0, y1 = self.mesh.footprint_mm
         self.placement = Placement(float(orientation), ((x0 + x1) / 2.0, (y0 + y1) / 2.0), (0.0, 0.0, 0.0))
         self.deformation: DeformationView | None = None
+        self._display: dict[str, Any] | None = None
         if self.parts & {"view", "deformation_view"}:
             g = spec["view_grid_mm"]
             xs = np.arange(x0, x1 + 0.5 * g, g)
             ys = np.arange(y0, y1 + 0.5 * g, g)
             self.deformation = DeformationView(xs, ys, spec["indenter_radius_mm"])
+            heights = [[self.mesh.height_at(float(x), float(y)) for y in ys] for x in xs]
+            # What a display needs to draw the deformation: the grid the node indices refer to (tissue
+            # frame) and how the tissue sits in the device frame. Built once, shared by every frame.
+            self._display = {
+                "xs_mm": xs.tolist(),
+                "ys_mm": ys.tolist(),
+                "heights_mm": heights,
+                "orientation_deg": self.placement.rotation_deg,
+                "center_mm": list(self.placement.center_mm),
+                "indenter_radius_mm": spec["indenter_radius_mm"],
+            }
         self._surface_world = self._visible_surface()
 
     @classmethod
@@ -286,8 +298,14 @@ class StiffnessTissueScene(Scene):
         return {}
 
     def view(self, inputs: Channels) -> Mapping[str, Any] | None:
-        """What the screen shows: the avatar (cursor) over the visible surface and, when the deformation
-        display is built, a lazily computed deformation frame (:class:`PendingDeformation`)."""
+        """What the screen shows, every tick, at almost no cost.
+
+        ``surface`` (device frame, 2 mm grid, NaN off the tissue) and ``cursor_mm`` (the avatar, device
+        frame) always; ``depth_mm`` when the avatar is known. With the deformation display built:
+        ``display`` (the display grid in the tissue frame with its heights, ``orientation_deg`` and
+        ``center_mm`` of the placement) and, in contact, ``deformation``: a
+        :class:`~studyctl.models.pseudo_haptics.PendingDeformation` whose ``compute()`` gives the displaced
+        display nodes ``(i, j, dz_mm)`` (``to_dict()`` for JSON). Nothing is computed until drawn."""
         cx = inputs.get("cursor_x_mm", inputs.get("x_mm"))
         cy = inputs.get("cursor_y_mm", inputs.get("y_mm"))
         cz = inputs.get("cursor_z_mm", inputs.get("z_mm"))
@@ -299,6 +317,8 @@ class StiffnessTissueScene(Scene):
             "cursor_mm": (float(cx), float(cy), float(cz)),
             "depth_mm": depth,
         }
+        if self._display is not None:
+            frame["display"] = self._display
         if self.deformation is not None and depth > 0.0:
             qx = inputs.get("contact_x_mm")
             qy = inputs.get("contact_y_mm")

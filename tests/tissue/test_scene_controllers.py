@@ -51,6 +51,10 @@ def test_deformation_view_is_built_only_when_a_view_is_shown():
     frame = s.view({"cursor_x_mm": 60.0, "cursor_y_mm": 60.0, "cursor_z_mm": 21.0, "tissue_depth_mm": 4.0})
     assert frame["cursor_mm"] == (60.0, 60.0, 21.0)
     assert frame["deformation"].compute().depth_mm == 4.0
+    display = frame["display"]
+    assert display["orientation_deg"] == 0.0 and len(display["xs_mm"]) == len(display["heights_mm"]) == 61
+    i, j, dz = frame["deformation"].compute().nodes[0]
+    assert abs(display["xs_mm"][i] - 60.0) <= 20.0 and dz < 0
     assert "deformation" not in s.view({"x_mm": 60.0, "y_mm": 60.0, "z_mm": 30.0})
 
 
