@@ -39,6 +39,9 @@ from studyctl.store.models import Event
 
 UNFINISHED = ("running", "paused", "interrupted")
 ProgressFn = Callable[[int, int, Step], None]
+# Another front end for the person (the participant view): gets the session's participant, UI and recorder
+# before the first step and returns the pair to use instead (wrappers that mirror prompts and requests).
+Frontend = Callable[[Participant, SessionUI, StoreRecorder], tuple[Participant, SessionUI]]
 
 
 @dataclass
@@ -103,6 +106,7 @@ def _run(
     script: Script | None,
     progress: ProgressFn | None,
     log: Callable[[str], None] | None,
+    frontend: Frontend | None = None,
 ) -> SessionResult:
     state = rec.state()
     factory = factory or EntryPointFactory()
@@ -112,6 +116,8 @@ def _run(
     report.raise_if_missing()
     setup = _setup(state.plan, state.seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
                    clock=clock, script=script, log=log)
+    if frontend is not None:
+        setup.participant, setup.ui = frontend(setup.participant, setup.ui, rec)
     runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock, factory=factory,
                            virtual=virtual, progress=progress)
     try:
@@ -136,6 +142,7 @@ def run_session(
     site: str | None = None,
     speed: float | None = None,
     log: Callable[[str], None] | None = None,
+    frontend: Frontend | None = None,
 ) -> SessionResult:
     """Run an enrolled participant's whole session, from instructions to the end-of-study questionnaire.
 
@@ -164,6 +171,9 @@ def run_session(
         Plugin source (default: installed entry points).
     progress
         Called after every step with (steps done, steps in plan, step).
+    frontend
+        Called once with (participant, ui, recorder) before the first step; returns the participant and UI
+        to use instead (e.g. :meth:`studyctl.view.ParticipantView.attach`, the participant's screen).
     speed
         Virtual or scripted runs only: hold the simulated clock to at most this many times real time
         (to watch a run); results are identical to an unpaced run.
@@ -214,7 +224,7 @@ def run_session(
     rec = StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site)
     clock = clock or _paced(speed)
     return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock, script=script,
-                progress=progress, log=log)
+                progress=progress, log=log, frontend=frontend)
 
 
 def _process_alive(pid: int) -> bool:
@@ -250,6 +260,7 @@ def resume_session(
     progress: ProgressFn | None = None,
     speed: float | None = None,
     log: Callable[[str], None] | None = None,
+    frontend: Frontend | None = None,
 ) -> SessionResult:
     """Continue an interrupted session from its stored plan (see :func:`run_session` for parameters).
 
@@ -273,7 +284,7 @@ def resume_session(
     if isinstance(script, (str, Path)):
         script = Script.load(script)
     return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock or _paced(speed), script=script,
-                progress=progress, log=log)
+                progress=progress, log=log, frontend=frontend)
 
 
 def _paced(speed: float | None) -> Clock | None:

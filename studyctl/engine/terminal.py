@@ -25,7 +25,7 @@ import sys
 import termios
 import time
 import tty
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from rich.console import Console
@@ -67,6 +67,9 @@ class Terminal:
         self.keys: list[str] = []  # single keys not consumed yet
         self.lines: list[tuple[str, str]] = []  # finished (mode, text) entries
         self.notice = ""
+        # Another place where the person may answer the current prompt (the participant view): polled while
+        # a prompt waits; a string it returns is taken as the typed line, so it is checked the same way.
+        self.answer_source: Callable[[], str | None] | None = None
         self._last_draw = 0.0
         self._last_poll = 0.0
         self._status = ""
@@ -158,7 +161,31 @@ class Terminal:
 
     def ask(self, prompt: str) -> str:
         self.cooked()
-        return self.console.input(prompt)
+        if self.answer_source is None:
+            return self.console.input(prompt)
+        return self._ask_either(prompt)
+
+    def _ask_either(self, prompt: str) -> str:
+        """A line typed here or an answer from :attr:`answer_source`, whichever comes first."""
+        self.console.print(Text(prompt), end="")
+        self.console.file.flush()
+        buf = b""
+        while True:
+            # Line mode: the descriptor becomes readable once Enter completes a line.
+            if select.select([self.fd], [], [], 0.05)[0]:
+                data = os.read(self.fd, 4096)
+                if not data:
+                    raise EOFError("the terminal closed")
+                buf += data
+                if b"\n" in buf:
+                    return buf.split(b"\n", 1)[0].decode("utf-8", "replace").rstrip("\r")
+                continue
+            source = self.answer_source
+            answer = source() if source is not None else None
+            if answer is not None:
+                termios.tcflush(self.fd, termios.TCIFLUSH)  # drop a half-typed line: it was not sent
+                self.console.print(Text(f"{answer}  (answered in the participant view)", style="cyan"))
+                return answer
 
 
 class TerminalUI:
