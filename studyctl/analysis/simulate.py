@@ -91,6 +91,7 @@ def simulate_study(
     out_dir: str | Path,
     *,
     db: str | None = None,
+    durable: bool = False,
     on_progress: ProgressFn | None = None,
 ) -> SimulationResult:
     """Create a study workspace in ``out_dir`` and run ``participants`` virtual participants through it.
@@ -107,6 +108,12 @@ def simulate_study(
         A new or empty folder for the workspace (``studyctl.toml`` and ``study.db``).
     db
         A PostgreSQL URL to hold the study instead of ``study.db``.
+    durable
+        Keep the store's full power-loss durability (an fsync at every commit). By default a simulated
+        study's SQLite database runs with ``synchronous = NORMAL`` in WAL mode: still safe against a crashed
+        process and never corrupted, but the last commits may be lost on power loss, which costs nothing
+        here because the study is regenerated from its seed. On this project's 2-core VM the fsyncs
+        otherwise took about two thirds of the wall time of a seed 000 simulation.
     on_progress
         Called after each participant with (done, total, message).
     """
@@ -120,6 +127,8 @@ def simulate_study(
     init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
     sessions = 0
     with open_study(db, str(init.root), init.study) as opened:
+        if not durable:
+            relax_sqlite_durability(opened.store)
         proto = study_protocol(opened.study)
         strata = [stratum for stratum, _ in allocate_strata(proto, participants)]
         codes = []
@@ -149,6 +158,30 @@ def simulate_study(
         seed=int(seed),
         seconds=time.perf_counter() - t0,
     )
+
+
+def relax_sqlite_durability(store) -> bool:  # noqa: ANN001
+    """Make this store's SQLite connections commit without waiting for the disk (WAL, synchronous=NORMAL).
+
+    Applies to connections opened from now on (the pool is emptied). No effect on PostgreSQL. Returns
+    whether the setting was applied.
+    """
+    from sqlalchemy import event
+
+    engine = store.db.engine
+    if engine.dialect.name != "sqlite":
+        return False
+
+    def _normal_sync(dbapi_connection, _record) -> None:  # noqa: ANN001 - runs after the store's own hook
+        cur = dbapi_connection.cursor()
+        try:
+            cur.execute("PRAGMA synchronous = NORMAL")
+        finally:
+            cur.close()
+
+    event.listen(engine, "connect", _normal_sync)
+    engine.dispose()
+    return True
 
 
 def _trial_counts(store, study) -> dict[str, int]:  # noqa: ANN001

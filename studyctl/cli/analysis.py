@@ -121,6 +121,9 @@ def register_sim(app: typer.Typer) -> None:
         seed: int = typer.Option(..., "--seed", "-s", help="Master seed of the study (same seed, same data)."),
         out: Path = typer.Option(None, "--out", "-o", help="New workspace folder (default: ./<protocol>-sim)."),
         db: str = typer.Option(None, "--db", help="PostgreSQL URL to hold the study instead of a study.db file."),
+        durable: bool = typer.Option(
+            False, "--durable", help="fsync every commit, as for real sessions (slower; simulations are re-creatable)."
+        ),
     ) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -143,6 +146,7 @@ def register_sim(app: typer.Typer) -> None:
                 seed,
                 folder,
                 db=db,
+                durable=durable,
                 on_progress=lambda i, n, code: progress.update(task, completed=i, code=code),
             )
         typer.echo(
