@@ -209,3 +209,15 @@ def test_bad_fault_spec():
         SimulatedPalpationDevice({"faults": [{"kind": "fire"}]})
     with pytest.raises(ModelParameterError, match="needs 0 ≤ start_s < end_s"):
         SimulatedPalpationDevice({"faults": [{"kind": "nan", "start_s": 2, "end_s": 1}]})
+
+
+def test_effect_of_the_chosen_lateral_spread():
+    """σ (chosen, 8 mm) sets how far from a tumour its stiffness is felt: wider σ, more at the next cell."""
+    x, y = hexagon_holes()[6]
+    ratio = {}
+    for sigma in (4.0, 8.0, 16.0):
+        s = scene({"sites": {"hard": 7}}, spec={"params": {"lateral_sigma_mm": sigma}})
+        ratio[sigma] = s.force_n(x + 20, y, 2.0) / s.force_n(10.0, 130.0, 2.0)
+        assert s.force_n(x, y, 2.0) == pytest.approx(scene({"sites": {"hard": 7}}).force_n(x, y, 2.0))  # on top
+    assert 1.0 <= ratio[4.0] < ratio[8.0] < ratio[16.0]
+    assert ratio[16.0] > 1.2
