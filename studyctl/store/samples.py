@@ -191,6 +191,12 @@ class SampleWriter:
         if span >= self.flush_interval_s * (1 - 1e-9) or self._clock() - self._last_flush >= self.flush_interval_s:
             self.flush()
 
+    def poll(self) -> None:
+        """Flush if the flush interval has passed; call it from loops that may go a while without samples
+        (a paused trial), so buffered rows never wait longer than ``flush_interval_s``."""
+        if self._n and self._clock() - self._last_flush >= self.flush_interval_s:
+            self.flush()
+
     @property
     def buffered(self) -> int:
         """Rows buffered and not yet committed."""

@@ -51,6 +51,12 @@ def test_row_appends_with_mappings_and_fake_clock(store, trial):
         w.append(i * 0.01, {"force": float(i), "depth": -float(i)})
     # Flushed whenever 1 s of wall time passed since the last flush: after rows 4 (t=1.2) and 8 (t=2.4).
     assert w.chunks_written == 2 and w.buffered == 1
+    clock.now = 2.9
+    w.poll()  # not yet a second since the last flush
+    assert w.buffered == 1
+    clock.now = 3.5
+    w.poll()  # idle loop: the last row is committed without a new sample arriving
+    assert w.buffered == 0 and w.chunks_written == 3
     w.close()
     df = store.read_samples(trial.id)
     assert list(df.columns) == ["t", "force", "depth"]
