@@ -13,6 +13,10 @@ from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, works
 from studyctl.engine.api import resume_session, run_session
 from studyctl.engine.export import export_study
 from studyctl.store.workspace import open_study
+from studyctl.view import open_view
+
+VIEW_HELP = ("Also show the session on the participant's screen: serves the participant view on this machine "
+             "and prints its URL (instructions, countdown, CT/cursor view, prompts; the terminal stays in control).")
 
 
 class _Bar:
@@ -57,15 +61,18 @@ def register(app: typer.Typer) -> None:
                                         "run without a terminal."),
         speed: float = typer.Option(None, "--speed", help="Virtual/scripted runs: at most this many times real "
                                     "time (default: as fast as possible)."),
+        view: bool = typer.Option(False, "--view", help=VIEW_HELP),
+        view_port: int = typer.Option(0, "--view-port", help="Port of the participant view (default: a free one)."),
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
         """Run a participant's session: instructions, practice, trials, breaks and questionnaires."""
-        with open_study(db, workspace_arg(workspace), study) as opened, _Bar(virtual or input_file is not None) as bar:
+        with open_study(db, workspace_arg(workspace), study) as opened, open_view(view, port=view_port) as pv, \
+                _Bar(virtual or input_file is not None) as bar:
             result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
                                  script=input_file, progress=bar, speed=speed,
-                                 log=lambda m: typer.echo(m, err=True))
+                                 log=lambda m: typer.echo(m, err=True), frontend=pv.attach if pv else None)
         _summary(result)
 
     @app.command("resume")
@@ -75,14 +82,17 @@ def register(app: typer.Typer) -> None:
                                         "session (person sessions without a terminal)."),
         speed: float = typer.Option(None, "--speed", help="Virtual/scripted sessions: at most this many times real "
                                     "time (default: as fast as possible)."),
+        view: bool = typer.Option(False, "--view", help=VIEW_HELP),
+        view_port: int = typer.Option(0, "--view-port", help="Port of the participant view (default: a free one)."),
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
         """Continue an interrupted session from its stored plan (crash, kill, Ctrl-C or device fault)."""
-        with open_study(db, workspace_arg(workspace), study) as opened, _Bar(True) as bar:
+        with open_study(db, workspace_arg(workspace), study) as opened, open_view(view, port=view_port) as pv, \
+                _Bar(True) as bar:
             result = resume_session(opened.store, session, script=input_file, progress=bar, speed=speed,
-                                    log=lambda m: typer.echo(m, err=True))
+                                    log=lambda m: typer.echo(m, err=True), frontend=pv.attach if pv else None)
         _summary(result)
 
     @app.command("export")
