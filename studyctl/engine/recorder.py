@@ -74,11 +74,13 @@ class Recorder(Protocol):
         position: int | None = None,
         trial_id: int | None = None,
         commit: bool = True,
+        durable: bool | None = None,
     ) -> None:
         """Append one event (``t``: session clock seconds; trial events: trial time).
 
         ``commit=False`` may buffer the event until the next committed record (high-rate, low-value
-        events such as safety clamps inside a trial).
+        events such as safety clamps inside a trial). ``durable`` forces (True) or skips (False) the
+        power-cut-safe sync of the commit; None lets the recorder decide by kind.
         """
 
     def set_status(self, status: str, reason: str = "") -> None: ...
@@ -88,7 +90,7 @@ class Recorder(Protocol):
     def step_completed(self, position: int, t: float, summary: Mapping[str, Any] | None = None) -> None: ...
 
     def trial_started(self, position: int, attempt: int, t: float, info: Mapping[str, Any]) -> int:
-        """Create the trial attempt record (status running); returns its id."""
+        """Enter the trial step and create the attempt record (status running) together; returns its id."""
 
     def trial_finished(
         self,
@@ -148,7 +150,7 @@ class MemoryRecorder:
     def state(self) -> SessionState:
         return self._state
 
-    def event(self, kind, payload=None, *, t=None, position=None, trial_id=None, commit=True) -> None:
+    def event(self, kind, payload=None, *, t=None, position=None, trial_id=None, commit=True, durable=None) -> None:
         if t is not None and trial_id is None:
             self._state.last_t = max(self._state.last_t, float(t))
         self.events.append(
@@ -172,6 +174,7 @@ class MemoryRecorder:
         tid = self._next_trial
         self._next_trial += 1
         cond = self._state.plan.step(position).condition
+        self.step_started(position, t)
         self._state.trials.append(TrialRecord(tid, position, attempt, "running", condition=cond))
         self.event("trial_start", dict(info), t=t, position=position, trial_id=tid)
         return tid

@@ -363,8 +363,7 @@ class SessionRunner:
         rate = self._rate(cond)
         info = self._trial_info(step, cond, rate)
         streams = trial_streams(self._seed, step.position)
-        self.rec.step_started(step.position, self.now())
-        tid = self.rec.trial_started(
+        tid = self.rec.trial_started(  # also records entering the step, in the same commit
             step.position, attempt, self.now(),
             {"condition": cond.id, "attempt": attempt, "replaces_trial_id": replaces, "time_limit_s":
              step.duration_s, "rate_hz": rate, "visual": cond.visual},
@@ -376,12 +375,15 @@ class SessionRunner:
         trial_clock: Clock = self._child_clock()
         t_start = trial_clock.now()
 
-        def should_stop() -> str | None:
+        def poll() -> str | None:
             self.ui.trial_tick(trial_clock.now() - t_start)
             control = self.ui.poll_control()
             if control is None:
                 return None
             return self._control(control, tid, trial_clock.now() - t_start, flag)
+
+        # nothing to poll for a virtual participant's prompts: keep the loop lean
+        should_stop = poll if getattr(self.ui, "controls", True) else None
 
         def on_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
             # Scans and reports are a participant's answers: committed at once. The rest rides along.

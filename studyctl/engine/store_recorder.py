@@ -19,11 +19,14 @@ rebuilds it from the database in :meth:`StoreRecorder.load`.
 
 from __future__ import annotations
 
+import operator
 import os
 import socket
+import time
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
 from sqlalchemy import select
 
 from studyctl.engine.plan import SessionPlan
@@ -33,17 +36,62 @@ from studyctl.store import StudyStore
 from studyctl.store.models import Event, Participant, QuestionnaireResponse, Trial, utcnow
 
 PLAN_EVENTS = ("session_plan", "plan_amended")
+# Events a participant produced (or that mark a fault) are fsynced at once; the rest ride on the next
+# durable commit. Either way the database is always a consistent prefix of what happened.
+DURABLE_EVENTS = frozenset({"scan", "report", "device_fault", "session_resumed", "coordinator_abort",
+                            "coordinator_pause", "coordinator_mark_invalid"})
 
 
 class _StoreSamples:
-    """Adapts the store's SampleWriter to the engine's ``write(t, values)`` / ``close()``."""
+    """Buffers a trial's samples and commits them through the store's SampleWriter at least every second
+    of wall time (``FLUSH_WALL_S``): a crash loses at most that much, as the store promises.
+
+    On a simulated clock a second of wall time spans many simulated seconds, so committing by wall time
+    (not by sample time) keeps virtual runs from committing every 50 samples.
+    """
+
+    FLUSH_WALL_S = 1.0
+    CHECK_EVERY = 32  # samples between wall-clock checks
 
     def __init__(self, store: StudyStore, trial_id: int) -> None:
-        self._writer = store.sample_writer(trial_id, None, flush_interval_s=1.0)
-        self.write = self._writer.append
+        self._store = store
+        self._trial = trial_id
+        self._writer = None
+        self._keys: tuple[str, ...] | None = None
+        self._get = None
+        self._t: list[float] = []
+        self._rows: list[tuple[float, ...]] = []
+        self._last = time.monotonic()
+
+    def write(self, t: float, values: Mapping[str, float]) -> None:
+        if self._get is None:
+            self._keys = tuple(values)
+            self._get = operator.itemgetter(*self._keys) if len(self._keys) > 1 else (lambda v: (v[self._keys[0]],))
+        try:
+            row = self._get(values)
+        except KeyError as exc:
+            raise SessionError(f"sample at t={t:g} s lacks channel {exc.args[0]!r} logged so far "
+                               f"({', '.join(self._keys)}); a device or controller changed its channels") from None
+        self._t.append(t)
+        self._rows.append(row)
+        if len(self._t) % self.CHECK_EVERY == 0 and time.monotonic() - self._last >= self.FLUSH_WALL_S:
+            self.flush()
+
+    def flush(self) -> None:
+        self._last = time.monotonic()
+        if not self._t:
+            return
+        if self._writer is None:
+            # the writer's own flushing is disabled: this class decides when to commit
+            self._writer = self._store.sample_writer(self._trial, list(self._keys), flush_interval_s=1e12)
+        self._writer.append_block(np.asarray(self._t, dtype=float), np.asarray(self._rows, dtype=float))
+        self._writer.flush()
+        self._t, self._rows = [], []
 
     def close(self) -> None:
-        self._writer.close()
+        self.flush()
+        if self._writer is not None:
+            self._writer.close()
 
 
 def _context(position: int) -> str:
@@ -179,7 +227,11 @@ class StoreRecorder:
         if t is not None and trial_id is None:
             self._state.last_t = max(self._state.last_t, float(t))
 
-    def event(self, kind, payload=None, *, t=None, position=None, trial_id=None, commit=True) -> None:
+    def event(self, kind, payload=None, *, t=None, position=None, trial_id=None, commit=True, durable=None) -> None:
+        """Append an event. Durable (fsynced) for answers-like kinds; otherwise committed so that it survives
+        the process being killed, and made power-cut safe by the next durable commit (WAL keeps order)."""
+        if durable is None:
+            durable = kind in DURABLE_EVENTS
         body = dict(payload or {})
         if position is not None:
             body.setdefault("position", position)
@@ -187,7 +239,7 @@ class StoreRecorder:
             self._pending.append((trial_id, (float(t if t is not None else 0.0), kind, _jsonable(body))))
             if len(self._pending) < 256:
                 return
-        with self.store.in_transaction() as tx:
+        with self.store.in_transaction(durable=durable) as tx:
             if commit:
                 self._append(tx, kind, body, t, trial_id)
             else:
@@ -205,7 +257,8 @@ class StoreRecorder:
         self._state.status = status
 
     def step_started(self, position: int, t: float) -> None:
-        self.event("step_enter", {"position": position}, t=t)
+        # not fsynced: if it is lost in a power cut, so is everything after it, and the step simply reruns
+        self.event("step_enter", {"position": position}, t=t, durable=False)
         self._state.started.add(position)
 
     def step_completed(self, position: int, t: float, summary=None) -> None:
@@ -217,7 +270,8 @@ class StoreRecorder:
         step = self._state.plan.step(position)
         planned = [r for r in self._state.trials if r.position == position and r.status == "planned"]
         outcome = {"step": position, "attempt": attempt}
-        with self.store.in_transaction() as tx:
+        with self.store.in_transaction(durable=False) as tx:
+            self._append(tx, "step_enter", {"position": position}, t, None)
             if planned:
                 tid = planned[0].trial_id
                 self.store.update_trial(tid, status="running", started_at=utcnow(), outcome=outcome, tx=tx)
@@ -233,6 +287,7 @@ class StoreRecorder:
                 tid = row.id
                 self.store.update_trial(tid, outcome=outcome, tx=tx)
             self._append(tx, "trial_start", {**dict(info), "position": position, "trial_id": tid}, t, None)
+        self._state.started.add(position)
         self._state.trials = [r for r in self._state.trials if r.trial_id != tid]
         self._state.trials.append(TrialRecord(tid, position, attempt, "running", "", outcome, step.condition))
         self._state.trials.sort(key=lambda r: r.trial_id)

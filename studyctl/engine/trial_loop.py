@@ -94,10 +94,22 @@ def run_trial(
     emit(0.0, "trial_loop_start", {"rate_hz": info.rate_hz})
     if watchdog is not None:
         watchdog.start()
+    # Hot loop: bind what is used every tick to locals (a 1 kHz loop spends its budget on lookups).
+    time_limit = info.time_limit_s
+    on_request = info.visual == "on_request"
+    realtime = info.visual == "realtime" and view is not None
+    now = clock.now
+    sleep_until = clock.sleep_until
+    act = participant.act
+    read = device.read
+    write = device.write
+    feedback = device.feedback
+    step = controller.step if controller is not None else None
+    safety_filter = safety.filter
     try:
         while True:
-            t = clock.now() - start
-            if t >= info.time_limit_s:
+            t = now() - start
+            if t >= time_limit:
                 ended_by = "time_limit"
                 break
             if should_stop is not None:
@@ -105,23 +117,24 @@ def run_trial(
                 if reason:
                     ended_by = reason
                     break
-            action = participant.act(t, percept)
+            action = act(t, percept)
             if action.inputs:
                 device.apply_input(action.inputs)
                 last_inputs = action.inputs
             try:
-                obs = device.read(t)
+                obs = read(t)
             except DeviceError as exc:
                 emit(t, "device_fault", {"rule": "read_failed", "error": str(exc)})
                 ended_by = "fault"
                 break
-            command = controller.step(obs) if controller is not None else {}
-            written = safety.filter(command, t, obs)  # what the device actually gets, logged below
-            device.write(written)
+            command = step(obs) if step is not None else {}
+            written = safety_filter(command, t, obs)  # what the device actually gets, logged below
+            write(written)
             if watchdog is not None:
                 watchdog.kick()
-            for ev in safety.drain_events():
-                emit(ev["t"], ev["kind"], {k: v for k, v in ev.items() if k not in ("t", "kind")})
+            if safety.events:  # drain (a lock) only when there is something to drain
+                for ev in safety.drain_events():
+                    emit(ev["t"], ev["kind"], {k: v for k, v in ev.items() if k not in ("t", "kind")})
             if controller_events:
                 for ev in controller_events:
                     emit(t, str(ev.get("kind", "controller")), {k: v for k, v in ev.items() if k != "kind"})
@@ -129,11 +142,11 @@ def run_trial(
             if safety.fault_duration(t) >= FAULT_ABORT_S:
                 ended_by = "fault"
                 break
-            percept = dict(device.feedback())
+            percept = dict(feedback())
             finished = False
             for request in action.requests:
                 if request.kind == "scan":
-                    if info.visual == "on_request":
+                    if on_request:
                         scans += 1
                         pose = {**last_inputs, **obs.values, **diagnostics}
                         frame = view(pose) if view is not None else None
@@ -145,7 +158,7 @@ def run_trial(
                     emit(t, "report", dict(request.payload))
                 elif request.kind == "finish":
                     finished = True
-            if info.visual == "realtime" and view is not None:
+            if realtime:
                 percept["view"] = view({**last_inputs, **obs.values, **diagnostics})
             if on_sample is not None:
                 on_sample(t, {**obs.values, **written, **diagnostics})
@@ -153,7 +166,7 @@ def run_trial(
             if finished:
                 ended_by = "finish"
                 break
-            clock.sleep_until(start + ticks * period)
+            sleep_until(start + ticks * period)
     finally:
         if watchdog is not None:
             watchdog.stop()

@@ -95,6 +95,7 @@ class _QuietUI:
     """Shared no-op parts of non-interactive UIs."""
 
     interactive = False
+    controls = True  # poll_control/trial_tick must be called every tick
 
     def __init__(self, log: Callable[[str], None] | None = None) -> None:
         self._log = log
@@ -134,6 +135,8 @@ class VirtualUI(_QuietUI):
     ``rng_for(position, index)`` gives the Generator for one answer, so answers depend only on the
     session seed and where in the plan they are asked (resume-safe).
     """
+
+    controls = False  # nobody to press a key: the trial loop need not poll
 
     def __init__(
         self,
