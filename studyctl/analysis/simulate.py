@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from studyctl.errors import SessionError, UsageError
+from studyctl.errors import UsageError
 
 ProgressFn = Callable[[int, int, str], None]  # (participants done, participants total, message)
 
@@ -51,37 +51,13 @@ class SimulationResult:
         return pd.DataFrame([asdict(self)], columns=list(self.COLUMNS))
 
 
-def run_virtual_session(store, study, code: str) -> object:  # noqa: ANN001 - store types from studyctl.store
-    """Run participant ``code``'s whole stored plan with the protocol's virtual participant.
+def check_simulation(protocol: str | Path, participants: int) -> Path:
+    """The protocol file a simulation would use; raises for an unknown protocol or a bad participant count."""
+    from studyctl.protocol import resolve_protocol
 
-    Uses the engine's public pieces exactly as ``studyctl run --virtual`` does: the stored schedule turned
-    into a session plan, a :class:`~studyctl.engine.store_recorder.StoreRecorder`, the simulated clock,
-    entry-point plugins, and the virtual participant answering questionnaires.
-    """
-    from studyctl.engine.clock import SimulatedClock
-    from studyctl.engine.factory import EntryPointFactory, build_participant
-    from studyctl.engine.planning import plan_for_participant
-    from studyctl.engine.seeding import answer_rng, session_seed
-    from studyctl.engine.session import SessionRunner
-    from studyctl.engine.store_recorder import StoreRecorder
-    from studyctl.engine.ui import VirtualUI
-    from studyctl.protocol import Schedule
-    from studyctl.protocol.enrollment import study_protocol
-
-    protocol = study_protocol(study)
-    participant = store.get_participant(study.id, code)
-    schedule = Schedule.from_json(participant.schedule)
-    plan = plan_for_participant(protocol, schedule)
-    if not plan.virtual_participant:
-        raise SessionError(f"protocol {protocol.study.id!r} names no virtual participant (participants.virtual)")
-    seed = session_seed(int(study.seed), code)
-    factory = EntryPointFactory()
-    ref = plan.virtual_participant
-    actor = build_participant(factory, ref["plugin"], ref.get("params", {}))
-    recorder = StoreRecorder.create(store, participant.id, plan, seed=seed, virtual=True)
-    ui = VirtualUI(actor, lambda pos, k: answer_rng(seed, pos, k))
-    runner = SessionRunner(recorder, ui=ui, participant=actor, clock=SimulatedClock(), factory=factory, virtual=True)
-    return runner.run()
+    if participants < 1:
+        raise UsageError(f"--participants must be at least 1, got {participants}")
+    return resolve_protocol(protocol)
 
 
 def simulate_study(
@@ -117,12 +93,12 @@ def simulate_study(
     on_progress
         Called after each participant with (done, total, message).
     """
+    from studyctl.engine.api import run_session
     from studyctl.protocol.enrollment import enroll, study_protocol
     from studyctl.protocol.schedule import allocate_strata
     from studyctl.store.workspace import init_workspace, open_study
 
-    if participants < 1:
-        raise UsageError(f"--participants must be at least 1, got {participants}")
+    check_simulation(protocol, participants)
     t0 = time.perf_counter()
     init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
     sessions = 0
@@ -139,7 +115,7 @@ def simulate_study(
                 ).code
             )
         for i, code in enumerate(codes):
-            result = run_virtual_session(opened.store, opened.study, code)
+            result = run_session(opened.store, code, study=opened.study.name, virtual=True)
             if getattr(result, "status", "") == "completed":
                 sessions += 1
             if on_progress is not None:

@@ -128,8 +128,9 @@ def register_sim(app: typer.Typer) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from studyctl.analysis.simulate import simulate_study
+        from studyctl.analysis.simulate import check_simulation, simulate_study
 
+        check_simulation(protocol, participants)
         folder = out or Path(f"{Path(protocol).stem}-sim")
         with Progress(
             TextColumn("{task.description}"),

@@ -1,0 +1,89 @@
+"""The analysis commands end to end: CSV plans, study databases, and every bad input as one line."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from studyctl.analysis import analyze
+from studyctl.cli.app import main
+from studyctl.errors import AnalysisError
+
+
+def run(capsys, *args: str) -> tuple[int, str, str]:
+    code = main(list(args))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_analyze_check_only(capsys):
+    code, out, _ = run(capsys, "analyze", "needle_insertion", "--check")
+    assert code == 0 and out.strip().endswith("OK (6 metrics, 7 tests, 4 figures)")
+
+
+def test_analyze_csv_plan_prints_tests(capsys):
+    code, out, err = run(capsys, "analyze", "pseudo_haptic_palpation_published", "--json")
+    assert code == 0, err
+    rows = json.loads(out)
+    assert {r["test_id"] for r in rows} == {"sensitivity_wilson", "sensitivity_pairs"}
+    assert len(rows) == 4 + 6
+
+
+def test_report_csv_plan(capsys, tmp_path):
+    code, out, err = run(capsys, "report", "pseudo_haptic_palpation_published", "--out", str(tmp_path / "r"))
+    assert code == 0, err
+    assert f"Report: {tmp_path / 'r' / 'report.html'}" in out
+    assert (tmp_path / "r" / "figures" / "fig5b_sensitivity.png").is_file()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["analyze", "no_such_plan"], "Error: no file 'no_such_plan' and no shipped analysis plan of that name"),
+        (
+            ["report", "pseudo_haptic_palpation_published", "--out", "/dev/null/x"],
+            "Error: cannot write the report to '/dev/null/x'",
+        ),
+        (["analyze", "pseudo_haptic_palpation_published", "--db", "sqlite:///x.db"], "Error: plan "),
+        (
+            ["simulate", "bio_inspired_palpation", "--participants", "0", "--seed", "1"],
+            "Error: --participants must be at least 1, got 0",
+        ),
+    ],
+)
+def test_bad_input_is_one_line(capsys, args, message):
+    code, _, err = run(capsys, *args)
+    assert code != 0
+    assert err.startswith(message), err
+    assert "Traceback" not in err
+
+
+def test_plan_with_problems_lists_them(capsys, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("version: 1\nstudy: s\ntitle: t\nconditions: [a]\nmetrics: {x: {metric: scan}}\ntests: []\n")
+    code, _, err = run(capsys, "analyze", str(bad), "--check")
+    assert code != 0
+    assert "bad.yaml:5:15: metrics.x.metric: unknown metric 'scan'; did you mean 'scans'?" in err
+
+
+def test_study_without_completed_trials(tmp_path, capsys):
+    from studyctl.store.workspace import init_workspace
+
+    init_workspace(tmp_path / "ws", protocol="bio_inspired_palpation", seed=1)
+    with pytest.raises(AnalysisError, match=r"study 'bio_inspired_palpation' has no completed trials .*run sessions"):
+        analyze("bio_inspired_palpation", workspace=tmp_path / "ws")
+    code, _, err = run(capsys, "analyze", "bio_inspired_palpation", "--workspace", str(tmp_path / "ws"))
+    assert code != 0 and err.startswith("Error: study 'bio_inspired_palpation' has no completed trials")
+
+
+def test_plan_for_another_protocol_is_refused(tmp_path):
+    from studyctl.store.workspace import init_workspace
+
+    init_workspace(tmp_path / "ws", protocol="bio_inspired_palpation", seed=1)
+    with pytest.raises(
+        AnalysisError,
+        match="analyses protocol 'needle_insertion', but study 'bio_inspired_palpation'"
+        " ran protocol 'bio_inspired_palpation'",
+    ):
+        analyze("needle_insertion", workspace=tmp_path / "ws")
