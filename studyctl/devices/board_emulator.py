@@ -8,8 +8,9 @@ Run it, then point a ``udp_driver_board`` device at the printed port::
 It streams SENSOR packets (the force of ``--force`` or ``--profile`` through the A201 calibration and a
 10-bit ADC) to the host that said HELLO, applies COMMANDs to modelled actuators (balloon and motor of
 :mod:`studyctl.models.palpation_hw`), enforces its own output watchdog, and can misbehave on purpose for
-tests: ``--adc-glitch START:DURATION`` sends an out-of-range ADC value, ``--silence-after S`` stops
-sending (a cable pulled), ``--log FILE`` writes every received command and event as JSON lines.
+tests: ``--adc-glitch START:DURATION`` (seconds after HELLO) sends an out-of-range ADC value,
+``--silence-after S`` stops sending (a cable pulled), ``--log FILE`` writes every received command and
+event as JSON lines.
 """
 
 from __future__ import annotations
@@ -90,8 +91,12 @@ class Board:
             self.rate_hz = float(rate) if rate else self.rate_hz
             self.watchdog_ms = int(wd) if wd else self.watchdog_ms
             self.seq += 1
-            sock.sendto(bp.encode(bp.STATUS, self.seq, FIRMWARE, A201.adc_bits, int(self.rate_hz),
-                                  self.watchdog_ms, self.rejected), addr)
+            sock.sendto(
+                bp.encode(
+                    bp.STATUS, self.seq, FIRMWARE, A201.adc_bits, int(self.rate_hz), self.watchdog_ms, self.rejected
+                ),
+                addr,
+            )
             self.log(event="hello", host=list(addr), rate_hz=self.rate_hz, watchdog_ms=self.watchdog_ms)
         elif pkt.type == bp.COMMAND:
             b, v = pkt.fields
@@ -131,15 +136,23 @@ class Board:
         force = float(self.force_fn(now))
         adc = A201.count_of_force(force)
         flags = self.status_flags
-        if self.glitch and self.glitch[0] <= now < self.glitch[0] + self.glitch[1]:
+        since_hello = now - (self.hello_at or 0.0)
+        if self.glitch and self.glitch[0] <= since_hello < self.glitch[0] + self.glitch[1]:
             adc = A201.adc_max + 77
             flags |= bp.ST_ADC_FAULT
         if self.psi >= BalloonModel().regulator_psi:
             flags |= bp.ST_REGULATOR
         self.seq += 1
         sock.sendto(
-            bp.encode(bp.SENSOR, self.seq, int(now * 1e6) & 0xFFFFFFFF, adc, flags,
-                      int(round(self.balloon * bp.SCALE)), int(round(self.vibration * bp.SCALE))),
+            bp.encode(
+                bp.SENSOR,
+                self.seq,
+                int(now * 1e6) & 0xFFFFFFFF,
+                adc,
+                flags,
+                int(round(self.balloon * bp.SCALE)),
+                int(round(self.vibration * bp.SCALE)),
+            ),
             self.host,
         )
         self.status_flags &= ~bp.ST_REJECTED
@@ -160,12 +173,19 @@ def serve(args: argparse.Namespace) -> int:
 
         def force_fn(t: float) -> float:
             return const
+
     glitch = None
     if args.adc_glitch:
         a, b = args.adc_glitch.split(":")
         glitch = (float(a), float(b))
-    board = Board(force_fn, rate_hz=args.rate, watchdog_ms=args.watchdog_ms, glitch=glitch,
-                  silence_after=args.silence_after, log_path=args.log)
+    board = Board(
+        force_fn,
+        rate_hz=args.rate,
+        watchdog_ms=args.watchdog_ms,
+        glitch=glitch,
+        silence_after=args.silence_after,
+        log_path=args.log,
+    )
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind((args.host, args.port))
     sock.setblocking(False)
@@ -210,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--watchdog-ms", type=int, default=250, help="output watchdog before HELLO sets it")
     parser.add_argument("--force", type=float, default=0.0, help="constant force on the sensor, N")
     parser.add_argument("--profile", help="trapezoid:PEAK_N:RATE_N_S:HOLD_S:REST_S (repeats)")
-    parser.add_argument("--adc-glitch", help="START_S:DURATION_S of out-of-range ADC values")
+    parser.add_argument("--adc-glitch", help="START_S:DURATION_S (after HELLO) of out-of-range ADC values")
     parser.add_argument("--silence-after", type=float, help="stop sending sensor packets S seconds after HELLO")
     parser.add_argument("--log", help="append received commands and events to this JSON-lines file")
     parser.add_argument("--max-runtime", type=float, default=120.0, help="exit after this many seconds")
