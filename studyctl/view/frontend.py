@@ -51,8 +51,12 @@ class ViewParticipant(Participant):
         spec = report_spec(info)
         requests = tuple(info.public.get("requests", ("report", "finish")))
         self.hub.begin_trial(TrialView(info.visual, requests, spec, info.time_limit_s))
-        self.hub.update(visual=info.visual, requests=list(requests), report=_report_fields(spec),
-                        time_limit_s=_finite(info.time_limit_s))
+        self.hub.update(
+            visual=info.visual,
+            requests=list(requests),
+            report=_report_fields(spec),
+            time_limit_s=_finite(info.time_limit_s),
+        )
         self._scans = 0
         self._prev = None
 
@@ -96,6 +100,12 @@ class ViewParticipant(Participant):
     def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:
         return self.inner.answer(item, rng)
 
+    def __getattr__(self, name: str) -> Any:
+        # Anything else the engine asks of a participant (later additions, duck-typed extras) is the inner's.
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
 
 def _finite(value: float) -> float | None:
     return float(value) if value is not None and np.isfinite(value) else None
@@ -126,6 +136,7 @@ class ViewUI:
         self.hub = hub
         self.rec = recorder
         self.interactive = bool(getattr(inner, "interactive", False))
+        self.controls = True  # the view's countdown needs trial_tick every tick
         term = getattr(inner, "term", None)
         # Only a terminal prompt can take an answer from elsewhere; scripted answers never wait for one.
         self._term = term if term is not None and hasattr(term, "answer_source") else None
@@ -172,8 +183,14 @@ class ViewUI:
 
     def timer(self, title: str, duration_s: float, clock: Clock, *, can_end_early: bool, purpose: str) -> TimerResult:
         self.flush()
-        self.hub.show("timer", title=title, duration_s=float(duration_s), purpose=purpose,
-                      started=self.hub.clock(), can_end_early=bool(can_end_early))
+        self.hub.show(
+            "timer",
+            title=title,
+            duration_s=float(duration_s),
+            purpose=purpose,
+            started=self.hub.clock(),
+            can_end_early=bool(can_end_early),
+        )
         try:
             return self.inner.timer(title, duration_s, clock, can_end_early=can_end_early, purpose=purpose)
         finally:
@@ -184,9 +201,17 @@ class ViewUI:
     ) -> tuple[int, float]:
         self.flush()
         self.hub.show(
-            "item", prompt="likert", codes=item.codes(), instrument=instrument.id, title=instrument.title,
-            intro=instrument.instructions if number == 1 else "", number=number, total=len(instrument.items),
-            item=item.id, text=item.text, scale=[{"code": p.code, "label": p.label} for p in item.scale],
+            "item",
+            prompt="likert",
+            codes=item.codes(),
+            instrument=instrument.id,
+            title=instrument.title,
+            intro=instrument.instructions if number == 1 else "",
+            number=number,
+            total=len(instrument.items),
+            item=item.id,
+            text=item.text,
+            scale=[{"code": p.code, "label": p.label} for p in item.scale],
         )
         try:
             code, rt = self.inner.ask_item(instrument, item, number, context)
@@ -194,8 +219,13 @@ class ViewUI:
             prompt = self.hub.prompt
             self.hub.clear_prompt()
         source = "view" if prompt is not None and prompt.taken else "terminal"
-        detail = {"instrument": instrument.id, "item": item.id, "code": int(code), "source": source,
-                  "position": context.get("position")}
+        detail = {
+            "instrument": instrument.id,
+            "item": item.id,
+            "code": int(code),
+            "source": source,
+            "position": context.get("position"),
+        }
         if source == "view":
             detail["client"] = prompt.client
             detail["page_rt_s"] = prompt.page_rt_s
@@ -214,8 +244,11 @@ class ViewUI:
 
     def trial_begin(self, step: Step, time_limit_s: float) -> None:
         self.flush()
-        self._trial_label = {"trial": step.trial_index, "condition": step.condition,
-                             "time_limit_s": _finite(time_limit_s)}
+        self._trial_label = {
+            "trial": step.trial_index,
+            "condition": step.condition,
+            "time_limit_s": _finite(time_limit_s),
+        }
         self.hub.show("trial_ready", prompt="start", **self._trial_label)
         try:
             self.inner.trial_begin(step, time_limit_s)
@@ -229,9 +262,15 @@ class ViewUI:
 
     def trial_end(self, step: Step, summary: Mapping[str, Any]) -> None:
         trial = self.hub.end_trial()
-        self.hub.show("trial_over", **self._trial_label, status=summary.get("status"),
-                      ended_by=summary.get("ended_by"), duration_s=summary.get("duration_s"),
-                      scans=summary.get("scans"), reports=summary.get("reports"))
+        self.hub.show(
+            "trial_over",
+            **self._trial_label,
+            status=summary.get("status"),
+            ended_by=summary.get("ended_by"),
+            duration_s=summary.get("duration_s"),
+            scans=summary.get("scans"),
+            reports=summary.get("reports"),
+        )
         self.flush(self._trial_id(step), trial)
         self.inner.trial_end(step, summary)
 
@@ -254,13 +293,21 @@ class ViewUI:
                 self._term.answer_source = None
             self.inner.close()
 
+    def __getattr__(self, name: str) -> Any:
+        # SessionUI additions this wrapper does not know yet behave as the wrapped UI's.
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
     # -- helpers --------------------------------------------------------------------------------------
     def _done_prompt(self, kind: str, step: Step) -> None:
         prompt = self.hub.prompt
         self.hub.clear_prompt()
         if prompt is not None:
-            self.hub.note("view_answer", {"prompt": kind, "position": step.position,
-                                          "source": "view" if prompt.taken else "terminal"})
+            self.hub.note(
+                "view_answer",
+                {"prompt": kind, "position": step.position, "source": "view" if prompt.taken else "terminal"},
+            )
 
 
 def _instructions_title(step: Step) -> str:
@@ -274,20 +321,38 @@ def _trial_rows(trial: TrialView, trial_id: int | None) -> list[tuple[str, dict[
     log = sorted(trial.log, key=lambda r: (r["drawn_t"], r["seq"]))
     scans = [r for r in log if r["source"] == "scan"]
     for r in scans:
-        rows.append(("view_scan_shown", {"seq": r["seq"], "state_t": r["state_t"], "drawn_t": r["drawn_t"],
-                                         "latency_ms": round(r["latency_ms"], 3), "client": r["client"]},
-                     r["drawn_t"], trial_id))
+        rows.append(
+            (
+                "view_scan_shown",
+                {
+                    "seq": r["seq"],
+                    "state_t": r["state_t"],
+                    "drawn_t": r["drawn_t"],
+                    "latency_ms": round(r["latency_ms"], 3),
+                    "client": r["client"],
+                },
+                r["drawn_t"],
+                trial_id,
+            )
+        )
     frames = [r for r in log if r["source"] != "scan"]
     for i in range(0, len(frames), FRAMES_PER_EVENT):
         chunk = frames[i : i + FRAMES_PER_EVENT]
         lat = np.array([r["latency_ms"] for r in chunk])
-        rows.append(("view_frames", {
-            "n": len(chunk),
-            "seq": [r["seq"] for r in chunk],
-            "state_t": [round(r["state_t"], 6) for r in chunk],
-            "drawn_t": [round(r["drawn_t"], 6) for r in chunk],
-            "client": [r["client"] for r in chunk],
-            "latency_ms_p50": round(float(np.median(lat)), 3),
-            "latency_ms_max": round(float(lat.max()), 3),
-        }, chunk[0]["drawn_t"], trial_id))
+        rows.append(
+            (
+                "view_frames",
+                {
+                    "n": len(chunk),
+                    "seq": [r["seq"] for r in chunk],
+                    "state_t": [round(r["state_t"], 6) for r in chunk],
+                    "drawn_t": [round(r["drawn_t"], 6) for r in chunk],
+                    "client": [r["client"] for r in chunk],
+                    "latency_ms_p50": round(float(np.median(lat)), 3),
+                    "latency_ms_max": round(float(lat.max()), 3),
+                },
+                chunk[0]["drawn_t"],
+                trial_id,
+            )
+        )
     return rows

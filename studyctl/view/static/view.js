@@ -385,9 +385,10 @@
       ctx.beginPath(); ctx.arc(px(c[0]), py(c[1]), r * s, 0, 2 * Math.PI); ctx.stroke();
       // side view: heights along x at the cursor's y, pressed in by the deformation
       const j = Math.max(0, Math.min(ys.length - 1, Math.round((c[1] - y0) / (ys[1] - ys[0]))));
-      const zlo = lo - 10, zhi = hi + 30;
-      const sx = half / (x1 - x0), sz = (H - 40) / (zhi - zlo);
-      const qx = (x) => W / 2 + 10 + (x - x0) * sx, qz = (z) => 20 + (zhi - z) * sz;
+      // one scale for both axes, so the indenter stays round and the dent keeps its true depth
+      const s2 = Math.min(half / (x1 - x0), (H - 80) / (hi - lo + 40));
+      const zlo = lo - 10;
+      const qx = (x) => W / 2 + 10 + (x - x0) * s2, qz = (z) => H - 40 - (z - zlo) * s2;
       ctx.fillStyle = "rgb(190,120,130)";
       ctx.beginPath();
       let started = false;
@@ -400,7 +401,7 @@
       }
       if (started) { ctx.lineTo(qx(x1), qz(zlo)); ctx.closePath(); ctx.fill(); }
       ctx.strokeStyle = f.depth_mm > 0 ? "#ffb347" : "#4aa3ff";
-      ctx.beginPath(); ctx.arc(qx(c[0]), qz(c[2] + r), r * Math.min(sx, sz), 0, 2 * Math.PI); ctx.stroke();
+      ctx.beginPath(); ctx.arc(qx(c[0]), qz(c[2] + r), r * s2, 0, 2 * Math.PI); ctx.stroke();
       ctx.fillStyle = "#e8ecf0"; ctx.font = "18px sans-serif";
       ctx.fillText("depth " + f.depth_mm.toFixed(1) + " mm", W / 2 + 10, H - 10);
     }
