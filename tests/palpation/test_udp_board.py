@@ -97,7 +97,8 @@ def test_trial_over_udp_commands_the_board(emulator):
     emu = emulator("--force", "0.8")
     out, events = _trial(UdpDriverBoard({"port": emu.port}), 1.5)
     assert out.ended_by == "time_limit" and out.ticks >= 60
-    assert not [e for e in events if e[1] == "device_fault"]
+    # a loaded CI machine may miss a loop deadline; the sensor itself must never look faulty
+    assert not [e for e in events if e[1] == "device_fault" and e[2]["rule"] != "missed_deadline"]
     time.sleep(0.1)
     log = emu.entries()
     commands = [e for e in log if e["event"] == "command"]
@@ -135,9 +136,13 @@ def test_board_watchdog_trips_without_commands_and_clears(emulator):
         obs = dev.read(0.3)
         assert any("watchdog tripped" in f for f in obs.faults)
         assert obs.values["balloon_pct_applied"] == 0.0
-        dev.write({"balloon_pct": 50.0, "vibration_pct": 10.0})
-        time.sleep(0.06)
-        obs = dev.read(0.36)
+        deadline = time.monotonic() + 2.0
+        while True:  # keep commanding (feeding the watchdog) until the board reports the command applied
+            dev.write({"balloon_pct": 50.0, "vibration_pct": 10.0})
+            time.sleep(0.03)
+            obs = dev.read(0.36)
+            if obs.faults == () and obs.values["balloon_pct_applied"] == 50.0 or time.monotonic() > deadline:
+                break
         assert obs.faults == () and obs.values["balloon_pct_applied"] == 50.0
         assert obs.values["force_n"] == pytest.approx(0.3, abs=0.01)
     finally:
