@@ -133,6 +133,7 @@ class _EntryRunner:
                 rows.extend(self.run_metric(metric, data))
             except StudyctlError as exc:
                 rows.append(self.row(metric, "", status="not_computed", warnings=str(exc)))
+        rows = [_mark_undefined(r) for r in rows]
         primary = [i for i, r in enumerate(rows) if r.kind != "posthoc" and r.status == "ok" and np.isfinite(r.p)]
         if self.entry.correction != "none" and primary:
             adj = p_adjust([rows[i].p for i in primary], self.entry.correction)
@@ -222,6 +223,7 @@ class _EntryRunner:
     def samples(self, sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[list[np.ndarray], list[str]]:
         warnings = []
         out = []
+        single = []
         for lv in levels:
             vals = sub.loc[sub[col] == lv, "value"].to_numpy(dtype=float)
             nan = int(np.isnan(vals).sum())
@@ -229,8 +231,10 @@ class _EntryRunner:
                 warnings.append(f"{lv}: {nan} undefined value(s) left out (e.g. no reports for a ratio)")
             vals = vals[~np.isnan(vals)]
             if len(vals) == 1:
-                warnings.append(f"{lv} has only 1 value: the test has almost no power")
+                single.append(lv)
             out.append(vals)
+        if single:
+            warnings.append(f"only 1 value in {', '.join(single)}: the test has almost no power")
         return out, warnings
 
     def paired(self, sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.ndarray, list[str], list[str]]:
@@ -750,6 +754,18 @@ class _EntryRunner:
                 self.tables["likert"].append(
                     {"test_id": self.entry.id, "metric": metric, "split": split, "level": lv, **describe(vals)}
                 )
+
+
+def _mark_undefined(row: TestRow) -> TestRow:
+    """A test whose statistic and p-value are both undefined (degenerate data) is not a result: say so."""
+    if row.status != "ok" or row.kind in ("interval", "descriptive") or row.test == "newcombe":
+        return row
+    if np.isfinite(row.p) or np.isfinite(row.p_adj) or np.isfinite(row.statistic):
+        return row
+    why = "undefined for these data (e.g. one value per level or no variation)"
+    return row.with_(
+        status="not_computed", significant=None, warnings="; ".join(filter(None, [row.warnings, f"the test is {why}"]))
+    )
 
 
 def _pair_index(r: pd.Series, levels: list[str]) -> tuple[int, int]:

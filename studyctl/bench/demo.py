@@ -28,10 +28,20 @@ def run(quick: bool = False) -> BenchResult:
     for s in result.studies:
         for stage in ("analyze_s", "simulate_s", "figures_s", "report_s", "total_s"):
             figures[f"{stage}_{s.study}"] = float(getattr(s, stage))
-        rows.append({"study": s.study, "participants": s.participants, "trials": s.trials_completed,
-                     "simulate_s": s.simulate_s, "metrics_s": s.metrics_s, "analyze_s": s.analyze_s,
-                     "figures_s": s.figures_s, "report_s": s.report_s, "total_s": s.total_s,
-                     "status": "FAILED: " + s.error.splitlines()[0] if s.error else ("partial" if s.partial else "ok")})
+        rows.append(
+            {
+                "study": s.study,
+                "participants": s.participants,
+                "trials": s.trials_completed,
+                "simulate_s": s.simulate_s,
+                "metrics_s": s.metrics_s,
+                "analyze_s": s.analyze_s,
+                "figures_s": s.figures_s,
+                "report_s": s.report_s,
+                "total_s": s.total_s,
+                "status": "FAILED: " + s.error.splitlines()[0] if s.error else ("partial" if s.partial else "ok"),
+            }
+        )
     notes = [
         f"{'quick: 2 participants per study' if quick else 'paper-sized cohorts (25, 12, 20, 20)'}; "
         f"{result.workers} worker processes on {os.cpu_count()} cores; goal demo_s <= 120 s on 2 cores, "

@@ -24,8 +24,9 @@ def _print_result(result, console: Console) -> None:  # noqa: ANN001 - AnalysisR
         if rows.empty:
             continue
         table = Table(title=f"{entry.id}: {entry.title or entry.test}", title_justify="left", show_lines=False)
-        for col in ("metric", "split", "groups", "n", "statistic", "p", "p adj.", "sig.", "notes"):
+        for col in ("metric", "split", "groups", "n", "statistic", "p", "p adj.", "sig."):
             table.add_column(col, overflow="fold")
+        table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=48)
         for r in rows.itertuples(index=False):
             stat = f"{r.statistic_name} = {fmt_num(r.statistic)}" if r.statistic_name else ""
             if r.kind == "interval":

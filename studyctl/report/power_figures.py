@@ -1,0 +1,137 @@
+"""The power-curve figure of ``studyctl power``: power against sample size, one panel per test.
+
+Takes the power table (:data:`studyctl.power.summary.COLUMNS`) and returns a matplotlib Figure (object
+API, no pyplot state). Post-hoc rows stay in the table but are not drawn (one panel per test of the plan,
+one line per metric / split / compared levels, Wilson intervals as error bars).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pandas as pd
+
+from studyctl.report.figures import DPI
+from studyctl.report.style import PALETTE
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+_STYLES = ("-", "--", ":", "-.")
+TARGET_POWER = 0.8
+
+
+def _label(row: pd.Series) -> str:
+    parts = [str(row["metric"])]
+    if row["split"]:
+        parts.append(str(row["split"]))
+    if row["kind"] in ("pairwise",) and row["groups"]:
+        parts.append(str(row["groups"]))
+    return " · ".join(parts)
+
+
+def _population_text(population: Any) -> str:
+    if population is None or getattr(population, "is_empty", True):
+        return "population: the protocol's virtual participant, no extra effects stated"
+    d = population.to_dict()
+    bits = []
+    for c, shifts in d["condition_effects"].items():
+        bits += [f"{c}: {p} {v:+g}" for p, v in shifts.items()]
+    for g, shifts in d["group_effects"].items():
+        bits += [f"{g}: {p} {v:+g}" for p, v in shifts.items()]
+    bits += [f"{p} = {v:g}" for p, v in d["baseline"].items()]
+    bits += [f"SD({p}) = {v:g}" for p, v in d["between_sd"].items()]
+    return "population: " + "; ".join(bits)
+
+
+def power_curve_figure(
+    table: pd.DataFrame,
+    *,
+    title: str = "Power by sample size",
+    alpha: float | None = None,
+    replicates: int | None = None,
+    population: Any = None,
+    max_lines: int = 16,
+) -> Figure:
+    """Power curves: one panel per test id, lines per metric/split, Wilson-interval error bars.
+
+    Parameters
+    ----------
+    table
+        The power table (``participants, test_id, kind, metric, split, groups, power, power_ci_low, …``).
+    alpha
+        The plan's significance level (drawn as a dotted line: the power of a test with no effect).
+    replicates
+        Replicates per sample size (in the caption).
+    population
+        The :class:`~studyctl.power.population.Population` (stated in the caption).
+    max_lines
+        Lines per panel at most (the ones with the highest power at the largest sample size).
+    """
+    from matplotlib.figure import Figure
+
+    drawn = table[table["kind"] != "posthoc"]
+    tests = list(dict.fromkeys(drawn["test_id"]))
+    n = max(len(tests), 1)
+    cols = min(n, 2)
+    rows = math.ceil(n / cols)
+    fig = Figure(figsize=(6.0 * cols, 4.0 * rows + 0.9), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False).ravel().tolist()
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    sizes = sorted(table["participants"].unique()) if not table.empty else []
+    for ax, test_id in zip(axes, tests, strict=False):
+        sub = drawn[drawn["test_id"] == test_id]
+        lines = list(dict.fromkeys(zip(sub["metric"], sub["split"], sub["groups"], strict=True)))
+        if len(lines) > max_lines:
+            last = sub[sub["participants"] == sub["participants"].max()]
+            ranked = last.sort_values("power", ascending=False)
+            keep = list(dict.fromkeys(zip(ranked["metric"], ranked["split"], ranked["groups"], strict=True)))
+            lines = [k for k in lines if k in set(keep[:max_lines])]
+        for i, key in enumerate(lines):
+            g = sub[(sub["metric"] == key[0]) & (sub["split"] == key[1]) & (sub["groups"] == key[2])]
+            g = g.sort_values("participants")
+            x = g["participants"].to_numpy(dtype=float)
+            y = g["power"].to_numpy(dtype=float)
+            err = [y - g["power_ci_low"].to_numpy(dtype=float), g["power_ci_high"].to_numpy(dtype=float) - y]
+            ax.errorbar(
+                x,
+                y,
+                yerr=err,
+                color=PALETTE[i % len(PALETTE)],
+                linestyle=_STYLES[(i // len(PALETTE)) % 4],
+                marker="o",
+                markersize=3.5,
+                capsize=2.5,
+                linewidth=1.4,
+                label=_label(g.iloc[0]),
+            )
+        ax.axhline(TARGET_POWER, color="0.45", linestyle="--", linewidth=0.9)
+        if alpha is not None:
+            ax.axhline(alpha, color="0.6", linestyle=":", linewidth=0.9)
+        first = sub.iloc[0]
+        ax.set_title(f"{test_id} ({first['test']})", fontsize=10, loc="left")
+        ax.set_xlabel("participants")
+        ax.set_ylabel("power (fraction significant)")
+        ax.set_ylim(-0.02, 1.02)
+        if sizes:
+            ax.set_xticks(sizes)
+        ax.grid(alpha=0.25)
+        ax.legend(fontsize=7, loc="best", frameon=False)
+    caption = [f"{title}"]
+    detail = []
+    if replicates is not None:
+        detail.append(f"{replicates} simulated studies per sample size")
+    if alpha is not None:
+        detail.append(f"alpha = {alpha:g} (dotted); 0.8 dashed; bars: 95% Wilson intervals")
+    fig.suptitle(caption[0], fontsize=11)
+    fig.supxlabel("; ".join(detail) + "\n" + _population_text(population), fontsize=8)
+    return fig
+
+
+def write_png(fig: Figure, path: str | Path) -> Path:
+    """Save ``fig`` as a PNG file (``dpi`` as the report's figures)."""
+    fig.savefig(path, format="png", dpi=DPI)
+    return Path(path)
