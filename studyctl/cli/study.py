@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.engine.progress import progress_json, progress_lines, study_progress
 from studyctl.store.status import study_status
 from studyctl.store.workspace import init_workspace, open_study
 
@@ -43,11 +44,12 @@ def register(app: typer.Typer) -> None:
         """Show the study, its protocol and how many participants, sessions and trials are in each state."""
         with open_study(db, workspace_arg(workspace), study) as opened:
             info = study_status(opened.store, opened.study)
+            progress = study_progress(opened.store, opened.study.name)  # the session engine's per-condition view
         if as_json:
             typer.echo(json.dumps({
                 "study": info.study, "protocol": info.protocol_name, "protocol_sha256": info.protocol_sha256,
                 "seed": info.seed, "database": info.database, "participants": info.participants,
-                "sessions": info.sessions, "trials": info.trials,
+                "sessions": info.sessions, "trials": info.trials, "progress": progress_json(progress),
             }))
             return
         # Plain echo, not rich markup: names are shown verbatim whatever characters they hold.
@@ -60,3 +62,5 @@ def register(app: typer.Typer) -> None:
                               ("trials", info.trials)):
             parts = ", ".join(f"{k} {v}" for k, v in counts.items())
             typer.echo(f"{title + ':':<13} {sum(counts.values())} ({parts})")
+        for line in progress_lines(progress):
+            typer.echo(line)

@@ -111,3 +111,45 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
         first_condition={k: dict(v) for k, v in first.items()},
         position_counts={k: {pos: dict(c) for pos, c in v.items()} for k, v in positions.items()},
     )
+
+
+def progress_lines(progress: StudyProgress) -> list[str]:
+    """Plain-text lines for ``studyctl status``: one line per participant, balance per stratum.
+
+    Plain text (no markup), so codes are shown verbatim whatever characters they hold.
+    """
+    if not progress.rows:
+        return ["progress: no participants enrolled yet"]
+    lines = ["progress (done/planned per condition; running, left):"]
+    by_person: dict[str, list[ProgressRow]] = {}
+    for r in progress.rows:
+        by_person.setdefault(r.participant, []).append(r)
+    width = max(len(p) for p in by_person)
+    for code, rows in by_person.items():
+        first = rows[0]
+        session = "no session" if first.session_id is None else f"session {first.session_id} {first.session_status}"
+        conds = "  ".join(
+            f"{r.condition} {r.done}/{r.planned}" + (f" (+{r.invalid} invalid)" if r.invalid else "") for r in rows
+        )
+        running = sum(r.running for r in rows)
+        left = sum(r.left for r in rows)
+        lines.append(f"  {code:<{width}}  [{first.stratum or '-'}] {session}: {conds}; running {running}, left {left}")
+    totals = progress.totals()
+    lines.append(f"  total: {totals['done']} done, {totals['running']} running, {totals['left']} left, "
+                 f"{totals['aborted']} aborted, {totals['invalid']} invalid")
+    for stratum, first_counts in progress.first_condition.items():
+        firsts = ", ".join(f"{c} {n}" for c, n in sorted(first_counts.items()))
+        lines.append(f"  balance [{stratum}]: first condition: {firsts}")
+        for pos, counts in sorted(progress.position_counts.get(stratum, {}).items()):
+            lines.append(f"    position {pos}: " + ", ".join(f"{c} {n}" for c, n in sorted(counts.items())))
+    return lines
+
+
+def progress_json(progress: StudyProgress) -> dict:
+    """The progress as JSON-ready data (``studyctl status --json``)."""
+    return {
+        "rows": progress.to_frame().astype(object).where(progress.to_frame().notna(), None).to_dict("records"),
+        "totals": progress.totals(),
+        "first_condition": progress.first_condition,
+        "position_counts": {s: {str(p): c for p, c in v.items()} for s, v in progress.position_counts.items()},
+    }
