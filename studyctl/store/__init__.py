@@ -2,11 +2,17 @@
 
 Public entry points:
 
-- :class:`StudyStore` — the repository API (create_study, add_participant, start_session, add_trial,
-  update_trial, append_event(s), sample_writer / read_samples, record_response,
-  record_location_report, audit / verify_audit, in_transaction).
-- :class:`Database` — open/create/upgrade a database by URL and run transactions.
-- :class:`SampleWriter`, :func:`read_samples` — high-rate samples.
+- :class:`StudyStore` (``studyctl.store.repository``) — the repository API: create_study, get_study,
+  add_participant, set_participant_status, start_session, update_session, add_trial, update_trial,
+  append_event(s), events_frame, sample_writer / read_samples, record_response,
+  record_location_report, audit / verify_audit, in_transaction(lock=…, durable=…), reading.
+- :class:`Database` (``studyctl.store.db``) — open/create/upgrade a database by URL, transactions.
+- :class:`SampleWriter`, :func:`read_samples` (``studyctl.store.samples``) — high-rate samples.
+- ``studyctl.store.workspace`` — init_workspace, open_study, resolve_database (``--db`` /
+  ``STUDYCTL_DB`` / ``studyctl.toml``).
+- ``studyctl.store.status`` — study_status; ``studyctl.store.maintenance`` — check_database,
+  upgrade_database; ``studyctl.store.identity`` — IdentityKey, random_code;
+  ``studyctl.store.pgserver`` — ThrowawayPostgres (tests, benchmarks).
 - :mod:`studyctl.store.models` — the ORM models.
 """
 
