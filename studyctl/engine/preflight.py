@@ -106,6 +106,12 @@ def preflight(
             continue
         detail = "available"
         ok = True
+        if kind == "participant" and virtual and plan.instruments and _cannot_answer(cls):
+            asked = ", ".join(sorted(plan.instruments))
+            checks.append(PreflightCheck(kind, name, ", ".join(by), False,
+                                         f"cannot answer questionnaires (no answer() method) but the protocol "
+                                         f"administers {asked}"))
+            continue
         probe = getattr(cls, "available", None) if kind == "device" else None
         if callable(probe):
             try:
@@ -116,3 +122,9 @@ def preflight(
                 ok, detail = False, str(problem)
         checks.append(PreflightCheck(kind, name, ", ".join(by), ok, detail))
     return PreflightReport(tuple(checks))
+
+
+def _cannot_answer(cls: type) -> bool:
+    from studyctl.plugins.interfaces import Participant
+
+    return getattr(cls, "answer", None) is Participant.answer
