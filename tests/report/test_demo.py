@@ -1,0 +1,57 @@
+"""The demo pipeline end to end on a small cohort: virtual participants → database → analysis → report."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+import pytest
+
+from studyctl.errors import ConfigError
+from studyctl.report.demo import MARKER, run_demo
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo") / "reports"
+    events = []
+    result = run_demo(out, seed=11, studies=[("bio_inspired_palpation", 2)], workers=1, on_event=events.append)
+    return result, events
+
+
+@pytest.mark.slow
+def test_small_demo_writes_a_report_from_simulated_data(demo):
+    result, events = demo
+    (run,) = result.studies
+    assert run.ok, run.error
+    assert run.trials_completed == 8  # 2 participants × 4 conditions, all through the engine
+    folder = result.out_dir / "bio_inspired_palpation"
+    assert (folder / MARKER).is_file() and (folder / "workspace" / "study.db").is_file()
+    assert (folder / "report.html").is_file() and (folder / "figures" / "fig4_controller_outputs.png").is_file()
+    tests = pd.read_csv(folder / "tests.csv")
+    assert set(tests["test_id"]) >= {"novice_vs_expert", "control_algorithm", "tumour_class", "within_subject"}
+    units = pd.read_csv(folder / "units.csv")
+    assert set(units["participant"].dropna()) and units["participant"].nunique() == 2
+    assert "bio_inspired_palpation" in result.index.read_text()
+    stages = [e[1] for e in events]
+    assert stages[0] == "simulate" and stages[-1] == "done" and "analyse" in stages
+    saved = json.loads((result.out_dir / "demo.json").read_text())
+    assert saved[0]["study"] == "bio_inspired_palpation" and saved[0]["trials_completed"] == 8
+
+
+@pytest.mark.slow
+def test_demo_refuses_to_clear_a_folder_it_did_not_make(tmp_path):
+    precious = tmp_path / "reports" / "bio_inspired_palpation"
+    precious.mkdir(parents=True)
+    (precious / "notes.txt").write_text("mine")
+    result = run_demo(tmp_path / "reports", studies=[("bio_inspired_palpation", 1)], workers=1)
+    (run,) = result.studies
+    assert not run.ok and "is not empty and was not made by studyctl demo" in run.error
+    assert (precious / "notes.txt").read_text() == "mine"
+
+
+def test_demo_output_must_be_writable(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(ConfigError, match="cannot write the report to"):
+        run_demo(blocker / "reports", studies=[("bio_inspired_palpation", 1)], workers=1)
