@@ -17,6 +17,7 @@ Scene spec (the protocol's ``scene.params``; every field optional)
                        ``{heights: path.npz}`` (arrays ``xs_mm``, ``ys_mm``, ``heights_mm``) or
                        ``{point_cloud: path.npy}`` (an (n, 3) cloud reconstructed as in seed 002).
 ``nodules``            (measured) ground truth ``[{name, x_mm, y_mm, diameter_mm}, …]`` in the tissue frame.
+                       File paths are used as given: absolute, or relative to the folder studyctl runs in.
 ``indenter_radius_mm`` the avatar sphere of the deformation view (default 5).
 ``view_grid_mm``       display-grid spacing of the deformation view (default 2).
 ``warm_depth_mm``      depth below the surface to which the depth index is pre-built (default: the deepest
