@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "studyctl.cli.db",
     "studyctl.cli.audit",
     "studyctl.cli.analysis",
+    "studyctl.cli.power",
 )
 
 app = typer.Typer(

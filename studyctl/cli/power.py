@@ -1,0 +1,149 @@
+"""``studyctl power``: power analysis by simulating the whole study many times (locally or on Dask)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+_POP_HELP = ("YAML file with a population: section (baseline, condition_effects, group_effects, between_sd): "
+             "additive shifts of the virtual participant's parameters that state the simulated effect.")
+
+
+def _population(file: Path | None, effects: list[str], group_effects: list[str], spreads: list[str],
+                baselines: list[str]):  # noqa: ANN202 - Population, imported lazily
+    from studyctl.power.population import Population, load_population, parse_knob
+
+    pop = load_population(file) if file is not None else Population()
+    cond: dict[str, dict[str, float]] = {}
+    for text in effects:
+        key, param, value = parse_knob(text, "--effect", keyed=True)
+        cond.setdefault(str(key), {})[param] = value
+    grp: dict[str, dict[str, float]] = {}
+    for text in group_effects:
+        key, param, value = parse_knob(text, "--group-effect", keyed=True)
+        grp.setdefault(str(key), {})[param] = value
+    sd = {p: v for _, p, v in (parse_knob(t, "--between-sd", keyed=False) for t in spreads)}
+    base = {p: v for _, p, v in (parse_knob(t, "--baseline", keyed=False) for t in baselines)}
+    return pop.merged(Population(base, cond, grp, sd))
+
+
+def _print_table(run, console: Console, show_posthoc: bool) -> None:  # noqa: ANN001 - PowerRun
+    from studyctl.report.style import fmt_num
+
+    frame = run.to_frame()
+    if not show_posthoc:
+        frame = frame[frame["kind"] != "posthoc"]
+    sizes = list(run.table.sizes)
+    table = Table(title="Power (fraction of replicates significant, 95% Wilson interval)", title_justify="left")
+    for col in ("test", "metric", "split / levels", *(f"n={n}" for n in sizes), "effect size (median, largest n)"):
+        table.add_column(col, overflow="fold")
+    keys = list(dict.fromkeys(zip(frame["test_id"], frame["metric"], frame["split"], frame["groups"], strict=True)))
+    for key in keys:
+        rows = frame[(frame["test_id"] == key[0]) & (frame["metric"] == key[1]) & (frame["split"] == key[2])
+                     & (frame["groups"] == key[3])]
+        cells = []
+        for n in sizes:
+            r = rows[rows["participants"] == n]
+            if r.empty:
+                cells.append("")
+                continue
+            r = r.iloc[0]
+            cells.append(f"{r['power']:.2f} [{r['power_ci_low']:.2f}, {r['power_ci_high']:.2f}]")
+        last = rows[rows["participants"] == max(sizes)]
+        eff = ""
+        if not last.empty and last.iloc[0]["effect_size_name"]:
+            eff = f"{last.iloc[0]['effect_size_name']} {fmt_num(last.iloc[0]['effect_median'])}"
+        where = " ".join(x for x in (key[2], key[3]) if x)
+        table.add_row(key[0], key[1], where, *cells, eff)
+    console.print(table)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("power")
+    def power(
+        protocol: str = typer.Argument(..., help="Protocol file, or a shipped protocol name (bio_inspired_palpation)."),
+        plan: str = typer.Option(..., "--plan", help="Analysis plan (file or shipped name) for that protocol."),
+        participants: str = typer.Option("8,12,16,20,25", "--participants", "-n",
+                                         help="Sample sizes, comma-separated (each ≥ the counterbalancing sequences)."),
+        replicates: int = typer.Option(500, "--replicates", "-r", help="Simulated studies per sample size."),
+        seed: int = typer.Option(None, "--seed", "-s", help="Master seed (default: the protocol's study.seed)."),
+        scheduler: str = typer.Option(None, "--scheduler",
+                                      help="Address of an existing Dask scheduler (tcp://HOST:8786). "
+                                           "Default: a local cluster of worker processes."),
+        workers: int = typer.Option(None, "--workers", "-w",
+                                    help="Local cluster: worker processes (default one per core; 0 = serial in this "
+                                         "process). With --scheduler: workers to wait for (default 1)."),
+        memory_limit: str = typer.Option("4GiB", "--memory-limit",
+                                         help="Memory cap per worker (e.g. 2GiB; 0 = none)."),
+        out: Path = typer.Option(Path("reports/power"), "--out", "-o",
+                                 help="Report folder: power.csv, power_curve.png, the population, and the results "
+                                      "file that makes an interrupted run continue where it stopped."),
+        population: Path = typer.Option(None, "--population", help=_POP_HELP),
+        effect: list[str] = typer.Option([], "--effect",
+                                         help="CONDITION:PARAM=SHIFT added in that condition (repeatable), e.g. "
+                                              "bio_inspired:balloon_weber=-0.03."),
+        group_effect: list[str] = typer.Option([], "--group-effect",
+                                               help="GROUP:PARAM=SHIFT added for that stratum (repeatable)."),
+        between_sd: list[str] = typer.Option([], "--between-sd",
+                                             help="PARAM=SD between-participant spread of a parameter (repeatable)."),
+        baseline: list[str] = typer.Option([], "--baseline",
+                                           help="PARAM=VALUE base value of a parameter (repeatable)."),
+        show_posthoc: bool = typer.Option(False, "--posthoc", help="Also list post-hoc pairs in the printed table."),
+    ) -> None:
+        """Estimate power per test and sample size by simulating the study with virtual participants.
+
+        Each replicate enrolls N virtual participants into a throwaway in-memory database, runs their whole
+        sessions through the real engine, and runs the analysis plan; power is the fraction of replicates
+        in which a test is significant. Results are identical serially, locally or on a Dask cluster.
+        """
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        from studyctl.power import prepare_power, run_power
+
+        console = Console(highlight=False)
+        err = Console(stderr=True, highlight=False)
+        pop = _population(population, effect, group_effect, between_sd, baseline)
+        spec = prepare_power(protocol, plan, sizes=participants, replicates=replicates, seed=seed,
+                             population=pop, memory_limit=memory_limit)
+        sizes = ", ".join(map(str, spec.sizes))
+        console.print(f"power: {spec.study_id}, plan {spec.plan.title!r}; participants {sizes}; "
+                      f"{spec.replicates} replicates each; seed {spec.seed}", markup=False)
+        state = {"kept": 0}
+        progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                            TimeRemainingColumn(), console=err, transient=False)
+        task = progress.add_task("replicates", total=len(spec.tasks()))
+
+        def on_progress(done: int, total: int, result) -> None:  # noqa: ANN001 - ReplicateResult | None
+            if result is None:
+                state["kept"] = done
+                if done:
+                    err.print(f"continuing: {done} of {total} replicates already in {out}", markup=False)
+            else:
+                progress.update(task, description=f"n={result.participants} r={result.replicate}")
+            state["done"] = done
+            progress.update(task, completed=done)
+
+        try:
+            with progress:
+                result = run_power(spec, out, scheduler=scheduler, workers=workers, on_progress=on_progress,
+                                   on_backend=lambda d: err.print(f"running on: {d}", markup=False))
+        except KeyboardInterrupt:
+            err.print(f"Interrupted: {state.get('done', 0)} of {len(spec.tasks())} replicates are kept in {out}; "
+                      "run the same command again to continue.", markup=False)
+            raise typer.Exit(130) from None
+        _print_table(result, console, show_posthoc)
+        console.print(f"simulated {result.ran} replicate(s), reused {result.reused}, in {result.seconds:.1f} s "
+                      f"({result.backend})", markup=False)
+        for kind in ("table", "figure", "population", "replicates"):
+            if kind in result.files:
+                console.print(f"{kind}: {result.files[kind]}", markup=False)

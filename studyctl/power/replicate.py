@@ -1,0 +1,220 @@
+"""One replicate study: enroll N virtual participants into a throwaway in-memory database, run each one's
+whole session through the real engine, compute the plan's metrics from what the store recorded, and run
+the plan. Nothing here computes an outcome; the tests' rows are what the analysis runner returned.
+
+:func:`simulate_replicate` is the unit of work a Dask worker runs; it depends only on its arguments.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import pandas as pd
+
+from studyctl.errors import StudyctlError
+from studyctl.power.seeds import replicate_seeds
+from studyctl.power.spec import TEST_KINDS, PowerSpec
+
+#: Columns of :meth:`ReplicateResult.to_frame` (one row per hypothesis-test row of the plan's result).
+ROW_COLUMNS = (
+    "participants",
+    "replicate",
+    "test_id",
+    "role",
+    "kind",
+    "test",
+    "metric",
+    "split",
+    "groups",
+    "parent",
+    "p",
+    "p_adj",
+    "significant",
+    "effect_size_name",
+    "effect_size",
+    "status",
+)
+_KEEP = ROW_COLUMNS[2:]
+
+
+class WorkerMemoryError(StudyctlError, MemoryError):
+    """A replicate went over the per-worker memory cap."""
+
+
+@dataclass(frozen=True)
+class ReplicateResult:
+    """The tests of one replicate study and what it took.
+
+    ``rows`` are tuples in :data:`ROW_COLUMNS` order without the first two (sample size, replicate);
+    ``clipped`` counts participant parameters the population's spread pushed past their range;
+    ``seconds`` is wall time and ``cpu_seconds`` the CPU time of the process that ran it (with other
+    threads of that process); ``worker`` is ``host:pid`` of that process (for the record; results never
+    depend on it).
+    """
+
+    participants: int
+    replicate: int
+    rows: tuple[tuple[Any, ...], ...]
+    sessions_completed: int
+    trials_completed: int
+    trials_not_completed: int
+    clipped: int
+    seconds: float
+    cpu_seconds: float
+    peak_rss_mb: float
+    worker: str
+
+    def to_frame(self) -> pd.DataFrame:
+        data = [(self.participants, self.replicate, *row) for row in self.rows]
+        return pd.DataFrame(data, columns=list(ROW_COLUMNS))
+
+
+def _rss_bytes() -> int | None:
+    """This process's resident memory now (Linux /proc; psutil elsewhere when installed)."""
+    try:
+        with open("/proc/self/statm", encoding="ascii") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import psutil
+    except ImportError:
+        return None
+    return int(psutil.Process().memory_info().rss)
+
+
+def _check_memory(limit: int | None, where: str) -> float:
+    rss = _rss_bytes()
+    if limit is not None and rss is not None and rss > limit:
+        raise WorkerMemoryError(
+            f"{where}: the worker uses {rss / 2**20:.0f} MiB, over the cap of "
+            f"{limit / 2**20:.0f} MiB per worker; raise --memory-limit or use fewer participants"
+        )
+    return math.nan if rss is None else rss / 2**20
+
+
+def _clean(value: Any) -> Any:
+    """Plain Python values (numpy scalars → float/int/bool; NaN stays NaN)."""
+    if value is None:
+        return None
+    if hasattr(value, "item"):
+        value = value.item()
+    return value
+
+
+def _rows(frame: pd.DataFrame) -> tuple[tuple[Any, ...], ...]:
+    tests = frame[frame["kind"].isin(TEST_KINDS)]
+    out = []
+    for rec in tests[list(_KEEP)].itertuples(index=False, name=None):
+        row = [_clean(v) for v in rec]
+        sig = row[_KEEP.index("significant")]
+        row[_KEEP.index("significant")] = (
+            None if sig is None or (isinstance(sig, float) and math.isnan(sig)) else bool(sig)
+        )
+        for col in ("parent", "effect_size_name", "split", "groups", "metric", "role", "test"):
+            i = _KEEP.index(col)
+            row[i] = "" if row[i] is None or (isinstance(row[i], float) and math.isnan(row[i])) else str(row[i])
+        out.append(tuple(row))
+    return tuple(out)
+
+
+def participant_code(prefix: str, index: int) -> str:
+    """The code of the ``index``-th (0-based) participant of a replicate (codes never feed randomness)."""
+    return f"{prefix}-V{index + 1:04d}"
+
+
+def simulate_replicate(spec: PowerSpec, participants: int, replicate: int) -> ReplicateResult:
+    """Simulate replicate ``replicate`` of a study with ``participants`` virtual participants.
+
+    The study lives in an in-memory SQLite database that is dropped afterwards; enrollment, sessions
+    (simulated clock, the protocol's controllers, devices and scene) and the metrics are the same code
+    paths a real study uses. Participants are enrolled stratum by stratum in proportion to the strata's
+    target sizes (:func:`studyctl.protocol.allocate_strata`), each with the population's parameters.
+
+    Returns
+    -------
+    ReplicateResult
+        One row per hypothesis test of the plan (omnibus, two-sample, pairwise and post-hoc rows).
+    """
+    from studyctl.analysis import compute_metrics, run_plan
+    from studyctl.engine.api import run_session
+    from studyctl.engine.factory import EntryPointFactory
+    from studyctl.power.population import population_model
+    from studyctl.protocol import allocate_strata, load_protocol_text
+    from studyctl.protocol.enrollment import enroll
+    from studyctl.store import StudyStore
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    where = f"replicate {replicate} at {participants} participants"
+    seeds = replicate_seeds(spec.seed, participants, replicate)
+    protocol = load_protocol_text(spec.protocol_text, f"{spec.protocol_name} (power spec)")
+    factory = EntryPointFactory()
+    model = population_model(spec.population, protocol, factory)
+    offsets_rng = seeds.population_rng()
+    pairs = allocate_strata(protocol, participants)
+    several = len(protocol.stratum_ids) > 1
+    prefix = protocol.participants.code_prefix
+    completed = clipped = 0
+    peak = _check_memory(spec.memory_limit, where)
+    store = StudyStore.create("sqlite://")
+    try:
+        study = store.create_study(
+            f"{spec.study_id}-power-n{participants}-r{replicate}",
+            protocol_text=spec.protocol_text,
+            protocol_name=spec.protocol_name,
+            seed=seeds.study_seed,
+        )
+        for i, (stratum, _slot) in enumerate(pairs):
+            enrolled = enroll(store, stratum if several else None, study=study.name, code=participant_code(prefix, i))
+            actor, n_clipped = model.actor(enrolled.stratum, model.draw_offsets(offsets_rng))
+            clipped += n_clipped
+            result = run_session(
+                store,
+                enrolled.code,
+                study=study.name,
+                virtual=True,
+                seed=seeds.session_seeds[i],
+                participant=actor,
+                factory=factory,
+            )
+            completed += getattr(result, "status", "") == "completed"
+            peak = max(peak, _check_memory(spec.memory_limit, where))
+        table = compute_metrics(spec.plan, store, study)
+        trials = _trial_counts(store, study)
+        frame = run_plan(spec.plan, table).to_frame()
+    finally:
+        store.close()
+    return ReplicateResult(
+        participants=int(participants),
+        replicate=int(replicate),
+        rows=_rows(frame),
+        sessions_completed=int(completed),
+        trials_completed=trials.get("completed", 0),
+        trials_not_completed=sum(v for k, v in trials.items() if k != "completed"),
+        clipped=int(clipped),
+        seconds=time.perf_counter() - t0,
+        cpu_seconds=time.process_time() - c0,
+        peak_rss_mb=peak,
+        worker=f"{socket.gethostname()}:{os.getpid()}",
+    )
+
+
+def _trial_counts(store: Any, study: Any) -> dict[str, int]:
+    from sqlalchemy import func, select
+
+    from studyctl.store.models import Participant, Session, Trial
+
+    with store.reading() as s:
+        rows = s.execute(
+            select(Trial.status, func.count())
+            .join(Session, Session.id == Trial.session_id)
+            .join(Participant, Participant.id == Session.participant_id)
+            .where(Participant.study_id == study.id)
+            .group_by(Trial.status)
+        ).all()
+    return {str(status): int(n) for status, n in rows}

@@ -1,0 +1,197 @@
+"""A whole power analysis: check, run the missing replicates somewhere, summarise, write the report folder."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from studyctl.power.executor import open_backend
+from studyctl.power.replicate import ReplicateResult
+from studyctl.power.results import ResultsFile
+from studyctl.power.spec import PowerSpec
+from studyctl.power.summary import PowerTable, summarise
+
+ProgressFn = Callable[[int, int, ReplicateResult | None], None]  # (finished, total, the replicate just finished)
+
+TABLE_FILE = "power.csv"
+FIGURE_FILE = "power_curve.png"
+POPULATION_FILE = "power_population.csv"
+REPLICATES_FILE = "power_replicates.csv"
+SETTINGS_FILE = "power_run.json"
+
+
+@dataclass(frozen=True)
+class PowerRun:
+    """The outcome of :func:`run_power`: the power table and what was written where.
+
+    ``ran`` replicates were simulated by this call and ``reused`` came from the results file of an
+    earlier (interrupted or smaller) run with the same settings.
+    """
+
+    table: PowerTable
+    out_dir: Path
+    files: dict[str, Path]
+    ran: int
+    reused: int
+    seconds: float
+    backend: str
+    population: pd.DataFrame = field(repr=False)
+    replicates: pd.DataFrame = field(repr=False)
+
+    def to_frame(self) -> pd.DataFrame:
+        """The power table (:data:`studyctl.power.summary.COLUMNS`)."""
+        return self.table.to_frame()
+
+
+def run_power(
+    spec: PowerSpec,
+    out_dir: str | Path,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    on_progress: ProgressFn | None = None,
+    on_backend: Callable[[str], None] | None = None,
+    figure: bool = True,
+) -> PowerRun:
+    """Simulate every replicate of ``spec`` not yet in ``out_dir``, then summarise and write the report.
+
+    Parameters
+    ----------
+    spec
+        From :func:`studyctl.power.prepare_power` (everything is checked there).
+    out_dir
+        The report folder: ``power.csv`` (the table), ``power_curve.png``, ``power_population.csv``
+        (the stated population), ``power_replicates.csv``, ``power_run.json`` and the results file
+        ``power_results.sqlite`` that makes runs resumable.
+    scheduler
+        Address of an existing Dask scheduler (``tcp://host:8786``); None starts a local cluster.
+    workers
+        Local cluster: worker processes (default: one per core); ``0``: serial in this process. With
+        ``scheduler``: how many workers to wait for (default 1).
+    on_progress
+        Called with (finished, total, replicate) after each replicate, and once at the start with the
+        replicates already in the results file (replicate None).
+    on_backend
+        Called with a description of where the replicates run, once connected.
+
+    Returns
+    -------
+    PowerRun
+        Identical for any ``workers``/``scheduler`` (each replicate depends only on the seed and its
+        (sample size, replicate index)).
+    """
+    t0 = time.perf_counter()
+    out = Path(out_dir).expanduser()
+    tasks = spec.tasks()
+    with ResultsFile.open(out, spec.fingerprint()) as results:
+        done = results.done()
+        todo = [t for t in tasks if t not in done]
+        finished = len(tasks) - len(todo)
+        if on_progress is not None:
+            on_progress(finished, len(tasks), None)
+        backend_desc = "none (every replicate was already in the results file)"
+        if todo:
+            backend = open_backend(scheduler, workers, spec.memory_limit)
+            backend_desc = backend.info.describe()
+            if on_backend is not None:
+                on_backend(backend_desc)
+            count = [finished]
+
+            def keep(result: ReplicateResult) -> None:
+                results.add(result)
+                count[0] += 1
+                if on_progress is not None:
+                    on_progress(count[0], len(tasks), result)
+
+            try:
+                backend.run(spec, todo, keep)
+            finally:
+                backend.close()
+        rows = results.rows(tasks)
+        reps = results.replicates(tasks)
+    per_size = {n: int((reps["participants"] == n).sum()) for n in spec.sizes}
+    table = summarise(rows, spec.sizes, per_size)
+    from studyctl.power.population import population_model
+    from studyctl.protocol import load_protocol_text
+
+    population = population_model(
+        spec.population, load_protocol_text(spec.protocol_text, spec.protocol_name)
+    ).to_frame()
+    files = _write(out, spec, table, population, reps, backend_desc, figure)
+    return PowerRun(
+        table=table,
+        out_dir=out,
+        files=files,
+        ran=len(todo),
+        reused=finished,
+        seconds=time.perf_counter() - t0,
+        backend=backend_desc,
+        population=population,
+        replicates=reps,
+    )
+
+
+def _atomic(path: Path, write: Callable[[Path], Any]) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _write(
+    out: Path,
+    spec: PowerSpec,
+    table: PowerTable,
+    population: pd.DataFrame,
+    reps: pd.DataFrame,
+    backend: str,
+    figure: bool,
+) -> dict[str, Path]:
+    files = {
+        "table": out / TABLE_FILE,
+        "population": out / POPULATION_FILE,
+        "replicates": out / REPLICATES_FILE,
+        "settings": out / SETTINGS_FILE,
+        "results": out / "power_results.sqlite",
+    }
+    _atomic(files["table"], lambda p: table.to_frame().to_csv(p, index=False))
+    _atomic(files["population"], lambda p: population.to_csv(p, index=False))
+    _atomic(files["replicates"], lambda p: reps.to_csv(p, index=False))
+    settings = {
+        "protocol": spec.protocol_name,
+        "study": spec.study_id,
+        "plan": spec.plan.source_path,
+        "plan_title": spec.plan.title,
+        "alpha": spec.plan.alpha,
+        "participants": list(spec.sizes),
+        "replicates": spec.replicates,
+        "seed": spec.seed,
+        "population": spec.population.to_dict(),
+        "memory_limit_bytes": spec.memory_limit,
+        "backend": backend,
+        **{"fingerprint": spec.fingerprint()},
+        "seeds": "numpy SeedSequence(seed, spawn_key=(participants, replicate))",
+    }
+    _atomic(files["settings"], lambda p: p.write_text(json.dumps(settings, indent=2, default=str), encoding="utf-8"))
+    if figure and not table.frame.empty:
+        from studyctl.report.power_figures import power_curve_figure, write_png
+
+        fig = power_curve_figure(
+            table.to_frame(),
+            title=f"Power by sample size: {spec.plan.title}",
+            alpha=spec.plan.alpha,
+            replicates=spec.replicates,
+            population=spec.population,
+        )
+        files["figure"] = out / FIGURE_FILE
+        _atomic(files["figure"], lambda p: write_png(fig, p))
+    return files
