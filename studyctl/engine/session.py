@@ -20,7 +20,7 @@ Rules the runner keeps:
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import pandas as pd
@@ -533,6 +533,9 @@ class SessionRunner:
         if plan.scene:
             placement = step.data.get("placement") or {}
             scene = build_scene(self.factory, plan.scene, plan.scene_spec, placement, needs, streams.scene)
+        if scene is not None and callable(getattr(scene, "public", None)):
+            # what a participant may know about the scene (grid, visible surface), never its hidden truth
+            info = replace(info, public={**dict(scene.public() or {}), **dict(info.public)})
         controller = build_controller(self.factory, controller_name, cond.params, scene) if controller_name else None
         ref = self._device_ref()
         device = build_device(self.factory, ref["plugin"], ref.get("params", {}), scene, streams.device)
