@@ -391,7 +391,7 @@ class SessionRunner:
 
         try:
             if cond.manual and not self.virtual:
-                outcome = self._manual(step, info, trial_clock)
+                outcome = self._manual(step, info, trial_clock, tid)
             else:
                 outcome = self._execute(step, cond, info, streams, tid, should_stop, on_event, trial_clock)
         except KeyboardInterrupt:
@@ -509,8 +509,11 @@ class SessionRunner:
                                 reason=flag["invalid"] or "")
         self.ui.trial_end(step, {**summary, "status": status})
 
-    def _manual(self, step: Step, info: TrialInfo, clock: Clock) -> TrialOutcome:
+    def _manual(self, step: Step, info: TrialInfo, clock: Clock, tid: int) -> TrialOutcome:
         res = self.ui.manual_outcome(step, self.plan.report, clock)
+        self.rec.event("manual_outcome", {"entered_by": "coordinator", "duration_s": res.duration_s,
+                                          "reports": len(res.reports), "note": res.note},
+                       t=res.duration_s, trial_id=tid, durable=True)
         reports = [{"t": res.duration_s, **r} for r in res.reports]
         limit = info.time_limit_s
         ended = "time_limit" if res.duration_s >= limit else "finish"

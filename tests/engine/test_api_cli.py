@@ -141,3 +141,37 @@ def test_preflight_names_what_is_missing(ws):
         assert o.store.list_sessions(person.id) == []
         with pytest.raises(NotFoundError):
             run_session(o.store, "PTY-ZZZZZ")
+
+
+def test_manual_condition_outcome_entered_by_the_coordinator(tmp_path, capsys):
+    """Seed 002: in the manual condition no controller runs; the coordinator enters time and locations."""
+    folder = tmp_path / "ddp"
+    init_workspace(folder, protocol="data_driven_palpation")
+    with open_study(workspace=folder) as o:
+        e = enroll(o.store, code="DDP-AAAAA")
+        order = e.schedule.order
+    manual_trial = order.index("manual") + 1
+    haptic_trial = order.index("haptic") + 1
+    script = {
+        "outcomes": [{"duration_s": 29.5, "reports": ["40 60", "500 1", "80 30"], "note": "cloth slipped once"}],
+        "trials": {haptic_trial: [{"t": 1.5, "request": "report", "answer": "70 20"},
+                                  {"t": 3.0, "request": "finish"}]},
+    }
+    answers = tmp_path / "answers.json"
+    answers.write_text(json.dumps(script))
+    assert main(["run", "--participant", "DDP-AAAAA", "--input", str(answers), "--workspace", str(folder)]) == 0
+    err = capsys.readouterr().err
+    assert "report: (500, 1) mm is outside the tissue (x 0–120, y 0–120); asking again" in err
+    with open_study(workspace=folder) as o:
+        trials = {t.plan_position: t for t in o.store.list_trials()}
+        manual = trials[manual_trial]
+        assert manual.condition == "manual" and manual.status == "completed"
+        assert manual.outcome["duration_s"] == pytest.approx(29.5) and manual.outcome["ticks"] == 0
+        assert [r.payload for r in o.store.location_reports(manual.id)] == [
+            {"x_mm": 40.0, "y_mm": 60.0}, {"x_mm": 80.0, "y_mm": 30.0}]
+        assert o.store.read_samples(manual.id).empty  # nothing ran: no samples
+        events = o.store.events_frame(1, trial_id=manual.id)
+        assert events[events.kind == "manual_outcome"].payload.iloc[0]["note"] == "cloth slipped once"
+        haptic = trials[haptic_trial]
+        assert haptic.outcome["ended_by"] == "finish" and haptic.outcome["rate_hz"] == 1000.0
+        assert [r.payload for r in o.store.location_reports(haptic.id)] == [{"x_mm": 70.0, "y_mm": 20.0}]
