@@ -163,7 +163,7 @@ TESTS: dict[str, TestKind] = {
             frozenset(),
             frozenset(),
             (),
-            "mean Likert score per item and level, with an overall row",
+            "mean Likert score per item and level",
         ),
     )
 }
