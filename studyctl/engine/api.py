@@ -96,31 +96,41 @@ def _setup(
     return _Setup(participant, ui, clock or RealClock(), cleanup)
 
 
-def _run(
-    rec: StoreRecorder,
+def _prepare(
+    plan: SessionPlan,
+    seed: int,
     *,
-    factory: PluginFactory | None,
+    virtual: bool,
+    factory: PluginFactory,
     participant: Participant | None,
     ui: SessionUI | None,
     clock: Clock | None,
     script: Script | None,
-    progress: ProgressFn | None,
     log: Callable[[str], None] | None,
-    frontend: Frontend | None = None,
-) -> SessionResult:
-    state = rec.state()
-    factory = factory or EntryPointFactory()
-    virtual = state.virtual
-    report = preflight(state.plan, factory, virtual=virtual,
+) -> _Setup:
+    """Preflight, then the participant, prompts and clock: all before anything is written."""
+    report = preflight(plan, factory, virtual=virtual,
                        person_participant=participant is None and script is None and ui is None)
     report.raise_if_missing()
-    setup = _setup(state.plan, state.seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
-                   clock=clock, script=script, log=log)
-    if frontend is not None:
-        setup.participant, setup.ui = frontend(setup.participant, setup.ui, rec)
-    runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock, factory=factory,
-                           virtual=virtual, progress=progress)
+    if not virtual and script is None and plan.hardware_device is None and log is not None:
+        log("note: the protocol names no hardware device; this session runs on the simulated device "
+            f"{(plan.simulated_device or {}).get('plugin', '?')} (rehearsal)")
+    return _setup(plan, seed, virtual=virtual, factory=factory, participant=participant, ui=ui, clock=clock,
+                  script=script, log=log)
+
+
+def _run(
+    rec: StoreRecorder,
+    setup: _Setup,
+    factory: PluginFactory,
+    progress: ProgressFn | None,
+    frontend: Frontend | None = None,
+) -> SessionResult:
     try:
+        if frontend is not None:
+            setup.participant, setup.ui = frontend(setup.participant, setup.ui, rec)
+        runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock, factory=factory,
+                               virtual=rec.state().virtual, progress=progress)
         return runner.run()
     finally:
         setup.cleanup()
@@ -217,14 +227,16 @@ def run_session(
     if isinstance(script, (str, Path)):
         script = Script.load(script)
     factory = factory or EntryPointFactory()
-    # Check plugins before anything is written: a failed preflight leaves no half-started session.
-    preflight(plan, factory, virtual=virtual,
-              person_participant=participant is None and script is None and ui is None).raise_if_missing()
     seed = session_seed(int(target.seed), participant_code) if seed is None else int(seed)
-    rec = StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site)
-    clock = clock or _paced(speed)
-    return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock, script=script,
-                progress=progress, log=log, frontend=frontend)
+    # Plugins, terminal and clock are ready before anything is written: a failure leaves no half-started session.
+    setup = _prepare(plan, seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
+                     clock=clock or _paced(speed), script=script, log=log)
+    try:
+        rec = StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site)
+    except BaseException:
+        setup.cleanup()
+        raise
+    return _run(rec, setup, factory, progress, frontend)
 
 
 def _process_alive(pid: int) -> bool:
@@ -280,11 +292,18 @@ def resume_session(
             raise SessionError(f"session {session_id} is being run by process {pid} on this machine; stop it "
                                "first (Ctrl-C in its terminal) or wait for it to end")
     rec = StoreRecorder.load(store, session_id)
-    rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=rec.state().last_t)
     if isinstance(script, (str, Path)):
         script = Script.load(script)
-    return _run(rec, factory=factory, participant=participant, ui=ui, clock=clock or _paced(speed), script=script,
-                progress=progress, log=log, frontend=frontend)
+    factory = factory or EntryPointFactory()
+    state = rec.state()
+    setup = _prepare(state.plan, state.seed, virtual=state.virtual, factory=factory, participant=participant,
+                     ui=ui, clock=clock or _paced(speed), script=script, log=log)
+    try:
+        rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=state.last_t)
+    except BaseException:
+        setup.cleanup()
+        raise
+    return _run(rec, setup, factory, progress, frontend)
 
 
 def _paced(speed: float | None) -> Clock | None:
