@@ -10,7 +10,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
-from studyctl.engine.api import resume_session, run_session
+from studyctl.engine.api import resume_session, run_session, session_is_virtual
 from studyctl.engine.export import export_study
 from studyctl.store.workspace import open_study
 from studyctl.view import open_view
@@ -90,7 +90,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Continue an interrupted session from its stored plan (crash, kill, Ctrl-C or device fault)."""
         with open_study(db, workspace_arg(workspace), study) as opened, open_view(view, port=view_port) as pv, \
-                _Bar(True) as bar:
+                _Bar(input_file is not None or session_is_virtual(opened.store, session)) as bar:
             result = resume_session(opened.store, session, script=input_file, progress=bar, speed=speed,
                                     log=lambda m: typer.echo(m, err=True), frontend=pv.attach if pv else None)
         _summary(result)

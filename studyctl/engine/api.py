@@ -239,6 +239,14 @@ def run_session(
     return _run(rec, setup, factory, progress, frontend)
 
 
+def session_is_virtual(store: StudyStore, session_id: int) -> bool:
+    """Whether a stored session is run by a virtual participant (False for people, or an unknown session)."""
+    with store.reading() as s:
+        payload = s.scalar(select(Event.payload).where(Event.session_id == session_id, Event.kind == "session_plan")
+                           .order_by(Event.seq).limit(1))
+    return bool(payload and payload.get("virtual", False))
+
+
 def _process_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
