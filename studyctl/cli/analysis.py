@@ -15,36 +15,45 @@ def _console(err: bool = False) -> Console:
     return Console(stderr=err, highlight=False)
 
 
+def _row_result(r) -> str:  # noqa: ANN001 - a row of AnalysisResult.to_frame()
+    from studyctl.report.style import fmt_num
+
+    if r.kind == "interval":
+        return f"{fmt_num(r.estimate)} [{fmt_num(r.ci_low)}, {fmt_num(r.ci_high)}] ({r.n_per_group})"
+    if r.test == "newcombe":
+        return f"Δp = {fmt_num(r.estimate)}, margin = {fmt_num(r.statistic)}"
+    if r.critical_value == r.critical_value:  # not NaN: W against W_critical
+        return f"W = {fmt_num(r.statistic)}, W_crit = {fmt_num(r.critical_value)} (n_r = {fmt_num(r.df)})"
+    if not r.statistic_name:
+        return ""
+    df = f", df = {fmt_num(r.df)}" if r.df == r.df else ""
+    return f"{r.statistic_name} = {fmt_num(r.statistic)}{df}"
+
+
 def _print_result(result, console: Console) -> None:  # noqa: ANN001 - AnalysisResult, imported lazily
-    from studyctl.report.style import fmt_num, fmt_p
+    from studyctl.report.style import fmt_p
 
     frame = result.to_frame()
     for entry in result.plan.tests:
         rows = frame[frame["test_id"] == entry.id]
         if rows.empty:
             continue
-        table = Table(title=f"{entry.id}: {entry.title or entry.test}", title_justify="left", show_lines=False)
-        for col in ("metric", "split", "groups", "n", "statistic", "p", "p adj.", "sig."):
-            table.add_column(col, overflow="fold")
-        table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=48)
+        table = Table(title=f"{entry.id}: {entry.title or entry.test}", title_justify="left", box=None, pad_edge=False)
+        table.add_column("comparison", overflow="fold", min_width=22)
+        table.add_column("result", overflow="fold", min_width=24)
+        table.add_column("p (adj.)", no_wrap=True)
+        table.add_column("sig.", no_wrap=True)
+        table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=40)
         for r in rows.itertuples(index=False):
-            stat = f"{r.statistic_name} = {fmt_num(r.statistic)}" if r.statistic_name else ""
-            if r.kind == "interval":
-                stat = f"{fmt_num(r.estimate)} [{fmt_num(r.ci_low)}, {fmt_num(r.ci_high)}]"
+            what = " ".join(x for x in (r.metric, f"[{r.split}]" if r.split else "", r.groups) if x)
+            if r.kind == "posthoc":
+                what = f"  post-hoc {r.groups}"
+            p = fmt_p(r.p) + (f" ({fmt_p(r.p_adj)})" if r.p_adj == r.p_adj else "")
             sig = "" if r.significant is None else ("yes" if r.significant else "no")
             note = ("NOT COMPUTED: " if r.status != "ok" else "") + (r.warnings or "")
-            table.add_row(
-                r.metric,
-                r.split,
-                r.groups,
-                str(r.n),
-                stat,
-                fmt_p(r.p),
-                fmt_p(r.p_adj) if r.p_adj == r.p_adj else "",
-                sig,
-                note[:120],
-            )
+            table.add_row(what, _row_result(r), p, sig, note)
         console.print(table)
+        console.print()
 
 
 def register(app: typer.Typer) -> None:
