@@ -16,6 +16,7 @@ participant's answers and trial requests through the engine's own paths (see :mo
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -23,6 +24,9 @@ from typing import Any
 from studyctl.view.frontend import ViewParticipant, ViewUI
 from studyctl.view.hub import FrameState, ViewHub
 from studyctl.view.server import ViewServer
+
+# GIL switch interval while a view serves (see ParticipantView.start).
+SWITCH_INTERVAL_S = 0.0005
 
 __all__ = ["FrameState", "ParticipantView", "ViewHub", "ViewParticipant", "ViewServer", "ViewUI", "open_view"]
 
@@ -41,6 +45,7 @@ class ParticipantView:
         self.server = ViewServer(self.hub, host=host, port=port, token=token)
         self.ui: ViewUI | None = None
         self.participant: ViewParticipant | None = None
+        self._switch: float | None = None
 
     @property
     def url(self) -> str:
@@ -48,6 +53,11 @@ class ParticipantView:
         return self.server.url
 
     def start(self) -> ParticipantView:
+        # The 1 kHz loop spin-waits its last half-millisecond for precise pacing and holds the GIL while it
+        # does; the server threads then get the GIL only when they ask for a switch. At the default 5 ms
+        # interval every GIL hand-over of a frame on its way to the browser would wait up to 5 ms.
+        self._switch = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch, SWITCH_INTERVAL_S))
         self.server.start()
         return self
 
@@ -62,6 +72,9 @@ class ParticipantView:
         self.hub.show("ended")
         self.hub.closed = True
         self.server.stop()
+        if self._switch is not None:
+            sys.setswitchinterval(self._switch)
+            self._switch = None
         if self.ui is not None:
             try:
                 self.ui.flush()

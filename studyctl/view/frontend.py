@@ -29,6 +29,9 @@ from studyctl.engine.ui import Control, ManualOutcome, SessionUI, TimerResult
 from studyctl.plugins.interfaces import Action, Participant, TrialInfo
 from studyctl.view.hub import FrameState, TrialView, ViewHub
 
+_perf = time.perf_counter
+_tuple_new = tuple.__new__  # a NamedTuple without its Python-level __new__ (the hot path)
+
 # Frame-draw records per ``view_frames`` event (real-time conditions draw ~60 a second).
 FRAMES_PER_EVENT = 600
 
@@ -45,6 +48,10 @@ class ViewParticipant(Participant):
         self._seq = 0
         self._scans = 0
         self._prev: tuple[float, float] | None = None
+        # Bound once: this wrapper's act runs every tick of a 1 kHz loop.
+        self._hub = hub
+        self._inbox = hub.inbox
+        self._inner_act = inner.act
 
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
         self.inner.begin_trial(info, rng)
@@ -61,23 +68,24 @@ class ViewParticipant(Participant):
         self._prev = None
 
     def act(self, t: float, percept: Mapping[str, Any]) -> Action:
-        now = time.perf_counter()
         prev = self._prev
+        self._prev = (t, _perf())
         if prev is not None:
             # The percept was made during the previous tick; its state belongs to that tick's time.
             frame = percept.get("view")
-            source = "view"
-            if frame is None:
-                frame = percept.get("scan")
-                source = "scan"
-                if frame is not None:
-                    self._scans += 1
             if frame is not None:
                 self._seq += 1
-                self.hub.latest = FrameState(self._seq, prev[0], prev[1], source, frame, self._scans)
-        self._prev = (t, now)
-        action = self.inner.act(t, percept)
-        inbox = self.hub.inbox
+                self._hub.latest = _tuple_new(FrameState, (self._seq, prev[0], prev[1], "view", frame, self._scans))
+            else:
+                frame = percept.get("scan")
+                if frame is not None:
+                    self._seq += 1
+                    self._scans += 1
+                    self._hub.latest = _tuple_new(
+                        FrameState, (self._seq, prev[0], prev[1], "scan", frame, self._scans)
+                    )
+        action = self._inner_act(t, percept)
+        inbox = self._inbox
         if inbox:
             extra = []
             while inbox:
@@ -137,6 +145,9 @@ class ViewUI:
         self.rec = recorder
         self.interactive = bool(getattr(inner, "interactive", False))
         self.controls = True  # the view's countdown needs trial_tick every tick
+        self._hub = hub
+        self._inner_tick = inner.trial_tick
+        self._inner_poll = inner.poll_control
         term = getattr(inner, "term", None)
         # Only a terminal prompt can take an answer from elsewhere; scripted answers never wait for one.
         self._term = term if term is not None and hasattr(term, "answer_source") else None
@@ -257,8 +268,8 @@ class ViewUI:
         self.hub.show("trial", **self._trial_label)
 
     def trial_tick(self, t: float) -> None:
-        self.inner.trial_tick(t)
-        self.hub.tick = (t, time.perf_counter())
+        self._inner_tick(t)
+        self._hub.tick = (t, _perf())
 
     def trial_end(self, step: Step, summary: Mapping[str, Any]) -> None:
         trial = self.hub.end_trial()
@@ -275,7 +286,7 @@ class ViewUI:
         self.inner.trial_end(step, summary)
 
     def poll_control(self) -> Control | None:
-        return self.inner.poll_control()
+        return self._inner_poll()
 
     def wait_unpause(self) -> None:
         self.hub.show("paused")

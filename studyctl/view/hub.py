@@ -130,6 +130,7 @@ class ViewHub:
         self.pending_log: collections.deque[tuple[str, dict[str, Any]]] = collections.deque()
         self.refusals = 0
         self.latencies_ms: collections.deque[float] = collections.deque(maxlen=100_000)
+        self.sync_rtt_ms: dict[str, float] = {}  # best clock-sync round trip of each page (error ≤ half)
 
     # ================================================================ trial loop (lock-free)
     def put_frame(self, state: FrameState) -> None:

@@ -111,6 +111,9 @@ class _Handler(BaseHTTPRequestHandler):
                   "origin": (self.headers.get("Origin") or "")[:100]}
         if host not in view.allowed_hosts:
             return self._refuse("host", detail)
+        if parts.path == "/favicon.ico" and self.command == "GET":  # asked by browsers on their own
+            self._send(HTTPStatus.NOT_FOUND, b"", "text/plain; charset=utf-8")
+            return None
         prefix = "/v/"
         if not parts.path.startswith(prefix):
             return self._refuse("no_token", detail)
@@ -185,6 +188,9 @@ class _Handler(BaseHTTPRequestHandler):
         elif rest == "ack":
             frames = body.get("frames") if isinstance(body.get("frames"), list) else []
             screens = body.get("screens") if isinstance(body.get("screens"), list) else []
+            rtt = body.get("rtt_ms")
+            if isinstance(rtt, (int, float)) and math.isfinite(rtt) and rtt >= 0:
+                hub.sync_rtt_ms[client] = float(rtt)
             status, reply = 200, {"ok": True, "n": hub.acknowledge(client, frames, screens)}
         else:
             status, reply = 404, {"ok": False, "error": "not found"}
@@ -235,6 +241,7 @@ class _Handler(BaseHTTPRequestHandler):
         while not hub.closed and not self.server.view.stopping:
             now = hub.clock()
             out: list[bytes] = []
+            sent_now = False
             if now - last_role_check > 0.25:
                 last_role_check = now
                 hub.maintain()
@@ -261,6 +268,7 @@ class _Handler(BaseHTTPRequestHandler):
                     sent_surface = surface_id
                 out.append(sse("frame", msg))
                 sent_seq, last_frame = state.seq, now
+                sent_now = True
             tick = hub.tick
             if tick is not None and tick is not sent_tick and now - last_tick >= TICK_INTERVAL_S:
                 out.append(sse("tick", {"t": tick[0], "ts": tick[1]}))
@@ -272,7 +280,9 @@ class _Handler(BaseHTTPRequestHandler):
             elif mono - last_write > KEEPALIVE_S:
                 write(b": keep-alive\n\n")  # lets a dead connection fail and frees its thread
                 last_write = mono
-            time.sleep(POLL_S)
+            # After a frame nothing new may go out for a display period: sleep through it (fewer wake-ups,
+            # fewer GIL hand-overs from the loop); otherwise look again soon, so a scan goes out at once.
+            time.sleep(max(POLL_S, min_gap - POLL_S / 2) if sent_now else POLL_S)
         write(sse("screen", {"version": hub.screen_version + 1, "screen": "ended"}))
 
 

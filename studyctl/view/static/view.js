@@ -57,6 +57,7 @@
   function flushAcks() {
     if (!acks.frames.length && !acks.screens.length) return;
     const body = { frames: acks.frames.splice(0), screens: acks.screens.splice(0) };
+    if (syncs.length) body.rtt_ms = 1000 * Math.min(...syncs.map((x) => x.rtt));
     post("ack", body);
   }
 
@@ -281,37 +282,54 @@
     const key = keys.get(f.key);
     if (!key) return false;
     const { w, h } = key;
+    const cv = $("cv-ct");
+    const ctx = cv.getContext("2d");
     if (!base || base.key !== f.key) {
+      // a new key image: expand it to RGBA once; frames then only touch the pixels that change
       const rgba = new Uint8ClampedArray(w * h * 4);
       for (let i = 0, j = 0; i < w * h; i++, j += 4) {
         const v = key.data[i];
         rgba[j] = v; rgba[j + 1] = v; rgba[j + 2] = v; rgba[j + 3] = 255;
       }
-      base = { key: f.key, w, h, rgba, off: document.createElement("canvas") };
-      base.off.width = w; base.off.height = h;
+      base = { key: f.key, w, h, rgba, img: new ImageData(new Uint8ClampedArray(rgba), w, h), prev: new Uint32Array(0) };
+      if (cv.width !== w || cv.height !== h) { cv.width = w; cv.height = h; }
+      ctx.putImageData(base.img, 0, 0);
+      placeLabels(f.panels || [], w);
     }
-    const img = new ImageData(new Uint8ClampedArray(base.rgba), w, h);
+    const d = base.img.data, k = base.rgba;
+    let lo = Infinity, hi = -1;
+    for (const i of base.prev) { // undo the previous frame's changes
+      const j = i * 4;
+      d[j] = k[j]; d[j + 1] = k[j + 1]; d[j + 2] = k[j + 2];
+      if (i < lo) lo = i;
+      if (i > hi) hi = i;
+    }
     const idx = new Uint32Array(bytes(f.didx).buffer);
     const val = bytes(f.dval);
-    const d = img.data;
-    for (let k = 0; k < idx.length; k++) {
-      const j = idx[k] * 4, v = val[k];
+    for (let n = 0; n < idx.length; n++) {
+      const i = idx[n], j = i * 4, v = val[n];
       d[j] = v; d[j + 1] = v; d[j + 2] = v;
+      if (i < lo) lo = i;
+      if (i > hi) hi = i;
     }
-    base.off.getContext("2d").putImageData(img, 0, 0);
-    const cv = $("cv-ct");
-    const scale = 2;
-    if (cv.width !== w * scale) { cv.width = w * scale; cv.height = h * scale + 30; }
-    const ctx = cv.getContext("2d");
-    ctx.fillStyle = "#000"; ctx.fillRect(0, 0, cv.width, cv.height);
-    ctx.imageSmoothingEnabled = false;
-    ctx.drawImage(base.off, 0, 30, w * scale, h * scale);
-    ctx.fillStyle = "#9fb3c8"; ctx.font = "20px sans-serif";
-    for (const p of f.panels || []) {
-      ctx.fillText(p.name + " (" + p.h_axis + "–" + p.v_axis + ")", p.col0 * scale + 8, 22);
+    base.prev = idx;
+    if (hi >= 0) { // repaint only the rows that changed
+      const r0 = Math.floor(lo / w), r1 = Math.floor(hi / w);
+      ctx.putImageData(base.img, 0, 0, 0, r0, w, r1 - r0 + 1);
     }
     setVisual("ct");
     return true;
+  }
+
+  function placeLabels(panels, w) {
+    const box = $("ct-labels");
+    box.replaceChildren();
+    for (const p of panels) {
+      const el = document.createElement("span");
+      el.textContent = p.name + " (" + p.h_axis + "–" + p.v_axis + ")";
+      el.style.left = (100 * p.col0 / w) + "%";
+      box.append(el);
+    }
   }
 
   function heightsColour(v, lo, hi) {
