@@ -250,9 +250,12 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
 def _source_line(result: AnalysisResult) -> str:
     info = result.data.info
     bits = [f"data: {result.data.source or 'in-memory table'}"]
-    for key in ("participants", "trials_completed", "trials_other", "kind"):
+    for key in ("participants", "trials_completed", "kind"):
         if key in info:
             bits.append(f"{key.replace('_', ' ')}: {info[key]}")
+    if "trials_other" in info:
+        other = info["trials_other"] or {}
+        bits.append("other trials: " + (", ".join(f"{v} {k}" for k, v in other.items()) or "none"))
     return "; ".join(bits)
 
 
