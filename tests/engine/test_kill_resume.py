@@ -196,7 +196,9 @@ def test_sigkill_then_resume_matches_uninterrupted_run(kind, workspaces, env, re
     assert before["session_status"] == "running"  # killed: nobody had a chance to record anything else
     if kind == "questionnaire":
         kept = {k: v for k, v in before["answers"].items() if k[0] == f"step:{position}"}
-        assert len(kept) == detail > 0  # the answers given before the kill are in the database
+        # the answers given before the kill are in the database (the kill may land one answer later than
+        # the poll saw), and the questionnaire was still unfinished
+        assert 0 < detail <= len(kept) < 3
     out = cli(["resume", "1"], ws, env)
     assert "completed" in out.stdout
     after = snapshot(ws)
