@@ -18,6 +18,10 @@ from studyctl.errors import PluginError
 from studyctl.plugins import registry
 from studyctl.plugins.interfaces import Controller, Device, Participant, Scene
 
+# A virtual participant in a manual condition (a person palpates the real phantom there) palpates the trial's
+# scene with this simulated bare finger: the tissue's own reaction force, no device, no screen.
+MANUAL_TOUCH_DEVICE = "direct_touch"
+
 
 class PluginFactory(Protocol):
     def load(self, kind: str, name: str) -> type:

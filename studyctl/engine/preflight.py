@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from studyctl.engine.factory import PluginFactory
+from studyctl.engine.factory import MANUAL_TOUCH_DEVICE, PluginFactory
 from studyctl.engine.plan import SessionPlan
 from studyctl.errors import PluginError, SessionError
 
@@ -86,10 +86,13 @@ def preflight(
         need("controller", None if cond.manual else cond.controller, f"condition {cid}")
     device = plan.simulated_device if virtual else (plan.hardware_device or plan.simulated_device)
     device_params = dict((device or {}).get("params", {}))
-    if any(not plan.conditions[c].manual or virtual for c in used):
+    if any(not plan.conditions[c].manual for c in used):
         if not device:
             raise SessionError(f"the plan of study {plan.study!r} names no device")
         need("device", device["plugin"], "the trials (virtual)" if virtual else "the trials")
+    if virtual:  # a virtual participant palpates manual conditions with the simulated bare finger
+        for cid in sorted(c for c in used if plan.conditions[c].manual):
+            need("device", MANUAL_TOUCH_DEVICE, f"condition {cid} (manual, virtual participant)")
     if virtual:
         if not plan.virtual_participant:
             raise SessionError(f"protocol of study {plan.study!r} names no virtual participant "

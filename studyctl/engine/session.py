@@ -27,6 +27,7 @@ import pandas as pd
 
 from studyctl.engine.clock import Clock, SimulatedClock
 from studyctl.engine.factory import (
+    MANUAL_TOUCH_DEVICE,
     PluginFactory,
     build_controller,
     build_device,
@@ -37,7 +38,7 @@ from studyctl.engine.plan import ConditionSpec, InvalidAnswer, SessionPlan, Step
 from studyctl.engine.recorder import Recorder, SessionState
 from studyctl.engine.seeding import TrialStreams, trial_streams
 from studyctl.engine.trial_loop import TrialOutcome, run_trial
-from studyctl.engine.ui import Control, SessionUI
+from studyctl.engine.ui import Control, ManualOutcome, SessionUI
 from studyctl.errors import DeviceError, SessionError, SessionInterrupted, StudyctlError
 from studyctl.plugins.interfaces import Participant, TrialInfo
 
@@ -88,7 +89,8 @@ class SessionRunner:
     factory
         Where scene, controller and device plugins come from.
     virtual
-        True when the participant is virtual: simulated devices, no manual outcome entry.
+        True when the participant is virtual: simulated devices; in manual conditions it palpates the
+        scene with the simulated bare finger (``direct_touch``) and its reports become the manual outcome.
     progress
         Called after each step with (steps done, steps in plan, step).
     """
@@ -392,6 +394,8 @@ class SessionRunner:
         try:
             if cond.manual and not self.virtual:
                 outcome = self._manual(step, info, trial_clock, tid)
+            elif cond.manual:
+                outcome = self._simulated_manual(step, cond, info, streams, tid, should_stop, trial_clock)
             else:
                 outcome = self._execute(step, cond, info, streams, tid, should_stop, on_event, trial_clock)
         except KeyboardInterrupt:
@@ -511,13 +515,40 @@ class SessionRunner:
 
     def _manual(self, step: Step, info: TrialInfo, clock: Clock, tid: int) -> TrialOutcome:
         res = self.ui.manual_outcome(step, self.plan.report, clock)
-        self.rec.event("manual_outcome", {"entered_by": "coordinator", "duration_s": res.duration_s,
+        return self._manual_outcome(res, info, tid, "coordinator")
+
+    def _manual_outcome(
+        self, res: ManualOutcome, info: TrialInfo, tid: int, entered_by: str, ended_by: str | None = None,
+        events: list | None = None,
+    ) -> TrialOutcome:
+        """Record a manual trial's outcome: one ``manual_outcome`` event; the reports at the stopwatch time."""
+        self.rec.event("manual_outcome", {"entered_by": entered_by, "duration_s": res.duration_s,
                                           "reports": len(res.reports), "note": res.note},
                        t=res.duration_s, trial_id=tid, durable=True)
         reports = [{"t": res.duration_s, **r} for r in res.reports]
         limit = info.time_limit_s
-        ended = "time_limit" if res.duration_s >= limit else "finish"
-        return TrialOutcome(ended, min(res.duration_s, limit), 0, 0, reports, [])
+        ended = ended_by or ("time_limit" if res.duration_s >= limit else "finish")
+        return TrialOutcome(ended, min(res.duration_s, limit), 0, 0, reports, list(events or []))
+
+    def _simulated_manual(
+        self, step, cond, info, streams: TrialStreams, tid, should_stop, trial_clock: Clock
+    ) -> TrialOutcome:
+        """A virtual participant in a manual condition palpates the trial's scene with the simulated bare finger
+        (no controller, device :data:`MANUAL_TOUCH_DEVICE`) and its reports become the trial's outcome, recorded
+        exactly as a coordinator's entry for a person (no samples, no per-report events: nothing is instrumented
+        in a manual trial); the ``manual_outcome`` event says it was simulated."""
+
+        def on_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
+            if kind not in ("report", "trial_loop_start", "trial_loop_end"):  # faults and safety events are kept
+                self.rec.event(kind, payload, t=t, trial_id=tid)
+
+        run = self._execute(step, cond, info, streams, tid, should_stop, on_event, trial_clock)
+        note = (f"simulated: virtual participant {getattr(self.participant, 'name', '?')} palpated the phantom "
+                f"with a bare finger (device {MANUAL_TOUCH_DEVICE}, {run.ticks} ticks at {info.rate_hz:g} Hz)")
+        res = ManualOutcome(run.duration_s, tuple({k: v for k, v in r.items() if k != "t"} for r in run.reports),
+                            note)
+        ended = run.ended_by if run.ended_by not in ("finish", "time_limit") else None
+        return self._manual_outcome(res, info, tid, "simulated", ended, run.events)
 
     def _device_ref(self) -> Mapping[str, Any]:
         plan = self.plan
@@ -540,9 +571,9 @@ class SessionRunner:
             # what a participant may know about the scene (grid, visible surface), never its hidden truth
             info = replace(info, public={**dict(scene.public() or {}), **dict(info.public)})
         controller = build_controller(self.factory, controller_name, cond.params, scene) if controller_name else None
-        ref = self._device_ref()
+        ref = {"plugin": MANUAL_TOUCH_DEVICE} if cond.manual else self._device_ref()
         device = build_device(self.factory, ref["plugin"], ref.get("params", {}), scene, streams.device)
-        sink = self.rec.samples(tid, [])
+        sink = None if cond.manual else self.rec.samples(tid, [])  # a manual trial has no instrument to log
         try:
             device.open()
             return run_trial(
@@ -553,7 +584,7 @@ class SessionRunner:
                 clock=trial_clock,
                 rng=streams.participant,
                 on_event=on_event,
-                on_sample=sink.write,
+                on_sample=sink.write if sink is not None else None,
                 view=scene.view if scene is not None else None,
                 should_stop=should_stop,
             )
@@ -562,4 +593,5 @@ class SessionRunner:
                 device.close()
             except Exception as exc:  # closing a disconnected device may fail; the fault is already raised
                 self.rec.event("device_close_failed", {"error": f"{type(exc).__name__}: {exc}"}, trial_id=tid)
-            sink.close()
+            if sink is not None:
+                sink.close()
