@@ -51,7 +51,6 @@ class _StoreSamples:
     """
 
     FLUSH_WALL_S = 1.0
-    CHECK_EVERY = 32  # samples between wall-clock checks
 
     def __init__(self, store: StudyStore, trial_id: int) -> None:
         self._store = store
@@ -74,7 +73,7 @@ class _StoreSamples:
                                f"({', '.join(self._keys)}); a device or controller changed its channels") from None
         self._t.append(t)
         self._rows.append(row)
-        if len(self._t) % self.CHECK_EVERY == 0 and time.monotonic() - self._last >= self.FLUSH_WALL_S:
+        if time.monotonic() - self._last >= self.FLUSH_WALL_S:
             self.flush()
 
     def flush(self) -> None:
