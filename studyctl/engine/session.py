@@ -539,7 +539,7 @@ class SessionRunner:
         in a manual trial); the ``manual_outcome`` event says it was simulated."""
 
         def on_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
-            if kind not in ("report", "trial_loop_start", "trial_loop_end"):  # faults and safety events are kept
+            if kind == "device_fault":  # the rest is loop bookkeeping a person's manual trial does not have
                 self.rec.event(kind, payload, t=t, trial_id=tid)
 
         run = self._execute(step, cond, info, streams, tid, should_stop, on_event, trial_clock)
