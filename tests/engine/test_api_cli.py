@@ -175,3 +175,28 @@ def test_manual_condition_outcome_entered_by_the_coordinator(tmp_path, capsys):
         haptic = trials[haptic_trial]
         assert haptic.outcome["ended_by"] == "finish" and haptic.outcome["rate_hz"] == 1000.0
         assert [r.payload for r in o.store.location_reports(haptic.id)] == [{"x_mm": 70.0, "y_mm": 20.0}]
+
+
+def test_resume_refuses_a_session_another_live_process_runs(ws, tmp_path):
+    import subprocess
+    import sys
+
+    from studyctl.engine.api import resume_session
+
+    answers = tmp_path / "answers.yaml"
+    answers.write_text(yaml.safe_dump(SCRIPT))
+    with open_study(workspace=ws) as o:
+        run_session(o.store, "PTY-AAAAA", virtual=False, script=answers)
+        # pretend session 1 is unfinished and owned by a live process on this machine
+        o.store.update_session(1, status="running")
+        sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+        try:
+            import socket
+
+            o.store.append_event(1, "session_process", {"pid": sleeper.pid, "host": socket.gethostname()},
+                                 t_mono=0.0)
+            with pytest.raises(SessionError, match=f"being run by process {sleeper.pid}"):
+                resume_session(o.store, 1, script=answers)
+        finally:
+            sleeper.kill()
+            sleeper.wait()

@@ -268,3 +268,15 @@ def test_trial_streams_depend_only_on_seed_and_position():
     b = trial_streams(1, 5).participant.random(3)
     c = trial_streams(1, 6).participant.random(3)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+def test_coordinator_pause_stops_the_trial_and_repeats_it():
+    script = Script.from_mapping({"default_likert": 3,
+                                  "controls": [{"trial": 2, "t": 2.0, "action": "pause", "reason": "phone call"}]})
+    rec = MemoryRecorder(toy_plan(), seed=8)
+    runner(rec, ui=ScriptedUI(script)).run()
+    second = [t for t in rec.state().trials if t.position == 5]
+    assert [t.status for t in second] == ["aborted", "completed"]
+    assert second[0].reason == "paused by the coordinator: phone call"
+    statuses = [e["payload"]["status"] for e in rec.events if e["kind"] == "session_status"]
+    assert statuses == ["running", "paused", "running", "completed"]
