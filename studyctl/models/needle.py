@@ -33,8 +33,9 @@ around zero cannot flip its sign (no chattering).
 Radial guidance (eq. 1) is a PD spring-damper in the needle's body frame towards the planned line (incision
 point → tumour centroid) with a tolerance capsule of radius ``tolerance_mm``: zero force inside, a spring on
 ``r − t`` outside, and the damper faded in over ``damping_band_mm`` so that the force is continuous at the
-capsule edge. Releasing the button switches to the maintain mode (eq. 8, same gains, 3-D, towards the pose
-at release) through a smoothstep cross-fade of ``maintain_blend_s``. Body-frame forces are rotated to the
+capsule edge; the spring saturates at ``radial_max_n``. Releasing the button switches to the maintain
+mode (eq. 8, same gains, 3-D, towards the pose at release) through a smoothstep cross-fade of
+``maintain_blend_s``. Body-frame forces are rotated to the
 device frame (eq. 7). Positions are in mm, velocities in mm/s, gains in SI units as in Table 1.
 
 The hot path :meth:`NeedleTissueModel.step` works on plain Python floats: at 1 kHz one tick costs a few
@@ -99,6 +100,7 @@ UNITS: dict[str, str] = {
     "radial_kd": "N·s/m",
     "tolerance_mm": "mm",
     "damping_band_mm": "mm",
+    "radial_max_n": "N",
     "friction_ref_length_mm": "mm",
     "stick_band_mm_s": "mm/s",
     "stick_k": "N/m",
@@ -121,8 +123,10 @@ class NeedleParams:
 
     Not in the paper (our choices, see the module docstring): ``capsule_puncture_n``,
     ``tumour_puncture_n``, ``tolerance_mm`` (tolerance capsule radius t), ``damping_band_mm`` (radial
-    damper fade-in beyond t), ``friction_ref_length_mm`` (embedded length at which friction reaches the
-    Table 1 level), ``stick_band_mm_s`` (Karnopp band ε), ``stick_k``/``stick_d`` (stick anchor),
+    damper fade-in beyond t), ``radial_max_n`` (the guidance spring saturates here, so a needle held far
+    from the path — before the approach — is pulled, not thrown), ``friction_ref_length_mm`` (embedded
+    length at which friction reaches the Table 1 level), ``stick_band_mm_s`` (Karnopp band ε),
+    ``stick_k``/``stick_d`` (stick anchor),
     ``contact_d`` (damping while a surface is pushed, for passivity), ``maintain_blend_s``,
     ``track_match_mm``/``track_match_deg`` (a re-insertion this close to an earlier track reuses it),
     ``rate_hz`` (servo rate; the passivity bounds depend on it).
@@ -144,6 +148,7 @@ class NeedleParams:
     radial_kd: float = 30.0
     tolerance_mm: float = 1.0
     damping_band_mm: float = 0.5
+    radial_max_n: float = 2.0
     friction_ref_length_mm: float = 150.0
     stick_band_mm_s: float = 2.0
     stick_k: float = 1000.0
@@ -216,7 +221,7 @@ class NeedleParams:
                 )
         positive = (
             "capsule_puncture_n", "tumour_puncture_n", "friction_ref_length_mm", "stick_band_mm_s",
-            "damping_band_mm", "rate_hz", "track_match_mm", "track_match_deg",
+            "damping_band_mm", "rate_hz", "track_match_mm", "track_match_deg", "radial_max_n",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -265,7 +270,7 @@ class NeedleParams:
 
 _BLOCKS = ("capsule", "liver", "tumour", "tumor", "radial")
 _KEY_ALIASES = {"k_p": "kp", "k_d": "kd"}
-_RADIAL_PLAIN = ("tolerance_mm", "damping_band_mm")
+_RADIAL_PLAIN = ("tolerance_mm", "damping_band_mm")  # radial.max_n → radial_max_n
 
 
 def _flatten(params: Mapping[str, Any], where: str) -> dict[str, Any]:
@@ -373,17 +378,22 @@ def radial_guidance(
     kd: float,
     tolerance_mm: float,
     damping_band_mm: float,
+    max_n: float = math.inf,
 ) -> tuple[float, float]:
     """Eq. (1) with a tolerance capsule: body-frame radial force (N) for offset ``e`` towards the line.
 
     ``e`` points from the needle to the planned line (mm); ``v`` is the radial velocity (mm/s). Zero inside
-    the capsule (|e| ≤ t); outside, ``kp·(|e| − t)`` towards the line plus ``kd·v`` opposing motion, the
-    damper faded in linearly over ``damping_band_mm`` so the force is continuous at |e| = t.
+    the capsule (|e| ≤ t); outside, ``kp·(|e| − t)`` (at most ``max_n``) towards the line plus ``kd·v``
+    opposing motion, the damper faded in linearly over ``damping_band_mm`` so the force is continuous at
+    |e| = t.
     """
     r = math.sqrt(e_y_mm * e_y_mm + e_z_mm * e_z_mm)
     if r <= tolerance_mm:
         return 0.0, 0.0
-    spring = kp * (r - tolerance_mm) * 1e-3 / r
+    f_spring = kp * (r - tolerance_mm) * 1e-3
+    if f_spring > max_n:  # saturation keeps the force continuous
+        f_spring = max_n
+    spring = f_spring / r
     w = (r - tolerance_mm) / damping_band_mm
     if w > 1.0:
         w = 1.0
@@ -452,6 +462,7 @@ class NeedleTissueModel:
         self._contact_d_mm = p.contact_d * 1e-3
         self._kp_mm = p.radial_kp * 1e-3
         self._kd_mm = p.radial_kd * 1e-3
+        self._radial_max = p.radial_max_n
         self._blend_rate = self._dt / p.maintain_blend_s
         self._match_cos = math.cos(math.radians(p.track_match_deg))
         self.events: list[tuple[str, float]] = []
@@ -582,7 +593,10 @@ class NeedleTissueModel:
         tol = self.params.tolerance_mm
         f_y = f_z = 0.0
         if r > tol:
-            spring = self._kp_mm * (r - tol) / r
+            f_spring = self._kp_mm * (r - tol)
+            if f_spring > self._radial_max:
+                f_spring = self._radial_max
+            spring = f_spring / r
             w = (r - tol) / self.params.damping_band_mm
             damp = self._kd_mm * (w if w < 1.0 else 1.0)
             f_y = spring * e_y - damp * (vx * yx + vy * yy + vz * yz)
@@ -689,27 +703,54 @@ class NeedleTissueModel:
         if layer != TUMOUR_SURFACE and v > 0.0 and s > tr.max_s:
             k_cut = p.tumour_k_cut if layer == TUMOUR else p.liver_k_cut
             f_tip -= k_cut * v * 1e-3
-        # Karnopp friction with a stick anchor
+        # Karnopp friction rendered through an anchor (a bristle): the friction force is always
+        # −k·(s − anchor). Sliding drags the anchor along at the dynamic level; sticking freezes it, so the
+        # force is continuous at stick onset and unloads through zero when the hand reverses, storing no
+        # more energy than the hand's own work put into it (a preloaded anchor would pump a limit cycle).
         eps = self._eps
+        k = self._stick_k_mm
         state = self._fric_state
         if state == _STICK:
-            f = -self._stick_k_mm * (s - self._anchor) - self._stick_d_mm * v
-            if f > f_sta or f < -f_sta:
-                state = _BREAKAWAY
-                self._break_dir = 1.0 if f < 0.0 else -1.0  # the hand pushed against the friction
-            elif v > 2.0 * eps or v < -2.0 * eps:
-                state = _SLIP
-            else:
+            spring = -k * (s - self._anchor)
+            if spring > f_sta or spring < -f_sta:
+                state = _BREAKAWAY  # the hand's load exceeded the static level
+                self._break_dir = 1.0 if spring < 0.0 else -1.0  # the direction the hand pushes
+            else:  # only the load ends sticking: a fast reversal unloads the anchor through zero first
+                f = spring - self._stick_d_mm * v
                 self._f_fric = f
                 return f_tip + f, layer, 1
         if state == _BREAKAWAY:
-            if v > eps or v < -eps:
+            # until the speed leaves the band its sign is noise: keep the breakaway direction
+            along = v * self._break_dir
+            if along > eps:
                 state = _SLIP
-            else:
+            elif along >= -eps:
                 f = -self._break_dir * f_dyn
+                self._anchor = s + f / k
                 self._fric_state = state
                 self._f_fric = f
                 return f_tip + f, layer, 0
+            else:  # the hand reversed before sliding got going: stick with the anchor where it is
+                f = -k * (s - self._anchor)
+                self._fric_state = _STICK
+                self._f_fric = f
+                return f_tip + f, layer, 1
+        if -eps < v < eps and f_sta > 0.0:
+            # stick: freeze the anchor where sliding left it (same force as the last tick)
+            f = self._f_fric
+            if f > f_sta or f < -f_sta:  # slip damping can exceed the static level: hold at the limit
+                f = f_sta if f > 0.0 else -f_sta
+            self._anchor = s + f / k
+            self._fric_state = _STICK
+            self._f_fric = f
+            return f_tip + f, layer, 1
+        f = -(f_dyn + c_eff * (v if v > 0.0 else -v))
+        if v < 0.0:
+            f = -f
+        self._anchor = s + f / k  # dragged along
+        self._fric_state = _SLIP
+        self._f_fric = f
+        return f_tip + f, layer, 0
         # slip
         if -eps < v < eps and f_sta > 0.0:
             # enter stick with the anchor placed so that the force does not jump

@@ -60,11 +60,12 @@ DEFAULTS: dict[str, float] = {
     "force_noise_n": 0.02,  # perceptual noise on the felt force
     "radial_threshold_n": 0.08,  # a lateral push this strong is felt as guidance
     "follow_gain_mm_per_ns": 3.0,  # how readily it yields to a felt guidance force
+    "wall_n": 0.3,  # a lateral force this strong feels like a firm channel wall, which it learns to trust
     "reaction_s": 0.18,
     "entry_scan_mm": 0.9,  # scan before entering when the lateral uncertainty exceeds this
     "recheck_mm": 1.6,  # scan during insertion when the lateral uncertainty exceeds this
     "finish_mm": 0.8,  # finish without a confirming scan only below this uncertainty
-    "accept_mm": 1.25,  # a tip this close to the tumour centroid (its radius) is "in the tumour"
+    "accept_mm": 2.0,  # a tip this close to the centroid touches the 2.5 mm tumour on the image: done
     "margin_mm": 6.0,  # stop this far before the believed target to check, unless a cue is trusted
     "overshoot_mm": 3.0,  # when trusting a cue, advance at most this far past the believed target
     "preentry_mm": 8.0,  # where to put the tip above the incision point before entering
@@ -107,6 +108,7 @@ class VirtualNeedleOperator(Participant):
         self.traits: dict[str, float] | None = None
         self.history: list[dict[str, Any]] = []  # what it remembers of its own trials
         self.trust_cue: dict[str, bool] = {}  # per scenario label: has a force cue marked the target?
+        self.trust_guide: dict[str, bool] = {}  # per scenario label: has a firm guidance channel been felt?
 
     # ------------------------------------------------------------------ trial set-up
     def _draw_traits(self, rng: np.random.Generator) -> dict[str, float]:
@@ -163,7 +165,13 @@ class VirtualNeedleOperator(Participant):
         self._felt_radial = 0.0
         self._corrections = 0
         self._prev_ref = home
-        self._trial = {"condition": info.condition, "visual": info.visual, "cue": False, "radial_felt_s": 0.0}
+        self._trial = {
+            "condition": info.condition,
+            "visual": info.visual,
+            "cue": False,
+            "wall": False,
+            "radial_felt_s": 0.0,
+        }
         self._action = self._make_action(home, ())
 
     # ------------------------------------------------------------------ helpers
@@ -215,7 +223,8 @@ class VirtualNeedleOperator(Participant):
 
     def _make_plan(self, reading: CTReading) -> None:
         t, m = reading.tumour_mm, reading.marker_mm
-        assert t is not None and m is not None
+        if t is None or m is None:
+            return
         d = (t[0] - m[0], t[1] - m[1], t[2] - m[2])
         length = _norm(d)
         u = (d[0] / length, d[1] / length, d[2] / length)
@@ -234,10 +243,14 @@ class VirtualNeedleOperator(Participant):
             "entry": (m[0] - pre * u[0], m[1] - pre * u[1], m[2] - pre * u[2]),
         }
 
+    def _need_plan(self) -> dict[str, Any]:
+        if self._plan is None:
+            raise RuntimeError("virtual_needle_operator: acting on a plan before a scan produced one")
+        return self._plan
+
     def _depth(self, b: tuple[float, float, float]) -> float:
         """Believed depth of the tip along the planned path, from the marker (mm)."""
-        pl = self._plan
-        assert pl is not None
+        pl = self._need_plan()
         m, u = pl["marker"], pl["u"]
         return (b[0] - m[0]) * u[0] + (b[1] - m[1]) * u[1] + (b[2] - m[2]) * u[2]
 
@@ -247,12 +260,20 @@ class VirtualNeedleOperator(Participant):
         self._move = {"kind": "minjerk", "t0": t, "T": max(dist / speed, 0.3), "a": tuple(start), "b": tuple(goal)}
 
     def _start_line(
-        self, start: tuple[float, ...], direction: tuple[float, ...], origin: tuple[float, ...], stop: float, v: float
+        self,
+        start: tuple[float, ...],
+        direction: tuple[float, ...],
+        origin: tuple[float, ...],
+        stop: float,
+        v: float,
+        aim: tuple[float, ...] | None = None,
     ) -> None:
-        """Advance the reference along ``direction`` until the believed tip is ``stop`` mm past ``origin``.
+        """Advance the reference until the believed tip is ``stop`` mm past ``origin`` along ``direction``.
 
-        The reference may lead the believed tip (tissue resists, the hand is compliant) by at most
-        ``push_mm``: beyond that the operator gives up this push and stops.
+        With ``aim`` the reference heads for that point (re-aimed at every decision, so an offset seen on
+        an image is steered out), else it moves along ``direction``. The reference may lead the believed
+        tip (tissue resists, the hand is compliant) by at most 5 mm: beyond that the operator gives up
+        this push and stops.
         """
         b = tuple(start)
         lead_done = (
@@ -261,6 +282,8 @@ class VirtualNeedleOperator(Participant):
         self._move = {
             "kind": "line",
             "dir": tuple(direction),
+            "axis": tuple(direction),
+            "aim": None if aim is None else tuple(aim),
             "origin": tuple(origin),
             "stop": stop,
             "v": v,
@@ -320,27 +343,41 @@ class VirtualNeedleOperator(Participant):
             self._felt_radial += self._dt
             if self._felt_radial > 0.2:
                 self._sig_lat = min(self._sig_lat, self.p["finish_mm"])
+            if f_rad > self.p["wall_n"] * th and self._phase == _INSERT:  # the channel, felt in tissue
+                self.trust_guide[self.info.condition] = True
+                self._trial["wall"] = True
         else:
             self._felt_radial = 0.0
+        if self._button >= 0.5 and self.trust_guide.get(self.info.condition, False):
+            # inside a channel it has felt to be firm, it takes the tip to be on the path laterally
+            self._sig_lat = min(self._sig_lat, 0.9 * self.p["finish_mm"])
         # axial cue: a rise above the running baseline while advancing deep in the liver
         mv = self._move
         if self._phase == _INSERT and self._plan is not None and self._button >= 0.5 and mv is not None:
             mv["moving_s"] = mv.get("moving_s", 0.0) + self._dt
             depth = self._depth(self._belief(percept))
-            if self._baseline is None or depth < 0.5 * self._plan["length"] or mv["moving_s"] < 0.6:
-                self._baseline = f_ax if self._baseline is None else self._baseline + 0.1 * (f_ax - self._baseline)
+            steady = mv["moving_s"] >= 0.5 and f_ax > 0.0  # sliding in, not starting, stopping or pulling
+            if self._baseline is None or depth < 0.5 * self._plan["length"]:
+                # learn what liver resistance feels like on the way in; it is kept for the whole trial
+                if steady:
+                    b0 = self._baseline
+                    self._baseline = f_ax if b0 is None else b0 + 0.1 * (f_ax - b0)
                 self._cue_run = 0.0
                 return
             rise = f_ax - self._baseline
-            if rise > max(self.p["force_threshold_n"] * th, self.p["force_weber"] * th * abs(self._baseline)):
+            need = max(self.p["force_threshold_n"] * th, self.p["force_weber"] * th * abs(self._baseline))
+            if mv["moving_s"] < 0.3:  # the start of every push feels stiffer (stiction): expect ~30 % more
+                need += 0.3 * abs(self._baseline)
+            if rise > need:
                 self._cue_run += self._dt
-                if self._cue_run >= 0.03 and not self._cue_felt:
+                if self._cue_run >= 0.05 and not self._cue_felt:
                     self._cue_felt = True
                     self._trial["cue"] = True
                     self._react_until = t + self.p["reaction_s"]
             else:
                 self._cue_run = 0.0
-                self._baseline += (self._dt / 0.3) * (f_ax - self._baseline)
+                if steady:
+                    self._baseline += (self._dt / 0.3) * (f_ax - self._baseline)
 
     def _decide(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
         p = self.p
@@ -412,8 +449,7 @@ class VirtualNeedleOperator(Participant):
         self._button = 1.0
         if nxt == _APPROACH:
             # reach the pre-entry point from further out along the path, so the tip never cuts the liver
-            pl = self._plan
-            assert pl is not None
+            pl = self._need_plan()
             self._phase = _APPROACH
             self._ref = b
             far = tuple(pl["entry"][i] - 20.0 * pl["u"][i] for i in range(3))
@@ -425,8 +461,7 @@ class VirtualNeedleOperator(Participant):
         return self._judge(t, percept)
 
     def _enter_insert(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        pl = self._plan
-        assert pl is not None
+        pl = self._need_plan()
         self._phase = _INSERT
         self._button = 1.0
         b = self._belief(percept)
@@ -438,13 +473,15 @@ class VirtualNeedleOperator(Participant):
             stop = pl["length"] + self.p["overshoot_mm"]
         else:
             stop = pl["length"] - self.p["margin_mm"]
-        self._start_line(b, pl["u"], pl["marker"], stop, self._v_ins)
+        extra = stop - pl["length"] if stop > pl["length"] else 0.0
+        u, tum = pl["u"], pl["tumour"]
+        aim = (tum[0] + extra * u[0], tum[1] + extra * u[1], tum[2] + extra * u[2])
+        self._start_line(b, u, pl["marker"], stop, self._v_ins, aim=aim)
         self._stop_reason = "depth"
         return ()
 
     def _insert_step(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        pl = self._plan
-        assert pl is not None
+        pl = self._need_plan()
         if self._cue_felt and self._react_until and t >= self._react_until:
             # a force cue: stop, hold, relax the push
             self._react_until = 0.0
@@ -453,13 +490,25 @@ class VirtualNeedleOperator(Participant):
         if mv is None:
             return self._stop(t, percept, "blocked")
         b = self._belief(percept)
-        o, d = mv["origin"], mv["dir"]
+        o, d = mv["origin"], mv["axis"]
         done = (b[0] - o[0]) * d[0] + (b[1] - o[1]) * d[1] + (b[2] - o[2]) * d[2]
         if done >= mv["stop"]:
             return self._stop(t, percept, self._stop_reason if self._stop_reason == "correct" else "depth")
         if mv["ref_s"] >= mv["max_ref"]:
             return self._stop(t, percept, "blocked")
-        if self._scans_allowed and self._sig_lat > self.p["recheck_mm"] and self._depth(b) < pl["length"] - 10.0:
+        depth = self._depth(b)
+        if self._scans_allowed and self._sig_lat > self.p["recheck_mm"] and depth < pl["length"] - 10.0:
+            self._stop_reason = "recheck"
+            self._relax(percept)
+            return self._scan_then(t, _INSERT)
+        if (
+            self._scans_allowed
+            and self._stop_reason == "depth"
+            and self.trust_cue.get(self.info.condition, False)
+            and depth >= pl["length"] - self.p["margin_mm"]
+            and self._sig_lat > self.p["finish_mm"]
+        ):
+            # going by feel for the depth, but the tip must be on line to meet the small tumour: check once
             self._stop_reason = "recheck"
             self._relax(percept)
             return self._scan_then(t, _INSERT)
@@ -491,8 +540,7 @@ class VirtualNeedleOperator(Participant):
 
     def _judge(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
         """Is the tip in the tumour? If not, correct towards it (advancing or withdrawing slowly)."""
-        pl = self._plan
-        assert pl is not None
+        pl = self._need_plan()
         b = self._belief(percept)
         tum = pl["tumour"]
         miss = math.dist(b, tum)
@@ -504,7 +552,6 @@ class VirtualNeedleOperator(Participant):
         self._button = 1.0
         self._ref = b
         self._cue_felt = False
-        self._baseline = None
         # aim at the centroid, stop there (by belief) and look again
         d = ((tum[0] - b[0]) / miss, (tum[1] - b[1]) / miss, (tum[2] - b[2]) / miss)
         self._start_line(b, d, b, miss, self._v_fin)
@@ -543,8 +590,14 @@ class VirtualNeedleOperator(Participant):
                 k = dt / 0.5
                 self._speed_dev += -k * self._speed_dev + p["speed_noise"] * math.sqrt(2 * k) * z[6]
                 step = mv["v"] * max(0.2, 1.0 + self._speed_dev) * dt
-                u = mv["dir"]
                 r = self._ref
+                aim = mv["aim"]
+                if aim is not None:
+                    d = (aim[0] - r[0], aim[1] - r[1], aim[2] - r[2])
+                    n = _norm(d)
+                    if n > 2.0:  # close to the aim point the direction is kept
+                        mv["dir"] = (d[0] / n, d[1] / n, d[2] / n)
+                u = mv["dir"]
                 self._ref = (r[0] + step * u[0], r[1] + step * u[1], r[2] + step * u[2])
                 mv["ref_s"] += step
         # lateral wobble (Ornstein–Uhlenbeck), stronger with a noisier hand
