@@ -139,6 +139,9 @@ def radial_profile(pending: Any, display: Mapping[str, Any] | None) -> dict[str,
         for b in np.unique(bins):
             sel = bins == b
             profile.append([round(float(rho[sel].mean()), 3), round(float(dz[sel].mean()), 4)])
+        if profile and profile[0][0] > 0.0:
+            # the contact rarely sits on a grid node; the model's displacement there is the full depth
+            profile.insert(0, [0.0, -round(float(frame.depth_mm), 4)])
     return {
         "depth_mm": float(frame.depth_mm),
         "contact_radius_mm": float(frame.contact_radius_mm),

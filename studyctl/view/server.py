@@ -23,6 +23,8 @@ import hmac
 import json
 import math
 import secrets
+import select
+import socket
 import threading
 import time
 from http import HTTPStatus
@@ -36,7 +38,7 @@ from studyctl.view.hub import FRAME_HZ, ViewHub
 
 POLL_S = 0.004
 TICK_INTERVAL_S = 0.1
-KEEPALIVE_S = 10.0
+KEEPALIVE_S = 2.0
 MAX_BODY = 64 * 1024
 STATIC = {
     "": ("index.html", "text/html; charset=utf-8"),
@@ -226,6 +228,9 @@ class _Handler(BaseHTTPRequestHandler):
         finally:
             hub.disconnect(client)
 
+    def _peer_closed(self) -> bool:
+        return _peer_closed(self.connection)
+
     def _pump(self, hub: ViewHub, client: str, role: str) -> None:
         write = self.wfile.write
         write(b"retry: 500\n\n" + sse("hello", {"client": client, "role": role, "server_time": hub.clock(),
@@ -244,6 +249,8 @@ class _Handler(BaseHTTPRequestHandler):
             sent_now = False
             if now - last_role_check > 0.25:
                 last_role_check = now
+                if self._peer_closed():
+                    return
                 hub.maintain()
                 new_role = hub.role(client)
                 if new_role != role:
@@ -286,6 +293,16 @@ class _Handler(BaseHTTPRequestHandler):
         write(sse("screen", {"version": hub.screen_version + 1, "screen": "ended"}))
 
 
+def _peer_closed(sock: socket.socket) -> bool:
+    """True when the browser has closed the stream (it never sends anything on it, so readable = gone)."""
+    try:
+        if not select.select([sock], [], [], 0)[0]:
+            return False
+        return sock.recv(1, socket.MSG_PEEK) == b""
+    except (OSError, ValueError):
+        return True
+
+
 class ViewServer:
     """The HTTP server of one participant view, in a background thread.
 
@@ -314,7 +331,6 @@ class ViewServer:
         bind = "127.0.0.1" if host == "localhost" else host
         try:
             if bind == "::1":
-                import socket
 
                 class _V6(_Server):
                     address_family = socket.AF_INET6
@@ -329,7 +345,7 @@ class ViewServer:
         self.port = int(self._httpd.server_address[1])
         self.allowed_hosts = {f"{h}:{self.port}" for h in LOOPBACK}
         self.allowed_origins = {f"http://{h}" for h in self.allowed_hosts}
-        self._thread = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": 0.2},
+        self._thread = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": 0.05},
                                         name="studyctl-view", daemon=True)
 
     @property
