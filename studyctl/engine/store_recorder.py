@@ -93,6 +93,19 @@ class _StoreSamples:
             self._writer.close()
 
 
+def _add_trial_row(store: StudyStore, tx, session_id: int, step, status: str, attempt: int,
+                   replaces: int | None = None) -> Trial:
+    """A trial row for a plan step; ``outcome`` starts with where in the plan it belongs."""
+    row = store.add_trial(
+        session_id, plan_position=int(step.trial_index or step.position), condition=step.condition,
+        block=step.block, repetition=step.repetition, placement=step.data.get("placement"),
+        time_limit_s=step.duration_s, status=status, replaces_trial_id=replaces,
+        started_at=utcnow() if status == "running" else None, tx=tx,
+    )
+    store.update_trial(row.id, outcome={"step": step.position, "attempt": attempt}, tx=tx)
+    return row
+
+
 def _context(position: int) -> str:
     return f"step:{position}"
 
@@ -136,12 +149,7 @@ class StoreRecorder:
                                t_mono=0.0, tx=tx)
             trials: list[TrialRecord] = []
             for step in plan.trials():
-                row = store.add_trial(
-                    sess.id, plan_position=int(step.trial_index or step.position), condition=step.condition,
-                    block=step.block, repetition=step.repetition, placement=step.data.get("placement"),
-                    time_limit_s=step.duration_s, status="planned", tx=tx,
-                )
-                store.update_trial(row.id, outcome={"step": step.position, "attempt": 1}, tx=tx)
+                row = _add_trial_row(store, tx, sess.id, step, "planned", 1)
                 trials.append(TrialRecord(row.id, step.position, 1, "planned", condition=step.condition))
             if participant.status == "enrolled":
                 store.set_participant_status(participant_id, "active", tx=tx)
@@ -277,14 +285,7 @@ class StoreRecorder:
             else:
                 previous = self._state.attempts(position)
                 replaces = previous[-1].trial_id if previous else None
-                row = self.store.add_trial(
-                    self.session_id, plan_position=int(step.trial_index or position), condition=step.condition,
-                    block=step.block, repetition=step.repetition, placement=step.data.get("placement"),
-                    time_limit_s=step.duration_s, status="running", replaces_trial_id=replaces,
-                    started_at=utcnow(), tx=tx,
-                )
-                tid = row.id
-                self.store.update_trial(tid, outcome=outcome, tx=tx)
+                tid = _add_trial_row(self.store, tx, self.session_id, step, "running", attempt, replaces=replaces).id
             self._append(tx, "trial_start", {**dict(info), "position": position, "trial_id": tid}, t, None)
         self._state.started.add(position)
         self._state.trials = [r for r in self._state.trials if r.trial_id != tid]
@@ -346,13 +347,8 @@ class StoreRecorder:
                 if step.position in known:
                     continue
                 prev = [r for r in self._state.trials if r.position == step.replaces]
-                row = self.store.add_trial(
-                    self.session_id, plan_position=int(step.trial_index or step.position), condition=step.condition,
-                    block=step.block, repetition=step.repetition, placement=step.data.get("placement"),
-                    time_limit_s=step.duration_s, status="planned",
-                    replaces_trial_id=prev[-1].trial_id if prev else None, tx=tx,
-                )
-                self.store.update_trial(row.id, outcome={"step": step.position, "attempt": 1}, tx=tx)
+                row = _add_trial_row(self.store, tx, self.session_id, step, "planned", 1,
+                                     replaces=prev[-1].trial_id if prev else None)
                 new_rows.append(TrialRecord(row.id, step.position, 1, "planned", condition=step.condition))
         self._state.plan = plan
         self._state.trials.extend(new_rows)
