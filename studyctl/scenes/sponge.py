@@ -122,7 +122,8 @@ class SpongePhantomScene(Scene):
         ``placement`` is ``{"sites": {"soft": 3, "medium": 5, "hard": 1}}`` (1-based holes), as the
         schedule stores it; a plain ``{"soft": 3, ...}`` mapping is accepted too.
         """
-        raw = dict(spec.get("params", {}) or {}) if isinstance(spec, Mapping) else {}
+        # The engine passes the protocol's scene params directly; {"params": {...}} is accepted too.
+        raw = dict((spec.get("params", spec) if isinstance(spec, Mapping) else {}) or {})
         params = validate_params("sponge_phantom scene", raw, cls.PARAMS)
         _check_geometry(params)
         sites = placement.get("sites", placement) if isinstance(placement, Mapping) else {}
