@@ -35,6 +35,7 @@ class TerminalParticipant(Participant):
 
     name: ClassVar[str] = "person"
     virtual: ClassVar[bool] = False
+    practises: ClassVar[bool] = True  # familiarisation runs the condition's feedback live for this person
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         self.params = dict(params or {})

@@ -259,9 +259,65 @@ class SessionRunner:
         title = f"Familiarisation: {self._condition_label(step.condition)}"
         if step.data.get("instructions"):
             self.ui.instructions(step, str(step.data["instructions"]))
+        if self._can_practise(step):
+            return self._practise(step, can_end)
         res = self.ui.timer(title, float(step.duration_s or 0.0), self.clock, can_end_early=can_end,
                             purpose="familiarisation")
         return {"elapsed_s": res.elapsed_s, "ended_early": res.ended_early, "paused_s": res.paused_s}
+
+    def _can_practise(self, step: Step) -> bool:
+        """A person practises with the condition's feedback running (device and controller live)."""
+        cond = self.plan.conditions.get(step.condition) if step.condition else None
+        return (not self.virtual and self.ui.interactive and cond is not None and not cond.manual
+                and bool(getattr(self.participant, "practises", False)) and bool(step.duration_s))
+
+    def _practice_placement(self, step: Step) -> dict[str, Any]:
+        """The example phantom: the items of the condition's trials at sites 1, 2, … (shown to the
+        participant, never a trial's hidden placement)."""
+        trial = next((s for s in self.plan.steps if s.kind == "trial" and s.condition == step.condition), None)
+        sites = dict((trial.data.get("placement") or {}).get("sites") or {}) if trial is not None else {}
+        example = {item: i for i, item in enumerate(sorted(sites), start=1)}
+        return {"sites": example, "orientation_deg": 0.0 if example else None}
+
+    def _practise(self, step: Step, can_end: bool) -> dict[str, Any]:
+        cond = self.plan.conditions[step.condition]
+        rate = self._rate(cond)
+        placement = self._practice_placement(step)
+        practice_step = replace(step, data={**dict(step.data), "placement": placement})
+        info = TrialInfo(
+            condition=cond.id, time_limit_s=float(step.duration_s), rate_hz=rate, visual=cond.visual,
+            public={"practice": True, "example_sites": placement["sites"], "report": asdict(self.plan.report),
+                    "requests": ["finish"] if can_end else []},
+        )
+        streams = trial_streams(self._seed, step.position)
+        clock = self._child_clock()
+        def should_stop() -> str | None:
+            self.ui.trial_tick(clock.now() - t0)
+            control = self.ui.poll_control()
+            if control is not None and control.kind in ("abort", "pause"):
+                return "abort"
+            return None
+
+        def on_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
+            self.rec.event(f"practice_{kind}", payload, t=t, position=step.position, commit=kind == "device_fault")
+
+        self.ui.trial_begin(practice_step, info.time_limit_s)
+        t0 = clock.now()
+        try:
+            outcome = self._execute(practice_step, cond, info, streams, None, should_stop, on_event, clock,
+                                    samples=False)
+        except DeviceError as exc:
+            self.rec.set_status("interrupted", f"device fault in practice: {exc}")
+            sid = self.rec.state().session_id
+            raise SessionError(f"device fault during familiarisation: {exc}. The device is in its safe state; fix it, "
+                               f"then `studyctl resume {sid}`") from None
+        finally:
+            if clock is not self.clock:
+                self.clock.sleep_until(self.clock.now() + (clock.now() - t0))
+        summary = {"elapsed_s": outcome.duration_s, "ended_early": outcome.ended_by == "finish", "paused_s": 0.0,
+                   "practice": True, "ended_by": outcome.ended_by, "ticks": outcome.ticks}
+        self.ui.trial_end(practice_step, {**summary, "duration_s": outcome.duration_s, "status": "practice"})
+        return summary
 
     def _condition_label(self, condition: str | None) -> str:
         if condition is None:
@@ -558,7 +614,8 @@ class SessionRunner:
         return ref
 
     def _execute(
-        self, step, cond, info, streams: TrialStreams, tid, should_stop, on_event, trial_clock: Clock
+        self, step, cond, info, streams: TrialStreams, tid, should_stop, on_event, trial_clock: Clock,
+        *, samples: bool = True,
     ) -> TrialOutcome:
         plan = self.plan
         controller_name = None if cond.manual else cond.controller
@@ -573,7 +630,8 @@ class SessionRunner:
         controller = build_controller(self.factory, controller_name, cond.params, scene) if controller_name else None
         ref = {"plugin": MANUAL_TOUCH_DEVICE} if cond.manual else self._device_ref()
         device = build_device(self.factory, ref["plugin"], ref.get("params", {}), scene, streams.device)
-        sink = None if cond.manual else self.rec.samples(tid, [])  # a manual trial has no instrument to log
+        # a manual trial has no instrument to log; practice is not data
+        sink = None if cond.manual or not samples else self.rec.samples(tid, [])
         try:
             device.open()
             return run_trial(

@@ -289,6 +289,13 @@ class TerminalUI:
         self.scans = self.reports = 0
         c = self.term.console
         self.term.cooked()
+        if step.kind == "familiarisation":
+            c.print(Text(f"Practice — condition {step.condition}, up to {fmt_clock(time_limit_s)}; the feedback "
+                         "is on and the example tumour sites are marked", style="bold"))
+            c.print(Text("f ends the practice    coordinator: a stop the practice    Ctrl-C stop", style="dim"))
+            self.term.ask("Press Enter to start the practice ")
+            self.term.raw()
+            return
         c.print(Text(f"Trial {step.trial_index} — condition {step.condition}, time limit {fmt_clock(time_limit_s)}",
                      style="bold"))
         c.print(Text("participant: s scan · r report · f finished    coordinator: p pause · a abort · "
@@ -306,6 +313,9 @@ class TerminalUI:
         self.term.cooked()
         status = summary.get("status")
         how = {"finish": "finished", "time_limit": "time limit reached"}.get(summary.get("ended_by"), status)
+        if step.kind == "familiarisation":
+            self.term.say(f"Practice: {how} after {summary.get('duration_s', 0):.1f} s")
+            return
         self.term.say(f"Trial {step.trial_index}: {how} after {summary.get('duration_s', 0):.1f} s "
                       f"({summary.get('scans', 0)} scans, {summary.get('reports', 0)} reports)")
         if summary.get("reason"):

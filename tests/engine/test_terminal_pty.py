@@ -112,6 +112,16 @@ def workspace(tmp_path):
     return ws, env
 
 
+def practise(term: Term) -> None:
+    """Familiarisation: the feedback runs live, the countdown is drawn, f ends the practice early."""
+    term.expect(r"Practice — condition \w+, up to 0:03")
+    term.expect("Press Enter to start the practice")
+    term.send("\r")
+    term.expect(r"time left 0:0\d")
+    term.send("f")
+    term.expect(r"Practice: finished after \d+\.\d s")
+
+
 def studyctl(*args: str) -> list[str]:
     return [sys.executable, "-m", "studyctl", *args]
 
@@ -122,10 +132,8 @@ def test_person_session_at_the_terminal(workspace):
     term.expect("Find the tumours")
     term.expect("Press Enter when ready")
     term.send("\r")
-    # familiarisation: visible countdown, ended early with Enter
-    term.expect(r"Familiarisation: .*: 0:03 \(press Enter to end early\)")
-    term.expect(r"left")
-    term.send("\r")
+    # familiarisation: practice with the feedback live, a visible countdown, ended early with f
+    practise(term)
     term.expect(r"Trial 1 — condition (\w+), time limit 0:20")
     term.expect("Press Enter to start the trial")
     term.send("\r")
@@ -145,8 +153,7 @@ def test_person_session_at_the_terminal(workspace):
     term.send("4\r")
     # break (1 s), then the second condition; the coordinator aborts the trial with a reason
     term.expect(r"Break: 0:01")
-    term.expect(r"Familiarisation")
-    term.send("\r")
+    practise(term)
     term.expect(r"Trial 2 — condition")
     term.expect("Press Enter to start the trial")
     term.send("\r")
@@ -184,7 +191,10 @@ def test_person_session_at_the_terminal(workspace):
         assert set(responses.instrument_version) == {"1.0"}
         events = store.events_frame(1)
         assert {"step_enter", "step_done", "trial_start", "report", "coordinator_abort",
-                "coordinator_mark_invalid"} <= set(events.kind)
+                "coordinator_mark_invalid", "practice_trial_loop_start", "practice_trial_loop_end"} <= set(events.kind)
+        practice = [p for k, p in zip(events.kind, events.payload, strict=True)
+                    if k == "step_done" and p.get("practice")]
+        assert len(practice) == 2 and all(p["ended_by"] == "finish" and p["ended_early"] for p in practice)
 
 
 def test_ctrl_c_in_a_trial_stops_safely_and_resumes(workspace):
@@ -192,8 +202,7 @@ def test_ctrl_c_in_a_trial_stops_safely_and_resumes(workspace):
     term = Term(studyctl("run", "--participant", "PTY-AAAAA"), ws, env)
     term.expect("Press Enter when ready")
     term.send("\r")
-    term.expect("Familiarisation")
-    term.send("\r")
+    practise(term)
     term.expect("Press Enter to start the trial")
     term.send("\r")
     term.expect(r"time left")
@@ -214,8 +223,7 @@ def test_ctrl_c_in_a_trial_stops_safely_and_resumes(workspace):
     term.send("f")
     term.expect(r"Answer \(1–5\):")
     term.send("3\r")
-    term.expect(r"Familiarisation")
-    term.send("\r")
+    practise(term)
     term.expect("Press Enter to start the trial")
     term.send("\r")
     term.expect(r"time left")
