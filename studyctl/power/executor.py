@@ -12,6 +12,7 @@ import contextlib
 import hashlib
 import logging
 import os
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -77,15 +78,22 @@ class DaskBackend:
     def local(cls, workers: int, memory_limit: int | None) -> DaskBackend:
         """Start a LocalCluster of ``workers`` single-threaded worker processes on 127.0.0.1."""
         LocalCluster, Client = _distributed("LocalCluster", "Client")  # noqa: N806 - class names
-        cluster = LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            memory_limit=memory_limit or 0,
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-        )
+        import dask
+
+        # The workers' statistical profiler samples every thread's stack 100 times a second; a replicate is
+        # pure Python for minutes, so it would only take GIL time from it (nannies hand this config on).
+        with dask.config.set({"distributed.worker.profile.enabled": False}), warnings.catch_warnings():
+            # No dashboard is started; the scheduler's small HTTP server falls back to a free port by itself.
+            warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
+            cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                memory_limit=memory_limit or 0,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
         try:
             client = Client(cluster, timeout=CONNECT_TIMEOUT_S * 3)
             client.wait_for_workers(workers, timeout=120)
@@ -106,6 +114,7 @@ class DaskBackend:
         """
         (Client,) = _distributed("Client")  # noqa: N806 - class name
         target = address if "://" in address else f"tcp://{address}"
+        _probe(address, target)
         try:
             client = Client(target, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
         except (OSError, TimeoutError) as exc:
@@ -169,7 +178,7 @@ class DaskBackend:
             for n, r in tasks
         ]
         try:
-            for future in as_completed(futures):
+            for future in as_completed(futures, loop=self.client.loop):
                 try:
                     result = future.result()
                 except StudyctlError:
@@ -186,6 +195,31 @@ class DaskBackend:
                 future.release()
         finally:
             self.client.cancel(futures)
+
+
+def _probe(address: str, target: str) -> None:
+    """Fail at once, with the reason, when nothing listens at a tcp:// address (Dask would retry until
+    its timeout and then only say it timed out)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(target)
+    if parts.scheme != "tcp":
+        return
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host = port = None
+    if not host or not port:
+        raise UsageError(f"--scheduler {address!r}: expected HOST:PORT or tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786)")
+    try:
+        with socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise UsageError(f"cannot reach the Dask scheduler at {address} ({reason}); start one with "
+                         f"`dask scheduler` and workers with `dask worker {target}`, or omit --scheduler to use a "
+                         "local cluster") from None
 
 
 def _distributed(*names: str) -> tuple[Any, ...]:

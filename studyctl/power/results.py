@@ -96,6 +96,15 @@ class ResultsFile:
             )
         return cls(path, conn)
 
+    @staticmethod
+    def finished(folder: str | Path, fingerprint: dict[str, Any]) -> set[tuple[int, int]]:
+        """The replicates already in ``folder``'s results file (empty when there is none), without creating
+        anything; UsageError when the file holds another setup's replicates (as :meth:`open`)."""
+        if not (Path(folder).expanduser() / RESULTS_FILE).is_file():
+            return set()
+        with ResultsFile.open(folder, fingerprint) as results:
+            return results.done()
+
     def close(self) -> None:
         self._conn.close()
 
@@ -124,6 +133,7 @@ class ResultsFile:
                     result.trials_not_completed,
                     result.clipped,
                     result.seconds,
+                    result.cpu_seconds,
                     result.peak_rss_mb,
                     result.worker,
                 ),

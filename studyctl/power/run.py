@@ -90,32 +90,35 @@ def run_power(
     t0 = time.perf_counter()
     out = Path(out_dir).expanduser()
     tasks = spec.tasks()
-    with ResultsFile.open(out, spec.fingerprint()) as results:
-        done = results.done()
-        todo = [t for t in tasks if t not in done]
-        finished = len(tasks) - len(todo)
-        if on_progress is not None:
-            on_progress(finished, len(tasks), None)
-        backend_desc = "none (every replicate was already in the results file)"
-        if todo:
-            backend = open_backend(scheduler, workers, spec.memory_limit)
-            backend_desc = backend.info.describe()
-            if on_backend is not None:
-                on_backend(backend_desc)
-            count = [finished]
+    # Connect before writing anything: an unreachable scheduler leaves no trace in the report folder.
+    todo = [t for t in tasks if t not in ResultsFile.finished(out, spec.fingerprint())]
+    backend = open_backend(scheduler, workers, spec.memory_limit) if todo else None
+    backend_desc = "none (every replicate was already in the results file)"
+    try:
+        with ResultsFile.open(out, spec.fingerprint()) as results:
+            done = results.done()
+            todo = [t for t in tasks if t not in done]
+            finished = len(tasks) - len(todo)
+            if on_progress is not None:
+                on_progress(finished, len(tasks), None)
+            if backend is not None and todo:
+                backend_desc = backend.info.describe()
+                if on_backend is not None:
+                    on_backend(backend_desc)
+                count = [finished]
 
-            def keep(result: ReplicateResult) -> None:
-                results.add(result)
-                count[0] += 1
-                if on_progress is not None:
-                    on_progress(count[0], len(tasks), result)
+                def keep(result: ReplicateResult) -> None:
+                    results.add(result)
+                    count[0] += 1
+                    if on_progress is not None:
+                        on_progress(count[0], len(tasks), result)
 
-            try:
                 backend.run(spec, todo, keep)
-            finally:
-                backend.close()
-        rows = results.rows(tasks)
-        reps = results.replicates(tasks)
+            rows = results.rows(tasks)
+            reps = results.replicates(tasks)
+    finally:
+        if backend is not None:
+            backend.close()
     per_size = {n: int((reps["participants"] == n).sum()) for n in spec.sizes}
     table = summarise(rows, spec.sizes, per_size)
     from studyctl.power.population import population_model

@@ -78,7 +78,9 @@ def summarise(
         Level of the Wilson intervals.
     """
     per_size = replicates if isinstance(replicates, dict) else {n: int(replicates) for n in sizes}
+    rows = _keyed(rows)
     keys = _row_keys(rows)
+    shown = _shown_levels(rows)
     out = []
     for n in sizes:
         total = int(per_size.get(n, 0))
@@ -95,27 +97,47 @@ def summarise(
             name = "" if g is None else next((s for s in g["effect_size_name"] if s), "")
             p = np.array([], dtype=float) if g is None else g["p"].to_numpy(dtype=float)
             p = p[np.isfinite(p)]
-            out.append(
-                {
-                    "participants": n,
-                    **dict(zip(KEY, key, strict=True)),
-                    "replicates": total,
-                    "computed": computed,
-                    "significant": sig,
-                    "power": ci.estimate,
-                    "power_ci_low": ci.lower,
-                    "power_ci_high": ci.upper,
-                    "ci_level": confidence,
-                    "p_median": float(np.median(p)) if p.size else np.nan,
-                    "effect_size_name": name,
-                    "effect_n": int(eff.size),
-                    "effect_mean": float(eff.mean()) if eff.size else np.nan,
-                    "effect_sd": float(eff.std(ddof=1)) if eff.size > 1 else np.nan,
-                    **{c: float(q) for c, q in zip(COLUMNS[-5:], qs, strict=True)},
-                }
-            )
+            fields = dict(zip(KEY, key, strict=True))
+            if not fields["kind"]:
+                fields["kind"], fields["groups"] = shown.get(key, ("", ""))
+            out.append({
+                "participants": n, **fields, "replicates": total, "computed": computed,
+                "significant": sig, "power": ci.estimate, "power_ci_low": ci.lower, "power_ci_high": ci.upper,
+                "ci_level": confidence, "p_median": float(np.median(p)) if p.size else np.nan,
+                "effect_size_name": name, "effect_n": int(eff.size),
+                "effect_mean": float(eff.mean()) if eff.size else np.nan,
+                "effect_sd": float(eff.std(ddof=1)) if eff.size > 1 else np.nan,
+                **{c: float(q) for c, q in zip(COLUMNS[-5:], qs, strict=True)},
+            })
     frame = pd.DataFrame(out, columns=list(COLUMNS))
     return PowerTable(frame=frame, sizes=tuple(sizes), replicates=max(per_size.values(), default=0))
+
+
+def _keyed(rows: pd.DataFrame) -> pd.DataFrame:
+    """Rows with ``kind`` and ``groups`` blanked where they are not part of a test's identity.
+
+    An omnibus or two-sample row is one test per (test, metric, split) whatever levels had data in a
+    replicate (``groups`` lists them, and a row that could not be computed may say ``omnibus`` for a
+    two-sample test); a pairwise or post-hoc row is identified by its pair.
+    """
+    out = rows.copy()
+    single = out["kind"].isin(("omnibus", "two_sample"))
+    out["shown_kind"], out["shown_levels"] = out["kind"], out["groups"]
+    out.loc[single, "groups"] = ""
+    out.loc[single, "kind"] = ""
+    return out
+
+
+def _shown_levels(rows: pd.DataFrame) -> dict[tuple, tuple[str, str]]:
+    """For keys with blanked kind and groups: the (kind, levels) of computed rows seen most often."""
+    out: dict[tuple, tuple[str, str]] = {}
+    single = rows[rows["kind"] == ""]
+    for key, g in single.groupby(list(KEY), sort=False, dropna=False):
+        ok = g[g["status"] == "ok"]
+        pick = ok if not ok.empty else g
+        counts = pick[["shown_kind", "shown_levels"]].value_counts()
+        out[tuple(key)] = tuple(counts.index[0]) if not counts.empty else ("", "")
+    return out
 
 
 def _row_keys(rows: pd.DataFrame) -> list[tuple]:
