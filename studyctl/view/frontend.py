@@ -157,12 +157,12 @@ class ViewUI:
         self._trial_label: dict[str, Any] = {}
 
     # -- log ---------------------------------------------------------------------------------------
-    def flush(self, trial_id: int | None = None, trial: TrialView | None = None) -> int:
+    def flush(self, trial_id: int | None = None, trial: TrialView | None = None, *, practice: bool = False) -> int:
         """Write the view's queued log (and a finished trial's frame log) as session events."""
         rows: list[tuple[str, dict[str, Any], float | None, int | None]] = []
         rows += [(kind, payload, None, None) for kind, payload in self.hub.drain_log()]
         if trial is not None:
-            rows += _trial_rows(trial, trial_id)
+            rows += _trial_rows(trial, trial_id, practice=practice)
         if self.rec is None or not rows:
             return 0
         for i, (kind, payload, t, tid) in enumerate(rows):
@@ -258,6 +258,7 @@ class ViewUI:
         self._trial_label = {
             "trial": step.trial_index,
             "condition": step.condition,
+            "practice": step.kind == "familiarisation",
             "time_limit_s": _finite(time_limit_s),
         }
         self.hub.show("trial_ready", prompt="start", **self._trial_label)
@@ -282,7 +283,8 @@ class ViewUI:
             scans=summary.get("scans"),
             reports=summary.get("reports"),
         )
-        self.flush(self._trial_id(step), trial)
+        practice = step.kind == "familiarisation"
+        self.flush(None if practice else self._trial_id(step), trial, practice=practice)
         self.inner.trial_end(step, summary)
 
     def poll_control(self) -> Control | None:
@@ -325,8 +327,12 @@ def _instructions_title(step: Step) -> str:
     return "Practice" if step.kind == "familiarisation" else "Instructions"
 
 
-def _trial_rows(trial: TrialView, trial_id: int | None) -> list[tuple[str, dict[str, Any], float | None, int | None]]:
-    """What the participant saw in a trial and when: each scan, and real-time frames in batches."""
+def _trial_rows(
+    trial: TrialView, trial_id: int | None, *, practice: bool = False
+) -> list[tuple[str, dict[str, Any], float | None, int | None]]:
+    """What the participant saw in a trial (or practice) and when: each scan, real-time frames in batches.
+
+    Times are trial (practice) times; practice rows carry ``"practice": true`` and no trial id."""
     # A frame drawn by several screens is logged once per screen (the log keeps the client).
     rows: list[tuple[str, dict[str, Any], float | None, int | None]] = []
     log = sorted(trial.log, key=lambda r: (r["drawn_t"], r["seq"]))
@@ -366,4 +372,7 @@ def _trial_rows(trial: TrialView, trial_id: int | None) -> list[tuple[str, dict[
                 trial_id,
             )
         )
+    if practice:
+        for _, payload, _, _ in rows:
+            payload["practice"] = True
     return rows

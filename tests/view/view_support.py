@@ -167,3 +167,48 @@ def wait_for(predicate: Callable[[], Any], timeout: float = 10.0, what: str = "c
             return value
         time.sleep(0.02)
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+class PtyProcess:
+    """A child process on a pseudo-terminal (a real coordinator's terminal); output is read continuously."""
+
+    def __init__(self, args: list[str], cwd, env: dict[str, str]) -> None:
+        pid, fd = pty.fork()
+        if pid == 0:  # child
+            os.chdir(cwd)
+            os.execvpe(args[0], args, env)
+        self.pid, self.fd = pid, fd
+        self.out = ""
+        self.status: int | None = None
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                data = os.read(self.fd, 65536)
+            except OSError:
+                return
+            if not data:
+                return
+            self.out += data.decode("utf-8", "replace")
+
+    def expect(self, pattern: str, timeout: float = 30.0):
+        import re
+
+        rx = re.compile(pattern)
+        return wait_for(lambda: rx.search(self.out), timeout, f"{pattern!r} on the terminal (got …{self.out[-300:]!r})")
+
+    def send(self, text: str) -> None:
+        os.write(self.fd, text.encode())
+
+    def wait(self, timeout: float = 30.0) -> int:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self.status = os.waitstatus_to_exitcode(status)
+                return self.status
+            time.sleep(0.05)
+        os.kill(self.pid, 9)
+        raise AssertionError(f"the process did not end in {timeout} s; output: …{self.out[-500:]!r}")

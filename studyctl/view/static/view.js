@@ -75,9 +75,12 @@
     es.addEventListener("screen", (e) => {
       const m = JSON.parse(e.data);
       if (m.version === screen.version && m.screen === screen.screen) return;
+      if (m.screen === "ended") {
+        ended = true; es.close(); setConn("session ended");
+        if (screen.screen === "done") return; // keep the closing words on screen
+      }
       screen = m;
       renderScreen();
-      if (m.screen === "ended") { ended = true; es.close(); setConn("session ended"); }
     });
     es.addEventListener("key", (e) => {
       const m = JSON.parse(e.data);
@@ -129,17 +132,21 @@
     document.body.dataset.answerable = answerable ? "yes" : "no";
     promptShownAt = pageNow();
     if (s.screen !== "trial") notice("");
-    if (s.screen === "trial_ready" || (s.screen === "trial" && s.trial !== shownTrial)) {
+    const trialKey = (s.practice ? "p" : "t") + s.trial + s.condition;
+    if (s.screen === "trial_ready" || (s.screen === "trial" && trialKey !== shownTrial)) {
       // a new trial: nothing of the previous one stays on screen
-      shownTrial = s.trial; lastFrame = null; lastT = null; reportMark = null;
+      shownTrial = trialKey; lastFrame = null; lastT = null; reportMark = null;
     }
-    const label = s.trial ? "Trial " + s.trial + (s.condition ? " · " + s.condition : "") : "studyctl";
+    const what = s.practice ? "Practice" : s.trial ? "Trial " + s.trial : "";
+    const label = what ? what + (s.condition ? " · " + s.condition : "") : "studyctl";
     $("heading").textContent = label;
     if (s.screen === "instructions") {
       $("ins-title").textContent = s.title || "Instructions";
       $("ins-text").textContent = s.text || "";
     } else if (s.screen === "trial_ready") {
-      $("ready-title").textContent = "Trial " + (s.trial || "") + (s.condition ? " — " + s.condition : "");
+      $("ready-title").textContent = (s.practice ? "Practice" : "Trial " + (s.trial || "")) +
+        (s.condition ? " — " + s.condition : "");
+      $("btn-start").textContent = s.practice ? "Start the practice" : "Start the trial";
       $("ready-limit").textContent = s.time_limit_s ? "Time limit " + fmt(s.time_limit_s) : "No time limit";
     } else if (s.screen === "timer") {
       $("timer-title").textContent = s.title || "";
@@ -147,7 +154,7 @@
       renderTrial(s);
     } else if (s.screen === "trial_over") {
       const how = { finish: "finished", time_limit: "time limit reached" }[s.ended_by] || (s.status || "");
-      $("over-text").textContent = "Trial " + (s.trial || "") + ": " + how +
+      $("over-text").textContent = (s.practice ? "Practice" : "Trial " + (s.trial || "")) + ": " + how +
         (s.duration_s != null ? " after " + Number(s.duration_s).toFixed(1) + " s" : "");
     } else if (s.screen === "item") {
       renderItem(s);
@@ -232,7 +239,7 @@
       for (const col of rep.columns) {
         const b = document.createElement("button");
         b.type = "button";
-        b.textContent = col + row;
+        b.textContent = col + " " + row;
         b.addEventListener("click", () => sendReport(col + " " + row));
         grid.append(b);
       }
