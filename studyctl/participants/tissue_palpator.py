@@ -31,6 +31,23 @@ Evidence at a press averages the presses within half ``cluster_radius_mm``; spot
 are reported at their contrast-weighted centroid (at most ``max_reports``, or the nodule count when told),
 one report per tick, then the participant finishes.
 
+Re-palpation stops when a spot is decided: a Wald sequential probability ratio test per spot (nodule with the
+contrast the survey suggested vs none, error rates ``follow_up_error``) over the re-palpation presses near it
+is checked before each follow-up press, so a clear spot is settled by one or two presses and an ambiguous one
+gets the whole 3 × 3 grid. The survey itself always covers the visible
+surface: with the nodule count unknown nothing the participant felt can tell it that no nodule remains.
+
+Direct touch (manual conditions: the device's feedback says ``direct_touch``, the bare finger on the phantom):
+the finger also feels the surface deformation over the pad, the cue that carries most of the information in
+judging softness; it is fused with the force/displacement cue by inverse-variance weighting
+(``cutaneous_ratio``), so one press's stiffness judgement is about three times finer than through a stylus.
+
+Questionnaires: an item that compares combined feedback with force feedback alone (seed 003's end question)
+is answered from the participant's own trials: whether the trials in which it perceived both cues (force and
+cursor) gave it stronger evidence than those in which it felt force only, judged with the visual Weber noise.
+The experience is remembered in the participant object; a session resumed in a new process has forgotten
+it and answers the scale's lowest code ("no difference"). Other items get the scale's middle code.
+
 Parameters (``params=``): see :data:`PARAMS`.
 """
 
@@ -99,6 +116,22 @@ PARAMS = (
     Param("follow_up_count", 5, low=0, high=50, kind=int, source="chosen: spots re-palpated at most"),
     Param("follow_up_spacing_mm", 4.0, low=0.5, high=20.0, unit="mm", source="chosen: a 3 × 3 local grid"),
     Param("max_reports", 6, low=1, high=100, kind=int, source="chosen"),
+    Param(
+        "follow_up_error",
+        0.05,
+        low=1e-4,
+        high=0.5,
+        source="chosen: Wald's SPRT error rates (α = β) at which a re-palpated spot counts as decided",
+    ),
+    Param(
+        "cutaneous_ratio",
+        0.354,
+        low=0.01,
+        high=10.0,
+        source="Bergmann Tiest & Kappers 2009 (IEEE ToH 2:189): compliance Weber fraction 15% by direct touch, "
+        "more than trebled without the finger's surface-deformation cue; optimal cue combination then gives the "
+        "skin cue σ = 1/√8 of the force/displacement cue's",
+    ),
 )
 
 
@@ -141,6 +174,8 @@ class VirtualTissuePalpator(Participant):
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         super().__init__(params)
         self.params = validate_params("virtual_tissue_palpator participant", params, PARAMS)
+        # what each trial felt like (its own percepts), for questionnaires at the end of a block or study
+        self.experience: list[dict[str, Any]] = []
 
     # ------------------------------------------------------------------ trial set-up
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
@@ -164,6 +199,9 @@ class VirtualTissuePalpator(Participant):
         self._last_cursor: tuple[float, float, float] | None = None
         self._last_handle: tuple[float, float, float] | None = None
         self._reports: list[tuple[float, float]] = []
+        self._spots: list[dict[str, Any]] = []
+        self._follow_up: dict[str, Any] = {}
+        self._direct = False
         self.perceived: dict[str, Any] = {}
 
     def _setup(self, surface: Mapping[str, Any]) -> None:
@@ -195,7 +233,9 @@ class VirtualTissuePalpator(Participant):
     def _next_press(self) -> None:
         if not self._plan and self._stage == "survey":
             self._stage = "follow_up"
-            self._plan = self._follow_up_plan()[::-1]
+            self._spots = self._follow_up_spots()
+        if self._stage == "follow_up":
+            self._plan = self._next_follow_up()
         if not self._plan:
             self._phase = "decide"
             return
@@ -233,6 +273,8 @@ class VirtualTissuePalpator(Participant):
         cursor = view.get("cursor_mm") if view is not None else None
         cursor = tuple(float(v) for v in cursor) if cursor is not None else None
         ctrl = cursor if cursor is not None else (handle if handle is not None else tuple(self._hand))
+        if percept.get("direct_touch"):
+            self._direct = True
         force = 0.0
         if "fx_n" in percept:
             force = math.sqrt(percept["fx_n"] ** 2 + percept["fy_n"] ** 2 + percept["fz_n"] ** 2)
@@ -359,6 +401,14 @@ class VirtualTissuePalpator(Participant):
             felt = press["peak_force"] * (1.0 + p["force_weber"] * float(rng.normal()))
             seen = depth * (1.0 + p["depth_weber"] * float(rng.normal()))
             row["force"] = felt / seen
+            if self._direct:
+                # The finger pad's surface-deformation cue judges the same stiffness with its own noise;
+                # the two are fused by inverse-variance weighting (Ernst & Banks 2002).
+                kin = math.hypot(p["force_weber"], p["depth_weber"])
+                cut = p["cutaneous_ratio"] * kin
+                skin = press["peak_force"] / depth * (1.0 + cut * float(rng.normal()))
+                w_kin, w_cut = 1.0 / kin**2, 1.0 / cut**2
+                row["force"] = (w_kin * row["force"] + w_cut * skin) / (w_kin + w_cut)
         track = press["track"]
         if len(track) >= 2 and track[0][0] - track[-1][0] > 0.5:
             bc, bh = track[-1]
@@ -370,11 +420,12 @@ class VirtualTissuePalpator(Participant):
         self._presses.append(row)
 
     # ------------------------------------------------------------------ the decision
-    def _evidence(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def _evidence(self, follow_up: bool = False) -> tuple[np.ndarray, ...] | None:
         """Per press: position, combined stiffness contrast and its noise (inverse-variance cue fusion).
 
         Baselines (local medians) and noise levels (robust SDs) come from the survey presses only, so that
-        the follow-up presses around a suspicious spot do not raise their own baseline.
+        the follow-up presses around a suspicious spot do not raise their own baseline. With ``follow_up`` a
+        fourth array says which of the returned presses are re-palpation presses.
         """
         p = self.params
         rows = self._presses
@@ -415,6 +466,8 @@ class VirtualTissuePalpator(Participant):
         keep = den > 0
         if keep.sum() < 5:
             return None
+        if follow_up:
+            return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep]), ~survey[keep]
         return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep])
 
     def _clusters(self, pts: np.ndarray, contrast: np.ndarray, sigma: np.ndarray, threshold: float, limit: int):
@@ -443,26 +496,60 @@ class VirtualTissuePalpator(Participant):
             taken |= d2[i] <= 4.0 * rc * rc
         return out
 
-    def _follow_up_plan(self) -> list[tuple[float, float]]:
+    def _follow_up_spots(self) -> list[dict[str, Any]]:
+        """Suspicious spots of the survey, each with its 3 × 3 re-palpation grid (centre first) and the contrast
+        the survey suggested there (the alternative of the spot's sequential test)."""
         p = self.params
         ev = self._evidence()
         if ev is None or p["follow_up_count"] == 0:
             return []
-        spots = self._clusters(*ev, threshold=p["follow_up_z"], limit=p["follow_up_count"])
-        plan = []
+        pts, contrast, sigma = ev
+        spots = self._clusters(pts, contrast, sigma, threshold=p["follow_up_z"], limit=p["follow_up_count"])
         s = p["follow_up_spacing_mm"]
+        out = []
+        half = p["cluster_radius_mm"] / 2.0
         for cx, cy, _z in spots:
-            for ox in (-s, 0.0, s):
-                for oy in (-s, 0.0, s):
-                    x, y = cx + ox, cy + oy
-                    if math.isfinite(self._height(x, y)):
-                        plan.append((x, y))
-        self.perceived["follow_up_spots"] = [(x, y) for x, y, _ in spots]
-        return plan
+            grid = [(cx + ox, cy + oy) for ox in (0.0, -s, s) for oy in (0.0, -s, s)]
+            near = ((pts - (cx, cy)) ** 2).sum(axis=1) <= half * half
+            w = 1.0 / sigma[near] ** 2
+            mu = float((w * contrast[near]).sum() / w.sum()) if near.any() else 0.0
+            todo = [g for g in grid if math.isfinite(self._height(*g))]
+            out.append({"x": cx, "y": cy, "mu": max(mu, 1e-3), "todo": todo, "presses": 0})
+        self._follow_up = {"follow_up_spots": [(sp["x"], sp["y"]) for sp in out], "follow_up_decisions": []}
+        return out
+
+    def _spot_llr(self, spot: dict[str, Any]) -> float:
+        """Log-likelihood ratio, nodule (mean contrast ``mu``, what the survey suggested) against none (0), of the
+        re-palpation presses within half a cluster radius of the spot (Gaussian contrasts with each press's own
+        noise). Only presses made after the survey count: the survey's own presses chose ``mu``."""
+        ev = self._evidence(follow_up=True)
+        if ev is None:
+            return 0.0
+        pts, contrast, sigma, fresh = ev
+        half = self.params["cluster_radius_mm"] / 2.0
+        near = fresh & (((pts - (spot["x"], spot["y"])) ** 2).sum(axis=1) <= half * half)
+        mu = spot["mu"]
+        return float((mu * (contrast[near] - mu / 2.0) / sigma[near] ** 2).sum())
+
+    def _next_follow_up(self) -> list[tuple[float, float]]:
+        """The next re-palpation press: of the first spot still undecided by its sequential test, else none."""
+        a = self.params["follow_up_error"]
+        bound = math.log((1.0 - a) / a)  # Wald's bounds with α = β
+        while self._spots:
+            spot = self._spots[0]
+            llr = self._spot_llr(spot)
+            if spot["todo"] and -bound < llr < bound:
+                spot["presses"] += 1
+                return [spot["todo"].pop(0)]
+            verdict = "nodule" if llr >= bound else ("none" if llr <= -bound else "undecided")
+            self._follow_up["follow_up_decisions"].append((spot["x"], spot["y"], verdict, spot["presses"]))
+            self._spots.pop(0)
+        return []
 
     def _decide(self) -> list[tuple[float, float]]:
         p = self.params
         ev = self._evidence()
+        self.perceived.update(self._follow_up)
         if ev is None:
             return []
         count = self.info.public.get("nodule_count")
@@ -470,4 +557,24 @@ class VirtualTissuePalpator(Participant):
         threshold = p["z_threshold"] if count is None else -math.inf
         spots = self._clusters(*ev, threshold=threshold, limit=limit)
         self.perceived["reports"] = spots
+        self.experience.append({"condition": self.info.condition, "cues": list(self.perceived.get("cues", [])),
+                                "z_max": self.perceived.get("z_max", math.nan), "direct": self._direct})
         return [(x, y) for x, y, _ in spots]
+
+    # ------------------------------------------------------------------ questionnaires
+    def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:
+        """A code of the item's scale from the participant's own trials (see the module docstring)."""
+        codes = sorted(int(c) for c in (item.get("codes") or [1, 2, 3, 4, 5]))
+        key = f"{item.get('id', '')} {item.get('text', '')}".lower()
+        if "combin" not in key or "force" not in key:
+            return codes[len(codes) // 2]
+        felt = [e for e in self.experience if not e["direct"] and math.isfinite(e["z_max"]) and e["z_max"] > 0]
+        both = [e["z_max"] for e in felt if {"force", "cursor"} <= set(e["cues"])]
+        force = [e["z_max"] for e in felt if e["cues"] == ["force"]]
+        if not both or not force:
+            return codes[0]
+        weber = self.params["visual_weber"]
+        # how much more clearly the stiff spots stood out with both cues, as a judged (noisy) log ratio
+        judged = math.log(float(np.mean(both)) / float(np.mean(force))) + weber * float(rng.normal())
+        steps = int(judged / math.log1p(weber)) if judged > 0 else 0  # in just-noticeable differences
+        return codes[min(steps, len(codes) - 1)]
