@@ -31,8 +31,12 @@ class NeedleHybridController(Controller):
     radial_kp, radial_kd : float
         Radial guidance and maintain-mode gains (N/m, N·s/m), eqs. (1) and (8). Table 1: BL/RT/ES 100/30,
         EG 1000/70, ESG 1000/50.
-    tolerance_mm, capsule_puncture_n, tumour_puncture_n, friction_ref_length_mm, stick_band_mm_s, …
-        Choices the paper does not state; see :class:`studyctl.models.needle.NeedleParams`.
+    tolerance_mm, radial_max_n, capsule_puncture_n, tumour_puncture_n, friction_ref_length_mm, …
+        Choices the paper does not state (defaults 1 mm, 2 N, 1 N, 1.5 N, 150 mm); see
+        :class:`studyctl.models.needle.NeedleParams` for all of them and why.
+
+    Per-layer blocks are accepted too, as the shipped protocol writes them: ``capsule: {k_stiff}``,
+    ``liver: {k_cut, f_dynamic, f_static, c}``, ``tumour: {…}`` and ``radial: {k_p, k_d}``.
 
     Observation channels: ``x_mm``, ``y_mm``, ``z_mm`` (needle tip), ``vx_mm_s``… (estimated here by a
     20 ms finite difference when the device does not report them), ``dir_x``/``dir_y``/``dir_z`` (pen
