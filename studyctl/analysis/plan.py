@@ -561,6 +561,16 @@ def _check_against_protocol(plan: AnalysisPlan, doc: Located) -> list[str]:
     return problems
 
 
+def _line_key(text: str, source: str) -> tuple[int, int]:
+    """Sort key of a problem line: its (line, column) after ``source:`` (problems without one go last)."""
+    rest = text[len(source) + 1 :] if text.startswith(source + ":") else ""
+    parts = rest.split(":", 2)
+    try:
+        return int(parts[0]), int(parts[1])
+    except (ValueError, IndexError):
+        return 10**9, 0
+
+
 def parse_plan(doc: Located) -> AnalysisPlan:
     """Validate a located YAML document as an analysis plan; raise with every problem found."""
     if not isinstance(doc.data, dict):
@@ -577,6 +587,7 @@ def parse_plan(doc: Located) -> AnalysisPlan:
     if plan is not None:
         problems.extend(_check_names(plan, doc))
     if problems:
+        problems.sort(key=lambda text: _line_key(text, doc.source))
         head = f"{doc.source}: {len(problems)} problem(s) in the analysis plan"
         raise ProtocolError(head + ":\n  " + "\n  ".join(problems), problems)
     if plan is None:  # unreachable: a failed validation always leaves problems

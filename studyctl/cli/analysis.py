@@ -40,7 +40,7 @@ def _print_result(result, console: Console) -> None:  # noqa: ANN001 - AnalysisR
             continue
         table = Table(title=f"{entry.id}: {entry.title or entry.test}", title_justify="left", box=None, pad_edge=False)
         table.add_column("comparison", overflow="fold", min_width=22)
-        table.add_column("result", overflow="fold", min_width=24)
+        table.add_column("result", overflow="fold", min_width=30)
         table.add_column("p (adj.)", no_wrap=True)
         table.add_column("sig.", no_wrap=True)
         table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=40)
