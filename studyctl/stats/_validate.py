@@ -12,11 +12,11 @@ from studyctl.errors import StatsInputError
 ALTERNATIVES = ("two-sided", "less", "greater")
 
 
-def as_sample(values: Any, name: str, *, allow_inf: bool = True) -> tuple[np.ndarray, int]:
-    """Return ``(finite-or-inf float64 1-D array without NaN, number of NaN dropped)``.
+def as_array(values: Any, name: str) -> np.ndarray:
+    """Return ``values`` as a non-empty 1-D float64 array, NaN kept in place.
 
-    Raises :class:`StatsInputError` for non-numeric data, more than one dimension, an empty input
-    or (when ``allow_inf`` is false) infinite values. ``None`` counts as missing like NaN.
+    Raises :class:`StatsInputError` for a string, non-numeric data, a scalar, more than one
+    dimension or an empty input. ``None`` becomes NaN.
     """
     if isinstance(values, (str, bytes)):
         raise StatsInputError(f"{name} must be a sequence of numbers, got the string {values!r}")
@@ -32,6 +32,16 @@ def as_sample(values: Any, name: str, *, allow_inf: bool = True) -> tuple[np.nda
         raise StatsInputError(f"{name} must be 1-D, got an array of shape {arr.shape}")
     if arr.size == 0:
         raise StatsInputError(f"{name} is empty; it needs at least 1 value")
+    return arr
+
+
+def as_sample(values: Any, name: str, *, allow_inf: bool = True) -> tuple[np.ndarray, int]:
+    """Return ``(finite-or-inf float64 1-D array without NaN, number of NaN dropped)``.
+
+    Raises :class:`StatsInputError` as :func:`as_array` does, and (when ``allow_inf`` is false)
+    for infinite values. ``None`` counts as missing like NaN.
+    """
+    arr = as_array(values, name)
     nan = np.isnan(arr)
     n_nan = int(nan.sum())
     if n_nan:
@@ -41,6 +51,16 @@ def as_sample(values: Any, name: str, *, allow_inf: bool = True) -> tuple[np.nda
             f"{name} contains an infinite value; only finite numbers (or NaN for missing) are allowed"
         )
     return arr, n_nan
+
+
+def group_warnings(nan_dropped: int, empty: Sequence[str]) -> list[str]:
+    """The opening warnings of a k-group test: missing values dropped, groups left with no values."""
+    warnings = []
+    if nan_dropped:
+        warnings.append(f"{nan_dropped} missing value(s) dropped")
+    if empty:
+        warnings.append(f"group(s) {', '.join(empty)} have no values and were left out")
+    return warnings
 
 
 def check_alternative(alternative: str) -> str:

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from scipy import special
 
-from ._validate import split_groups
+from ._validate import group_warnings, split_groups
 from .results import AnovaResult
 
 
@@ -92,11 +92,7 @@ def anova_oneway(*groups: Any, names: Sequence[str] | None = None) -> AnovaResul
     (13.5, 0.0213116)
     """
     gs = group_stats(groups, names)
-    warnings: list[str] = []
-    if gs.nan_dropped:
-        warnings.append(f"{gs.nan_dropped} missing value(s) dropped")
-    if gs.empty:
-        warnings.append(f"group(s) {', '.join(gs.empty)} have no values and were left out")
+    warnings = group_warnings(gs.nan_dropped, gs.empty)
     k = len(gs.labels)
     n = gs.n
     nan = math.nan

@@ -10,7 +10,7 @@ import numpy as np
 from scipy import special
 
 from ._ranks import midranks, tie_term
-from ._validate import split_groups
+from ._validate import group_warnings, split_groups
 from .results import KruskalResult
 
 
@@ -65,14 +65,10 @@ def kruskal_wallis(*groups: Any, names: Sequence[str] | None = None) -> KruskalR
     (7.0, 0.030197)
     """
     labels, arrays, dropped = split_groups(groups, names, min_groups=2)
-    warnings: list[str] = []
     nan_dropped = sum(dropped)
-    if nan_dropped:
-        warnings.append(f"{nan_dropped} missing value(s) dropped")
     empty = [lab for lab, a in zip(labels, arrays, strict=True) if a.size == 0]
-    if empty:
-        warnings.append(f"group(s) {', '.join(empty)} have no values and were left out")
-        arrays = [a for a in arrays if a.size]
+    warnings = group_warnings(nan_dropped, empty)
+    arrays = [a for a in arrays if a.size]
     k = len(arrays)
     nan = math.nan
     if k < 2:

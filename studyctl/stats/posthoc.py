@@ -12,7 +12,7 @@ from scipy import special
 from ._ranks import tie_term
 from ._validate import check_choice, split_groups
 from .kruskal import rank_groups
-from .results import DunnResult
+from .results import DunnResult, read_only
 from .studentized_range import studentized_range_sf
 
 P_ADJUST = ("holm", "bonferroni", "bh", "sidak", "none", "tukey-kramer")
@@ -125,7 +125,7 @@ def dunn(*groups: Any, p_adjust: str = "holm", names: Sequence[str] | None = Non
     pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
     g1 = tuple(labels[i] for i, _ in pairs)
     g2 = tuple(labels[j] for _, j in pairs)
-    nanrow = np.full(len(pairs), np.nan)
+    nanrow = read_only(np.full(len(pairs), np.nan))
     means_kept, sizes, n = rank_groups([arrays[i] for i in keep]) if keep else ([], np.zeros(0), 0)
     means = [math.nan] * k
     for i, m in zip(keep, means_kept, strict=True):
@@ -147,11 +147,5 @@ def dunn(*groups: Any, p_adjust: str = "holm", names: Sequence[str] | None = Non
         p_adj[ok] = studentized_range_sf(math.sqrt(2.0) * np.abs(z[ok]), len(keep), math.inf)
     else:
         p_adj = adjust_pvalues(p, p_adjust)
-    return DunnResult(g1, g2, _ro(diff), _ro(z), _ro(p), _ro(p_adj), p_adjust, sigma2, n, k, nan_dropped, False,
-                      tuple(warnings))
-
-
-def _ro(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=np.float64)
-    a.setflags(write=False)
-    return a
+    return DunnResult(g1, g2, read_only(diff), read_only(z), read_only(p), read_only(p_adj), p_adjust, sigma2, n, k,
+                      nan_dropped, False, tuple(warnings))

@@ -176,7 +176,6 @@ def _tied_pvalue(r2: np.ndarray, nx: int, ny: int, u: float, alternative: str) -
     n_total = nx + ny
     t2_x = int(round(2 * u)) + nx * (nx + 1)
     total2 = n_total * (n_total + 1)  # Σ of all doubled ranks
-    t2_y = total2 - t2_x
 
     def le_x(limit: int) -> float:
         return _exact.rank_sum_tied_le(r2, nx, limit)
@@ -192,5 +191,4 @@ def _tied_pvalue(r2: np.ndarray, nx: int, ny: int, u: float, alternative: str) -
     dev = abs(t2_x - mean2)
     if dev == 0:
         return 1.0
-    del t2_y
     return min(1.0, le_x(mean2 - dev) + ge_x(mean2 + dev))

@@ -162,14 +162,27 @@ class NewcombeInterval(_OneRow):
     confidence: float
 
 
-def _ro(a: Any) -> np.ndarray:
-    arr = np.array(a, dtype=np.float64)
+def read_only(values: Any) -> np.ndarray:
+    """A float64 copy of ``values`` that cannot be written: result arrays are immutable."""
+    arr = np.array(values, dtype=np.float64)
     arr.setflags(write=False)
     return arr
 
 
+class _PairTable:
+    """``to_frame()`` for pairwise results: ``group1``, ``group2`` and the per-pair arrays in ``_COLUMNS``."""
+
+    _COLUMNS: tuple[str, ...] = ()
+
+    def to_frame(self) -> pd.DataFrame:
+        cols = ["group1", "group2", *self._COLUMNS]
+        data = {c: getattr(self, c) for c in cols}
+        data["group1"], data["group2"] = list(data["group1"]), list(data["group2"])
+        return pd.DataFrame(data, columns=cols)
+
+
 @dataclass(frozen=True)
-class DunnResult:
+class DunnResult(_PairTable):
     """Dunn's (or MATLAB ``multcompare``-style) pairwise rank comparisons after Kruskal-Wallis.
 
     One entry per pair in R's order (1,2), (1,3), …, (1,k), (2,3), …; arrays are read-only.
@@ -190,23 +203,11 @@ class DunnResult:
     degenerate: bool
     warnings: tuple[str, ...] = ()
 
-    def to_frame(self) -> pd.DataFrame:
-        """Columns ``group1, group2, mean_rank_diff, z, pvalue, p_adj``."""
-        return pd.DataFrame(
-            {
-                "group1": list(self.group1),
-                "group2": list(self.group2),
-                "mean_rank_diff": self.mean_rank_diff,
-                "z": self.z,
-                "pvalue": self.pvalue,
-                "p_adj": self.p_adj,
-            },
-            columns=["group1", "group2", "mean_rank_diff", "z", "pvalue", "p_adj"],
-        )
+    _COLUMNS = ("mean_rank_diff", "z", "pvalue", "p_adj")  # to_frame(): group1, group2 and these
 
 
 @dataclass(frozen=True)
-class TukeyResult:
+class TukeyResult(_PairTable):
     """Tukey HSD (Tukey-Kramer) comparisons, one entry per pair in R ``TukeyHSD`` order.
 
     ``diff`` is mean(group2) − mean(group1); ``lower``/``upper`` the simultaneous interval; ``p_adj``
@@ -230,16 +231,4 @@ class TukeyResult:
     degenerate: bool
     warnings: tuple[str, ...] = ()
 
-    def to_frame(self) -> pd.DataFrame:
-        """Columns ``group1, group2, diff, lower, upper, p_adj`` (R ``TukeyHSD`` layout)."""
-        return pd.DataFrame(
-            {
-                "group1": list(self.group1),
-                "group2": list(self.group2),
-                "diff": self.diff,
-                "lower": self.lower,
-                "upper": self.upper,
-                "p_adj": self.p_adj,
-            },
-            columns=["group1", "group2", "diff", "lower", "upper", "p_adj"],
-        )
+    _COLUMNS = ("diff", "lower", "upper", "p_adj")  # to_frame(): R ``TukeyHSD`` layout

@@ -12,7 +12,7 @@ from studyctl.errors import StatsInputError
 
 from . import _exact
 from ._ranks import midranks, tie_term
-from ._validate import as_sample, check_alternative, check_choice
+from ._validate import as_array, as_sample, check_alternative, check_choice
 from .ranksum import correction, normal_p
 from .results import SignedRankResult
 
@@ -97,8 +97,9 @@ def signed_rank(
     if y is None:
         d_all, dropped = as_sample(x, "x")
     else:
-        xa, _ = _as_paired(x, "x")
-        ya, _ = _as_paired(y, "y")
+        # NaN stays in place so that the pairs stay aligned
+        xa = as_array(x, "x")
+        ya = as_array(y, "y")
         if xa.size != ya.size:
             raise StatsInputError(
                 f"x and y must have the same length for paired differences, got {xa.size} and {ya.size}"
@@ -177,23 +178,6 @@ def signed_rank(
         pvalue=normal_p(z, alternative), method="asymptotic", z=z, conditional=False, continuity=continuity,
         degenerate=False, warnings=tuple(warnings), **base,
     )
-
-
-def _as_paired(values: Any, name: str) -> tuple[np.ndarray, int]:
-    """Like ``as_sample`` but keeps NaN in place so that pairs stay aligned."""
-    if isinstance(values, (str, bytes)):
-        raise StatsInputError(f"{name} must be a sequence of numbers, got the string {values!r}")
-    try:
-        arr = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise StatsInputError(
-            f"{name} must contain only numbers (NaN/None allowed for missing values): {exc}"
-        ) from None
-    if arr.ndim != 1:
-        raise StatsInputError(f"{name} must be a 1-D sequence of numbers, got shape {arr.shape}")
-    if arr.size == 0:
-        raise StatsInputError(f"{name} is empty; it needs at least 1 value")
-    return arr, int(np.isnan(arr).sum())
 
 
 def _moments(

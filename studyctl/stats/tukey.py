@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import check_confidence
+from ._validate import check_confidence, group_warnings
 from .anova import group_stats
-from .results import TukeyResult
+from .results import TukeyResult, read_only
 from .studentized_range import studentized_range_ppf, studentized_range_sf
 
 
@@ -60,11 +60,7 @@ def tukey_hsd(*groups: Any, confidence: float = 0.95, names: Sequence[str] | Non
     """
     conf = check_confidence(confidence)
     gs = group_stats(groups, names)
-    warnings: list[str] = []
-    if gs.nan_dropped:
-        warnings.append(f"{gs.nan_dropped} missing value(s) dropped")
-    if gs.empty:
-        warnings.append(f"group(s) {', '.join(gs.empty)} have no values and were left out")
+    warnings = group_warnings(gs.nan_dropped, gs.empty)
     k = len(gs.labels)
     df = gs.n - k
     pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
@@ -72,10 +68,10 @@ def tukey_hsd(*groups: Any, confidence: float = 0.95, names: Sequence[str] | Non
     g2 = tuple(gs.labels[j] for _, j in pairs)
     diff = np.array([gs.means[j] - gs.means[i] for i, j in pairs])
     inv = np.array([1.0 / gs.sizes[i] + 1.0 / gs.sizes[j] for i, j in pairs])
-    nanv = np.full(len(pairs), np.nan)
+    nanv = read_only(np.full(len(pairs), np.nan))
     if k < 2 or df < 1:
         warnings.append("need at least 2 non-empty groups and more values than groups")
-        return TukeyResult(g1, g2, _ro(diff), nanv, nanv, nanv, nanv, nanv, math.nan, conf, df, math.nan, k,
+        return TukeyResult(g1, g2, read_only(diff), nanv, nanv, nanv, nanv, nanv, math.nan, conf, df, math.nan, k,
                            gs.nan_dropped, True, tuple(warnings))
     msw = gs.ss_within / df
     se = np.sqrt(msw / 2.0 * inv)
@@ -89,11 +85,6 @@ def tukey_hsd(*groups: Any, confidence: float = 0.95, names: Sequence[str] | Non
         q = np.abs(diff) / se
         p = studentized_range_sf(q, k, df)
     half = q_crit * se
-    return TukeyResult(g1, g2, _ro(diff), _ro(diff - half), _ro(diff + half), _ro(p), _ro(q), _ro(se), q_crit, conf,
-                       df, msw, k, gs.nan_dropped, bool(degenerate), tuple(warnings))
-
-
-def _ro(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=np.float64)
-    a.setflags(write=False)
-    return a
+    return TukeyResult(g1, g2, read_only(diff), read_only(diff - half), read_only(diff + half), read_only(p),
+                       read_only(q), read_only(se), q_crit, conf, df, msw, k, gs.nan_dropped, bool(degenerate),
+                       tuple(warnings))
