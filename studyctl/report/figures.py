@@ -134,6 +134,8 @@ def box_panel(
     title = label
     if marks is not None and not marks.empty:
         omni = marks[marks["kind"] == "omnibus"]
+        if omni.empty:  # a single two-level comparison of conditions (e.g. manual vs haptic) heads the panel
+            omni = marks[(marks["kind"] == "two_sample") & (marks["compare"] == "condition")]
         if len(omni) == 1 and np.isfinite(omni["p"].iloc[0]):
             r = omni.iloc[0]
             title += f"\n{_test_name(r['test'])} p = {fmt_p(r['p'])}"
