@@ -170,7 +170,7 @@ def _busy_ui(stop: threading.Event) -> None:
 
 
 def _jitter_in_process(seconds: float) -> dict[str, float]:
-    from studyctl.devices.servo import ServoTiming, TimedClock  # noqa: PLC0415
+    from studyctl.devices.servo import TimedClock  # noqa: PLC0415
 
     scene = _scene()
     ctrl = NeedleHybridController({"scenario": "ESG"}, scene)
@@ -186,7 +186,7 @@ def _jitter_in_process(seconds: float) -> dict[str, float]:
         rng=np.random.default_rng(2),
         on_sample=lambda t, s: None,
     )
-    return ServoTiming.from_starts(clock.starts[: clock.n], 1e-3).as_dict()
+    return clock.timing(1e-3).as_dict()
 
 
 class _Idle(Participant):

@@ -40,7 +40,8 @@ class NeedleHybridController(Controller):
 
     Observation channels: ``x_mm``, ``y_mm``, ``z_mm`` (needle tip), ``vx_mm_s``… (estimated here by a
     20 ms finite difference when the device does not report them), ``dir_x``/``dir_y``/``dir_z`` (pen
-    axis, default straight down), ``button`` (1 = inserting, 0 = maintain; default 1), ``fault``.
+    axis, default straight down), ``button`` (1 = inserting, 0 = maintain; default 1). A device fault
+(``Observation.faults`` or a non-zero ``fault`` channel) or a non-finite position gives zero force.
 
     Command channels: ``fx_n``, ``fy_n``, ``fz_n`` (device frame). The model state of each tick is in
     :attr:`diagnostics` (updated in place; the trial loop logs it with every sample): ``f_axial_n``,
@@ -117,7 +118,7 @@ class NeedleHybridController(Controller):
     def step(self, obs: Observation) -> dict[str, float]:
         v = obs.values
         px, py, pz = v["x_mm"], v["y_mm"], v["z_mm"]
-        if v.get("fault", 0.0) or not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+        if obs.faults or v.get("fault", 0.0) or not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
             return {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0}
         if "vx_mm_s" in v:
             vx, vy, vz = v["vx_mm_s"], v["vy_mm_s"], v["vz_mm_s"]

@@ -12,7 +12,8 @@ The reported position is quantised to the encoder resolution and the velocity is
 realistic velocity noise. The force written in one tick acts during the next (zero-order hold).
 
 A reading that is not finite or jumps further than ``max_jump_mm`` in one tick puts the device in its
-safe state: zero force from then on, ``fault`` = 1 in every observation, and the reason in :attr:`fault`.
+safe state: zero force from then on (latched), the reason in :attr:`fault` and in every observation's
+``faults``, so the safety layer logs a ``device_fault`` and the trial loop ends the trial.
 """
 
 from __future__ import annotations
@@ -256,12 +257,13 @@ class SimulatedForceDevice(Device):
             "dir_y": d[1],
             "dir_z": d[2],
             "button": self._button,
-            "fault": 0.0 if self.fault is None else 1.0,
         }
         if self.scene is not None:
             sensed = self.scene.sense(values)
             if sensed:
                 values.update(sensed)
+        if self.fault is not None:  # the safety layer holds the safe state and logs a device_fault
+            return Observation(t, values, faults=(self.fault,))
         return Observation(t, values)
 
     def write(self, command: Channels) -> None:

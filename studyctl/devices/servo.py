@@ -64,13 +64,17 @@ class ServoTiming:
     overruns: int  # ticks that started more than one period late
 
     @classmethod
-    def from_starts(cls, starts: np.ndarray, period_s: float) -> ServoTiming:
-        """Timing from the tick start times (s) of a loop scheduled every ``period_s``."""
+    def from_starts(cls, starts: np.ndarray, period_s: float, scheduled: np.ndarray | None = None) -> ServoTiming:
+        """Timing from the tick start times (s) of a loop scheduled every ``period_s``.
+
+        ``scheduled`` are the times each tick was due (default: the first start plus whole periods).
+        """
         starts = np.asarray(starts, dtype=float)
         if len(starts) < 2:
             return cls(len(starts), period_s * 1e6, *([math.nan] * 6), 0)
-        sched = starts[0] + period_s * np.arange(len(starts))
-        late = (starts - sched) * 1e6
+        if scheduled is None:
+            scheduled = starts[0] + period_s * np.arange(len(starts))
+        late = (starts - np.asarray(scheduled, dtype=float)) * 1e6
         jitter = np.abs(np.diff(starts) - period_s) * 1e6
         return cls(
             ticks=len(starts),
@@ -94,13 +98,19 @@ class TimedClock(RealClock):
     def __init__(self, capacity: int = 1 << 20) -> None:
         super().__init__()
         self.starts = np.empty(capacity)
+        self.due = np.empty(capacity)
         self.n = 0
 
     def sleep_until(self, t: float) -> None:
         super().sleep_until(t)
         if self.n < len(self.starts):
             self.starts[self.n] = self.now()
+            self.due[self.n] = t
             self.n += 1
+
+    def timing(self, period_s: float) -> ServoTiming:
+        """Lateness against each tick's due time and period jitter of the ticks recorded so far."""
+        return ServoTiming.from_starts(self.starts[: self.n], period_s, self.due[: self.n])
 
 
 class _RemoteParticipant(Participant):
@@ -222,7 +232,7 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
         finally:
             device.close()
         flush()
-        timing = ServoTiming.from_starts(clock.starts[: clock.n], 1.0 / spec.info.rate_hz)
+        timing = clock.timing(1.0 / spec.info.rate_hz)
         outbox.put(("event", outcome.duration_s, "servo_timing", timing.as_dict()))
         outbox.put(("outcome", _plain(outcome.__dict__)))
     except BaseException as exc:  # the parent must learn why the child ended

@@ -460,6 +460,10 @@ class NeedleTissueModel:
         self._stick_k_mm = p.stick_k * 1e-3
         self._stick_d_mm = p.stick_d * 1e-3
         self._contact_d_mm = p.contact_d * 1e-3
+        self._tol = p.tolerance_mm
+        self._band = p.damping_band_mm
+        self._liver = (p.liver_f_dynamic, p.liver_f_static, p.liver_c * 1e-6, p.liver_k_cut * 1e-3)
+        self._tumour = (p.tumour_f_dynamic, p.tumour_f_static, p.tumour_c * 1e-6, p.tumour_k_cut * 1e-3)
         self._kp_mm = p.radial_kp * 1e-3
         self._kd_mm = p.radial_kd * 1e-3
         self._radial_max = p.radial_max_n
@@ -590,14 +594,14 @@ class NeedleTissueModel:
         e_y = ex * yx + ey * yy + ez * yz
         e_z = ex * zx + ey * zy + ez * zz
         r = math.sqrt(e_y * e_y + e_z * e_z)
-        tol = self.params.tolerance_mm
+        tol = self._tol
         f_y = f_z = 0.0
         if r > tol:
             f_spring = self._kp_mm * (r - tol)
             if f_spring > self._radial_max:
                 f_spring = self._radial_max
             spring = f_spring / r
-            w = (r - tol) / self.params.damping_band_mm
+            w = (r - tol) / self._band
             damp = self._kd_mm * (w if w < 1.0 else 1.0)
             f_y = spring * e_y - damp * (vx * yx + vy * yy + vz * yz)
             f_z = spring * e_z - damp * (vx * zx + vy * zy + vz * zz)
@@ -696,13 +700,17 @@ class NeedleTissueModel:
             chord = 0.0  # an unbroken tumour is pushed, not cut: its chord of the shaft rubs liver
         liver_len = s - chord
         inv = self._inv_lref
-        f_dyn = (p.liver_f_dynamic * liver_len + p.tumour_f_dynamic * chord) * inv
-        f_sta = (p.liver_f_static * liver_len + p.tumour_f_static * chord) * inv
-        c_eff = (p.liver_c * liver_len + p.tumour_c * chord) * 1e-6  # c · depth(m), per (mm/s) → N
+        ld, ls, lc, lk = self._liver
+        if chord > 0.0:
+            td, ts, tc, tk = self._tumour
+            f_dyn = (ld * liver_len + td * chord) * inv
+            f_sta = (ls * liver_len + ts * chord) * inv
+            c_eff = lc * liver_len + tc * chord  # c · depth(m), per (mm/s) → N
+        else:
+            f_dyn, f_sta, c_eff = ld * s * inv, ls * s * inv, lc * s
         # cutting: only advancing into tissue this track has not cut
         if layer != TUMOUR_SURFACE and v > 0.0 and s > tr.max_s:
-            k_cut = p.tumour_k_cut if layer == TUMOUR else p.liver_k_cut
-            f_tip -= k_cut * v * 1e-3
+            f_tip -= (self._tumour[3] if layer == TUMOUR else lk) * v
         # Karnopp friction rendered through an anchor (a bristle): the friction force is always
         # −k·(s − anchor). Sliding drags the anchor along at the dynamic level; sticking freezes it, so the
         # force is continuous at stick onset and unloads through zero when the hand reverses, storing no

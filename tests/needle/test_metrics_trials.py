@@ -97,8 +97,38 @@ def test_controller_needs_the_liver_scene_and_reports_diagnostics(scene):
     assert ctrl.diagnostics["layer"] == 1.0 and ctrl.diagnostics["depth_mm"] == pytest.approx(5.0, abs=0.01)
     assert [e["kind"] for e in ctrl.events] == ["capsule_contact"]
     # a faulted device gets no force
-    assert ctrl.step(Observation(0.001, {"x_mm": p[0], "y_mm": p[1], "z_mm": p[2], "fault": 1.0})) == {
+    assert ctrl.step(Observation(0.001, {"x_mm": p[0], "y_mm": p[1], "z_mm": p[2]}, faults=("jump",))) == {
         "fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0}  # fmt: skip
+
+
+def test_a_device_fault_ends_the_trial_in_the_safe_state(scene):
+    """A position jump mid-trial: the device latches zero force, the safety layer logs it, the loop ends."""
+    from studyctl.plugins.interfaces import Action, Participant
+
+    class Jumper(Participant):
+        name = "jumper"
+
+        def begin_trial(self, info, rng):
+            pass
+
+        def act(self, t, percept):
+            x = 0.0 if t < 0.5 else 40.0  # an impossible 40 mm jump at 0.5 s
+            return Action({"x_mm": x, "y_mm": 0.0, "z_mm": 40.0})
+
+    device = SimulatedForceDevice({"hand": "none"}, scene)
+    device.open()
+    out = run_trial(
+        info=TrialInfo("BL", 10.0, 1000.0, "none"),
+        controller=NeedleHybridController({"scenario": "BL"}, scene),
+        device=device,
+        participant=Jumper(),
+        clock=SimulatedClock(),
+        rng=np.random.default_rng(0),
+    )
+    assert out.ended_by == "fault" and out.duration_s < 2.0
+    faults = [e for e in out.events if e["kind"] == "device_fault"]
+    assert faults and "jumped" in str(faults[0])
+    assert device.feedback()["fx_n"] == 0.0
 
 
 # ---------------------------------------------------------------- whole virtual trials
