@@ -128,19 +128,23 @@ def register(app: typer.Typer) -> None:
                 state["kept"] = done
                 if done:
                     err.print(f"continuing: {done} of {total} replicates already in {out}", markup=False)
+                # The bar appears once the workers are connected (an error before that stays one line).
+                progress.start()
             else:
                 progress.update(task, description=f"n={result.participants} r={result.replicate}")
             state["done"] = done
             progress.update(task, completed=done)
 
         try:
-            with progress:
-                result = run_power(spec, out, scheduler=scheduler, workers=workers, on_progress=on_progress,
-                                   on_backend=lambda d: err.print(f"running on: {d}", markup=False))
+            result = run_power(spec, out, scheduler=scheduler, workers=workers, on_progress=on_progress,
+                               on_backend=lambda d: err.print(f"running on: {d}", markup=False))
         except KeyboardInterrupt:
+            progress.stop()
             err.print(f"Interrupted: {state.get('done', 0)} of {len(spec.tasks())} replicates are kept in {out}; "
                       "run the same command again to continue.", markup=False)
             raise typer.Exit(130) from None
+        finally:
+            progress.stop()
         _print_table(result, console, show_posthoc)
         console.print(f"simulated {result.ran} replicate(s), reused {result.reused}, in {result.seconds:.1f} s "
                       f"({result.backend})", markup=False)

@@ -11,6 +11,7 @@ import math
 import os
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -128,13 +129,18 @@ def participant_code(prefix: str, index: int) -> str:
     return f"{prefix}-V{index + 1:04d}"
 
 
-def simulate_replicate(spec: PowerSpec, participants: int, replicate: int) -> ReplicateResult:
+def simulate_replicate(
+    spec: PowerSpec, participants: int, replicate: int, *, on_metrics: Callable[[Any], None] | None = None
+) -> ReplicateResult:
     """Simulate replicate ``replicate`` of a study with ``participants`` virtual participants.
 
     The study lives in an in-memory SQLite database that is dropped afterwards; enrollment, sessions
     (simulated clock, the protocol's controllers, devices and scene) and the metrics are the same code
     paths a real study uses. Participants are enrolled stratum by stratum in proportion to the strata's
     target sizes (:func:`studyctl.protocol.allocate_strata`), each with the population's parameters.
+
+    ``on_metrics`` (optional) is handed the replicate's :class:`~studyctl.analysis.MetricTable` before the
+    plan runs (to look at the simulated data; the result does not depend on it).
 
     Returns
     -------
@@ -185,6 +191,8 @@ def simulate_replicate(spec: PowerSpec, participants: int, replicate: int) -> Re
             completed += getattr(result, "status", "") == "completed"
             peak = max(peak, _check_memory(spec.memory_limit, where))
         table = compute_metrics(spec.plan, store, study)
+        if on_metrics is not None:
+            on_metrics(table)
         trials = _trial_counts(store, study)
         frame = run_plan(spec.plan, table).to_frame()
     finally:

@@ -1,0 +1,79 @@
+"""``studyctl power``: help, one-line errors for bad input (exit code, nothing written), a serial run."""
+
+from __future__ import annotations
+
+import socket
+
+import pandas as pd
+import pytest
+from power_testdata import PLAN, PROTOCOL, SEED
+
+from studyctl.cli.app import main
+
+
+def _run(args, capsys):
+    code = main(["power", *map(str, args)])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_help_describes_every_option(capsys):
+    code = main(["power", "--help"])
+    out = capsys.readouterr().out
+    assert code == 0
+    for option in ("--plan", "--participants", "--replicates", "--seed", "--scheduler", "--workers",
+                   "--memory-limit", "--out", "--population", "--effect", "--group-effect", "--between-sd"):
+        assert option in out
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--plan", "bio_inspired_palpation"], "analyses protocol 'bio_inspired_palpation'"),
+        (["--participants", "1,4"], "below the 2 counterbalancing sequences"),
+        (["--effect", "linear-balloon_weber=1"], "--effect 'linear-balloon_weber=1': expected"),
+        (["--effect", "linear:balloon_weber=big"], "'big' is not a number"),
+        (["--between-sd", "aim_sd_mm=-1"], "must be ≥ 0"),
+        (["--group-effect", "surgeons:aim_sd_mm=1"], "no group (stratum) 'surgeons'"),
+        (["--population", "missing.yaml"], "population file 'missing.yaml' does not exist"),
+        (["--memory-limit", "lots"], "--memory-limit 'lots'"),
+        (["--scheduler", f"127.0.0.1:{_closed_port()}"], "cannot reach the Dask scheduler"),
+    ],
+)
+def test_bad_input_is_one_error_line_and_writes_nothing(extra, message, tmp_path, capsys):
+    out = tmp_path / "report"
+    args = [PROTOCOL, "--plan", PLAN, "--participants", "2,4", "--replicates", "1", "--out", out, *extra]
+    if "--plan" in extra:
+        args = [PROTOCOL, "--participants", "4", "--out", out, *extra]
+    code, stdout, stderr = _run(args, capsys)
+    assert code != 0
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert lines and lines[0].startswith("Error: ") and message in stderr, stderr
+    assert "Traceback" not in stderr
+    assert not out.exists()
+
+
+def test_serial_run_states_the_population(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")
+    pop = tmp_path / "population.yaml"
+    pop.write_text("population:\n  group_effects:\n    expert: {aim_sd_mm: -1.0}\n", encoding="utf-8")
+    code, stdout, stderr = _run([PROTOCOL, "--plan", PLAN, "--participants", "2", "--replicates", "1",
+                                 "--seed", SEED, "--workers", "0", "--out", tmp_path / "out", "--population", pop,
+                                 "--effect", "linear:balloon_weber=0.05", "--between-sd", "aim_sd_mm=0.2"], capsys)
+    assert code == 0, stderr
+    assert "serial, in this process" in stdout and "control_algorithm" in stdout
+    stated = pd.read_csv(tmp_path / "out" / "power_population.csv").set_index("parameter")
+    assert stated.loc["aim_sd_mm", "group:expert"] == -1.0 and stated.loc["aim_sd_mm", "between_sd"] == 0.2
+    assert stated.loc["balloon_weber", "condition:linear"] == 0.05
+    # the same command again only reuses what is there
+    code, stdout, stderr = _run([PROTOCOL, "--plan", PLAN, "--participants", "2", "--replicates", "1",
+                                 "--seed", SEED, "--workers", "0", "--out", tmp_path / "out", "--population", pop,
+                                 "--effect", "linear:balloon_weber=0.05", "--between-sd", "aim_sd_mm=0.2"], capsys)
+    assert code == 0 and "continuing: 1 of 1 replicates already in" in stderr
+    assert "simulated 0 replicate(s), reused 1" in stdout
