@@ -13,6 +13,7 @@ counts participants who completed or are still taking part, not every assignment
 from __future__ import annotations
 
 import secrets
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,9 +25,8 @@ from studyctl.protocol.loader import load_protocol_text
 from studyctl.protocol.problems import nearest
 from studyctl.protocol.schedule import SCHEDULE_ALGORITHM_VERSION, Planner, Schedule
 from studyctl.protocol.schema import Protocol
+from studyctl.store.identity import CODE_ALPHABET, random_code
 
-# No 0/O, 1/I/L, 5/S, 2/Z: codes are read aloud and written by hand.
-CODE_ALPHABET = "ABCDEFGHJKMNPQRTUVWXY346789"
 CODE_LENGTH = 5
 _CODE_TRIES = 100
 
@@ -101,10 +101,10 @@ def next_slot(taken: list[tuple[int | None, str]], replace_withdrawn: bool) -> i
     return slot
 
 
-def new_code(prefix: str, existing: set[str], token=secrets.choice) -> str:
+def new_code(prefix: str, existing: set[str], token: Callable[[str], str] = secrets.choice) -> str:
     """A random pseudonymous code ``PREFIX-XXXXX`` not in ``existing`` (not derived from anything)."""
     for _ in range(_CODE_TRIES):
-        code = f"{prefix}-" + "".join(token(CODE_ALPHABET) for _ in range(CODE_LENGTH))
+        code = random_code(prefix, CODE_LENGTH, token=token)
         if code not in existing:
             return code
     raise IntegrityError(f"could not draw an unused participant code after {_CODE_TRIES} tries")
@@ -181,3 +181,16 @@ def replan(protocol: Protocol, participant: Any) -> Schedule:
         raise IntegrityError(f"the stored plan of participant {participant.code} differs from its re-expansion; "
                              "the stored plan was edited")
     return schedule
+
+
+__all__ = [
+    "CODE_ALPHABET",
+    "CODE_LENGTH",
+    "Enrollment",
+    "choose_stratum",
+    "enroll",
+    "new_code",
+    "next_slot",
+    "replan",
+    "study_protocol",
+]

@@ -11,24 +11,26 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+from collections.abc import Callable
 from pathlib import Path
 
 from studyctl.errors import ConfigError, NotFoundError, UsageError
 
-# No 0/O, 1/I/L: codes are read aloud and typed by hand.
-CODE_ALPHABET = "23456789ABCDEFGHJKMNPQRSTUVWXYZ"
+# No 0/O, 1/I/L, 5/S, 2/Z: codes are read aloud and written by hand.
+CODE_ALPHABET = "ABCDEFGHJKMNPQRTUVWXY346789"
 _HEADER = "# studyctl identity key: code<TAB>identity. Keep this file apart from the study data.\n"
 
 
-def random_code(prefix: str = "P", length: int = 6) -> str:
-    """A random pseudonymous code such as ``P-7K3QXM`` (about 30 bits of entropy for 6 characters).
+def random_code(prefix: str = "P", length: int = 6, *, token: Callable[[str], str] = secrets.choice) -> str:
+    """A random pseudonymous code such as ``P-7K3QXM`` (about 28 bits of entropy for 6 characters).
 
     Drawn from the operating system's CSPRNG, not from a study seed: codes must not be reproducible
-    from anything stored with the data.
+    from anything stored with the data. ``token`` picks one character of the alphabet (tests pass a
+    scripted one).
     """
     if not 4 <= length <= 32:
         raise UsageError(f"code length must be 4–32 characters, got {length}")
-    body = "".join(secrets.choice(CODE_ALPHABET) for _ in range(length))
+    body = "".join(token(CODE_ALPHABET) for _ in range(length))
     return f"{prefix}-{body}" if prefix else body
 
 
