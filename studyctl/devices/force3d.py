@@ -24,32 +24,18 @@ from typing import Any
 
 import numpy as np
 
-from studyctl.errors import DeviceError, ModelParameterError
+from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
+from studyctl.plugins.params import Param, validate_params
 
 _ROUND = 6755399441055744.0  # 1.5 * 2**52
 
 # Device classes: peak force (N), from the CHAI3D driver specs (see research/haptics.md).
 DEVICE_CLASSES = {"omni": 3.3, "omega6": 12.0}
 
-DEFAULTS: dict[str, Any] = {
-    "device_class": "omni",
-    "max_force_n": None,  # None: the device class's peak force
-    "rate_hz": 1000.0,
-    "hand": "spring",
-    "hand_mass_kg": 0.5,  # handle plus the hand/forearm mass that moves with it
-    "hand_stiffness_n_per_m": 300.0,  # relaxed grip (100–500 N/m)
-    "hand_damping_ns_per_m": 8.0,
-    "resolution_mm": 0.01,
-    "velocity_window_s": 0.02,
-    "max_jump_mm": 5.0,  # 5 mm in 1 ms = 5 m/s: no hand moves like that
-    "ramp_up_s": 0.0,
-    "max_force_rate_n_per_s": None,
-}
-
 
 class SimulatedForceDevice(Device):
-    """Simulated 3-DoF force device; ``params`` as in :data:`DEFAULTS`, ``scene`` optional.
+    """Simulated 3-DoF force device; parameters in :attr:`PARAMS`, ``scene`` optional.
 
     When a scene is given its :meth:`~studyctl.plugins.interfaces.Scene.sense` channels are added to every
     observation (palpation scenes report pressures or depths there).
@@ -57,6 +43,23 @@ class SimulatedForceDevice(Device):
 
     name = "sim_force3d"
     simulated = True
+    PARAMS = (
+        Param("device_class", "omni", choices=tuple(DEVICE_CLASSES), kind=str,
+              source="CHAI3D driver specs: omni 3.3 N, omega6 12 N peak"),
+        Param("max_force_n", None, 1e-3, 50.0, unit="N", source="None: the device class's peak force"),
+        Param("rate_hz", 1000.0, 1.0, 20000.0, unit="Hz", source="servo rate of haptic devices"),
+        Param("hand", "spring", choices=("spring", "none"), kind=str,
+              source="CHOSEN: spring = a hand holds the handle; none = kinematic probe"),
+        Param("hand_mass_kg", 0.5, 1e-3, 10.0, unit="kg", source="CHOSEN: handle plus moving hand/forearm"),
+        Param("hand_stiffness_n_per_m", 300.0, 0.0, 5000.0, unit="N/m", source="CHOSEN: relaxed grip 100–500 N/m"),
+        Param("hand_damping_ns_per_m", 8.0, 0.0, 500.0, unit="N·s/m", source="CHOSEN: relaxed arm"),
+        Param("resolution_mm", 0.01, 1e-6, 1.0, unit="mm", source="CHOSEN: encoder resolution of this class"),
+        Param("velocity_window_s", 0.02, 1e-3, 1.0, unit="s", source="Force Dimension SDK default window"),
+        Param("max_jump_mm", 5.0, 1e-3, 1000.0, unit="mm",
+              source="CHOSEN: 5 mm in one 1 ms tick = 5 m/s, no hand moves like that"),
+        Param("ramp_up_s", 0.0, 0.0, 10.0, unit="s", source="CHOSEN: no hardware to protect"),
+        Param("max_force_rate_n_per_s", None, 1.0, 1e6, unit="N/s", source="None: no slew limit"),
+    )  # fmt: skip
 
     def __init__(
         self,
@@ -64,31 +67,10 @@ class SimulatedForceDevice(Device):
         scene: Scene | None = None,
         rng: np.random.Generator | None = None,
     ) -> None:
-        super().__init__(params, scene, rng)
-        p = {**DEFAULTS}
-        for key, value in (params or {}).items():
-            if key not in DEFAULTS:
-                raise ModelParameterError(
-                    f"device sim_force3d: unknown parameter {key!r}; allowed: {', '.join(DEFAULTS)}"
-                )
-            p[key] = value
-        cls_name = str(p["device_class"]).lower().replace(".", "").replace("_", "")
-        if cls_name not in DEVICE_CLASSES:
-            raise ModelParameterError(
-                f"device sim_force3d: device_class = {p['device_class']!r}; allowed: {', '.join(DEVICE_CLASSES)}"
-            )
+        p = validate_params("device sim_force3d", params, self.PARAMS)
+        super().__init__(p, scene, rng)
         if p["max_force_n"] is None:
-            p["max_force_n"] = DEVICE_CLASSES[cls_name]
-        if p["hand"] not in ("spring", "none"):
-            raise ModelParameterError(f"device sim_force3d: hand = {p['hand']!r}; allowed: spring, none")
-        for key in ("max_force_n", "rate_hz", "hand_mass_kg", "resolution_mm", "velocity_window_s", "max_jump_mm"):
-            v = p[key]
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (v > 0 and math.isfinite(v)):
-                raise ModelParameterError(f"device sim_force3d: {key} = {v!r} must be a finite number > 0")
-        for key in ("hand_stiffness_n_per_m", "hand_damping_ns_per_m", "ramp_up_s"):
-            v = p[key]
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (v >= 0 and math.isfinite(v)):
-                raise ModelParameterError(f"device sim_force3d: {key} = {v!r} must be a finite number ≥ 0")
+            p["max_force_n"] = DEVICE_CLASSES[p["device_class"]]
         self.params = p
         self.scene = scene
         self.max_force_n = float(p["max_force_n"])
@@ -225,8 +207,7 @@ class SimulatedForceDevice(Device):
                 qx, qy, qz = px, py, pz
             elif self.fault is None:
                 self._enter_safe_state(
-                    f"position jumped {math.dist((qx, qy, qz), (px, py, pz)):.1f} mm in one tick "
-                    f"(limit {jump:g} mm)"
+                    f"position jumped {math.dist((qx, qy, qz), (px, py, pz)):.1f} mm in one tick (limit {jump:g} mm)"
                 )
         q = (qx, qy, qz)
         self._meas = q

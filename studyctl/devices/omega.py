@@ -16,7 +16,6 @@ own process and measures the period jitter.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -24,20 +23,9 @@ import numpy as np
 
 from studyctl.errors import DeviceError, ModelParameterError
 from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
+from studyctl.plugins.params import Param, validate_params
 
 EXTRA_HINT = "pip install 'studyctl[omega]'"
-
-DEFAULTS: dict[str, Any] = {
-    "max_force_n": 12.0,  # omega.6 peak force (CHAI3D driver spec)
-    "scale": 1.0,  # device mm → scene mm
-    "offset_mm": [0.0, 0.0, 0.0],  # scene position of the device origin
-    "pen_axis": "-x",  # wrist-frame axis that points along the needle (sign and column)
-    "button": 0,
-    "watchdog_ms": 10.0,  # SDK watchdog: forces off when no command for this long (0 = off)
-    "ramp_up_s": 1.0,
-    "max_force_rate_n_per_s": 2000.0,  # slew limit: a puncture drop takes ≥ 0.5 ms per newton
-    "device_id": -1,  # -1: the first available device
-}
 
 
 def load_sdk() -> Any:
@@ -62,6 +50,20 @@ class Omega6Device(Device):
 
     name = "omega6"
     simulated = False
+    PARAMS = (
+        Param("max_force_n", 12.0, 1e-3, 12.0, unit="N", source="omega.6 peak force (CHAI3D driver spec)"),
+        Param("scale", 1.0, 1e-3, 100.0, source="device mm → scene mm"),
+        Param("offset_mm", (0.0, 0.0, 0.0), kind=tuple, unit="mm", source="scene position of the device origin"),
+        Param("pen_axis", "-x", choices=("x", "y", "z", "-x", "-y", "-z"), kind=str,
+              source="CHOSEN: the wrist-frame axis along the needle; check on the device"),
+        Param("button", 0, 0, 15, kind=int, source="the pen's button index"),
+        Param("watchdog_ms", 10.0, 0.0, 1000.0, unit="ms",
+              source="SDK watchdog: forces off and brakes when no command arrives this long (0 = off)"),
+        Param("ramp_up_s", 1.0, 0.0, 10.0, unit="s", source="CHOSEN: CHAI3D ramps over 2 s"),
+        Param("max_force_rate_n_per_s", 2000.0, 1.0, 1e6, unit="N/s",
+              source="CHOSEN: a puncture drop takes at least 0.5 ms per newton"),
+        Param("device_id", -1, -1, 64, kind=int, source="-1: the first available device"),
+    )  # fmt: skip
 
     def __init__(
         self,
@@ -69,23 +71,11 @@ class Omega6Device(Device):
         scene: Scene | None = None,
         rng: np.random.Generator | None = None,
     ) -> None:
-        super().__init__(params, scene, rng)
-        p = {**DEFAULTS}
-        for key, value in (params or {}).items():
-            if key not in DEFAULTS:
-                raise ModelParameterError(f"device omega6: unknown parameter {key!r}; allowed: {', '.join(DEFAULTS)}")
-            p[key] = value
-        axis = str(p["pen_axis"])
-        if axis not in ("x", "y", "z", "-x", "-y", "-z"):
-            raise ModelParameterError(f"device omega6: pen_axis = {axis!r}; allowed: x, y, z, -x, -y, -z")
-        for key in ("max_force_n", "scale"):
-            v = p[key]
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (v > 0 and math.isfinite(v)):
-                raise ModelParameterError(f"device omega6: {key} = {v!r} must be a finite number > 0")
-        if float(p["max_force_n"]) > 12.0:
-            raise ModelParameterError(
-                f"device omega6: max_force_n = {p['max_force_n']} exceeds the omega.6 peak force of 12 N"
-            )
+        p = validate_params("device omega6", params, self.PARAMS)
+        super().__init__(p, scene, rng)
+        if len(p["offset_mm"]) != 3:
+            raise ModelParameterError(f"device omega6: offset_mm = {list(p['offset_mm'])} must be [x, y, z] in mm")
+        axis = p["pen_axis"]
         self.params = p
         self._col = "xyz".index(axis[-1])
         self._sign = -1.0 if axis.startswith("-") else 1.0

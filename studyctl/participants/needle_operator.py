@@ -24,7 +24,7 @@ scene. What it does, and why each part is there:
 * With a **real-time view** it reads the view a few times a second instead and moves faster.
 
 Outcomes (scans, duration, errors) are therefore whatever happens when this behaviour meets the
-controller, the device and the scene; no metric is written here. Behaviour parameters (``DEFAULTS``) are
+controller, the device and the scene; no metric is written here. Behaviour parameters (``PARAMS``) are
 our choices, stated with their reasons; the per-participant traits are drawn once, at the first trial.
 """
 
@@ -39,42 +39,79 @@ import numpy as np
 from studyctl.errors import ModelParameterError
 from studyctl.participants.ct_reader import CTReading, read_ct
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
+from studyctl.plugins.params import Param, validate_params
 
-DEFAULTS: dict[str, float] = {
-    "insert_speed_mm_s": 10.0,  # steady needle advance (people insert slowly in liver: ~5–20 mm/s)
-    "final_speed_mm_s": 4.0,  # corrections near the target
-    "approach_speed_mm_s": 25.0,  # free-space moves
-    "realtime_speed_gain": 1.15,  # with a live image people move a little faster
-    "guided_speed_gain": 1.3,  # inside a channel felt to be firm, lateral slips are not feared: faster
-    "cued_speed_gain": 1.2,  # when the tumour is known to announce itself, overshooting is not feared
-    "trait_sd": 0.15,  # between-person spread (relative) of speed, noise and drift
-    "decision_hz": 100.0,  # motor/perceptual update rate of the operator
-    "plan_read_s": 4.0,  # looking at the first scan and planning
-    "scan_read_s": 3.0,  # looking at a later scan
-    "visual_period_s": 0.25,  # real-time view: how often it is read
-    "proprio_drift": 0.15,  # mm per √mm moved: position-sense drift (per axis)
-    "motor_noise_mm": 0.3,  # lateral wobble of the hand set-point (stationary sd)
-    "motor_tau_s": 0.5,
-    "speed_noise": 0.15,  # relative speed fluctuation
-    "orientation_sd_deg": 1.5,
-    "force_threshold_n": 0.12,  # absolute axial force rise that is noticed
-    "force_weber": 0.15,  # relative axial force rise that is noticed
-    "force_noise_n": 0.02,  # perceptual noise on the felt force
-    "radial_threshold_n": 0.08,  # a lateral push this strong is felt as guidance
-    "follow_gain_mm_per_ns": 3.0,  # how readily it yields to a felt guidance force
-    "wall_n": 0.3,  # a lateral force this strong feels like a firm channel wall, which it learns to trust
-    "reaction_s": 0.18,
-    "entry_scan_mm": 0.9,  # scan before entering when the lateral uncertainty exceeds this
-    "recheck_mm": 1.6,  # scan during insertion when the lateral uncertainty exceeds this
-    "finish_mm": 0.8,  # finish without a confirming scan only below this uncertainty
-    "accept_mm": 2.0,  # a tip this close to the centroid touches the 2.5 mm tumour on the image: done
-    "margin_mm": 6.0,  # stop this far before the believed target to check, unless a cue is trusted
-    "overshoot_mm": 3.0,  # when trusting a cue, advance at most this far past the believed target
-    "preentry_mm": 8.0,  # where to put the tip above the incision point before entering
-    "home_x_mm": 0.0,
-    "home_y_mm": 0.0,
-    "home_z_mm": 38.0,
-}
+PARAMS = (
+    Param(
+        "insert_speed_mm_s",
+        10.0,
+        0.0,
+        source="CHOSEN: steady needle advance (people insert slowly in liver: ~5–20 mm/s)",
+    ),
+    Param("final_speed_mm_s", 4.0, 0.0, source="CHOSEN: corrections near the target"),
+    Param("approach_speed_mm_s", 25.0, 0.0, source="CHOSEN: free-space moves"),
+    Param("realtime_speed_gain", 1.15, 0.0, source="CHOSEN: with a live image people move a little faster"),
+    Param(
+        "guided_speed_gain",
+        1.3,
+        0.0,
+        source="CHOSEN: inside a channel felt to be firm, lateral slips are not feared: faster",
+    ),
+    Param(
+        "cued_speed_gain",
+        1.2,
+        0.0,
+        source="CHOSEN: when the tumour is known to announce itself, overshooting is not feared",
+    ),
+    Param("trait_sd", 0.15, 0.0, source="CHOSEN: between-person spread (relative) of speed, noise and drift"),
+    Param("decision_hz", 100.0, 0.0, source="CHOSEN: motor/perceptual update rate of the operator"),
+    Param("plan_read_s", 4.0, 0.0, source="CHOSEN: looking at the first scan and planning"),
+    Param("scan_read_s", 3.0, 0.0, source="CHOSEN: looking at a later scan"),
+    Param("visual_period_s", 0.25, 0.0, source="CHOSEN: real-time view: how often it is read"),
+    Param("proprio_drift", 0.15, 0.0, source="CHOSEN: mm per √mm moved: position-sense drift (per axis)"),
+    Param("motor_noise_mm", 0.3, 0.0, source="CHOSEN: lateral wobble of the hand set-point (stationary sd)"),
+    Param("motor_tau_s", 0.5, 0.0, source="CHOSEN"),
+    Param("speed_noise", 0.15, 0.0, source="CHOSEN: relative speed fluctuation"),
+    Param("orientation_sd_deg", 1.5, 0.0, source="CHOSEN"),
+    Param("force_threshold_n", 0.12, 0.0, source="CHOSEN: absolute axial force rise that is noticed"),
+    Param("force_weber", 0.15, 0.0, source="CHOSEN: relative axial force rise that is noticed"),
+    Param("force_noise_n", 0.02, 0.0, source="CHOSEN: perceptual noise on the felt force"),
+    Param("radial_threshold_n", 0.08, 0.0, source="CHOSEN: a lateral push this strong is felt as guidance"),
+    Param("follow_gain_mm_per_ns", 3.0, 0.0, source="CHOSEN: how readily it yields to a felt guidance force"),
+    Param(
+        "wall_n",
+        0.3,
+        0.0,
+        source="CHOSEN: a lateral force this strong feels like a firm channel wall, which it learns to trust",
+    ),
+    Param("reaction_s", 0.18, 0.0, source="CHOSEN"),
+    Param("entry_scan_mm", 0.9, 0.0, source="CHOSEN: scan before entering when the lateral uncertainty exceeds this"),
+    Param("recheck_mm", 1.6, 0.0, source="CHOSEN: scan during insertion when the lateral uncertainty exceeds this"),
+    Param("finish_mm", 0.8, 0.0, source="CHOSEN: finish without a confirming scan only below this uncertainty"),
+    Param(
+        "accept_mm",
+        2.0,
+        0.0,
+        source="CHOSEN: a tip this close to the centroid touches the 2.5 mm tumour on the image: done",
+    ),
+    Param(
+        "margin_mm",
+        6.0,
+        0.0,
+        source="CHOSEN: stop this far before the believed target to check, unless a cue is trusted",
+    ),
+    Param(
+        "overshoot_mm",
+        3.0,
+        0.0,
+        source="CHOSEN: when trusting a cue, advance at most this far past the believed target",
+    ),
+    Param("preentry_mm", 8.0, 0.0, source="CHOSEN: where to put the tip above the incision point before entering"),
+    Param("home_x_mm", 0.0, None, source="CHOSEN"),
+    Param("home_y_mm", 0.0, None, source="CHOSEN"),
+    Param("home_z_mm", 38.0, None, source="CHOSEN"),
+)
+DEFAULTS: dict[str, float] = {p.name: p.default for p in PARAMS}
 
 # phases
 _PLAN, _READ, _APPROACH, _INSERT, _HOLD, _FINISH, _DONE, _JUDGE = range(8)
@@ -85,24 +122,14 @@ def _norm(v: tuple[float, float, float]) -> float:
 
 
 class VirtualNeedleOperator(Participant):
-    """Virtual participant for seed 001 (entry point ``virtual_needle_operator``); params: :data:`DEFAULTS`."""
+    """Virtual participant for seed 001 (entry point ``virtual_needle_operator``); params: :data:`PARAMS`."""
 
     name = "virtual_needle_operator"
     virtual = True
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         super().__init__(params)
-        p = dict(DEFAULTS)
-        for key, value in (params or {}).items():
-            if key not in DEFAULTS:
-                raise ModelParameterError(
-                    f"participant virtual_needle_operator: unknown parameter {key!r}; allowed: {', '.join(DEFAULTS)}"
-                )
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-                raise ModelParameterError(
-                    f"participant virtual_needle_operator: {key} = {value!r} must be a finite number"
-                )
-            p[key] = float(value)
+        p = validate_params("participant virtual_needle_operator", params, PARAMS)
         for key in ("insert_speed_mm_s", "final_speed_mm_s", "approach_speed_mm_s", "decision_hz", "motor_tau_s"):
             if p[key] <= 0:
                 raise ModelParameterError(f"participant virtual_needle_operator: {key} = {p[key]:g} must be > 0")

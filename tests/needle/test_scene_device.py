@@ -224,5 +224,7 @@ def test_omega_adapter_converts_units_and_frames(monkeypatch):
     dev.close()
     dev.close()
     assert fake.forces[-1] == [0.0, 0.0, 0.0] and fake.calls[-1] == "close"
-    with pytest.raises(ModelParameterError, match="12 N"):
+    with pytest.raises(ModelParameterError, match="max_force_n"):
         Omega6Device({"max_force_n": 20})
+    with pytest.raises(ModelParameterError, match="pen_axis"):
+        Omega6Device({"pen_axis": "w"})
