@@ -77,11 +77,15 @@ def run(quick: bool = False) -> BenchResult:
     s_big, _, r_big = _timed(serial, spec, [(big, 0)])
     figures[f"replicates_per_s_serial_{big}"] = 1.0 / s_big
     figures[f"cpu_s_per_replicate_serial_{big}"] = r_big[0].cpu_seconds
+    # CPU seconds our processes got per wall second: 1.0 is one whole core; on an idle 2-core machine a
+    # 2-worker cluster gets ~2. On a shared machine this says how much of the cores the run really had.
+    figures[f"cores_used_serial_{big}"] = r_big[0].cpu_seconds / s_big
     rows.append({"backend": "serial", "participants": big, "replicates": 1, "seconds": s_big,
                  "replicates_per_s": 1.0 / s_big})
     if small != big:
         s_small, _, r_small = _timed(serial, spec, [(small, 0)])
         figures[f"replicates_per_s_serial_{small}"] = 1.0 / s_small
+        figures[f"cpu_s_per_replicate_serial_{small}"] = r_small[0].cpu_seconds
         figures[f"seconds_per_participant_serial_{small}"] = s_small / small
         rows.append({"backend": "serial", "participants": small, "replicates": 1, "seconds": s_small,
                      "replicates_per_s": 1.0 / s_small})
@@ -95,6 +99,7 @@ def run(quick: bool = False) -> BenchResult:
         c_big, _, rc_big = _timed(cluster, spec, [(big, r) for r in range(workers)])
         figures[f"replicates_per_s_cluster_{big}"] = workers / c_big
         figures[f"cpu_s_per_replicate_cluster_{big}"] = sum(r.cpu_seconds for r in rc_big) / len(rc_big)
+        figures[f"cores_used_cluster_{big}"] = sum(r.cpu_seconds for r in rc_big) / c_big
         rows.append({"backend": f"local cluster ({workers} workers)", "participants": big, "replicates": workers,
                      "seconds": c_big, "replicates_per_s": workers / c_big})
         c_small, stamps, _ = _timed(cluster, spec, [(small, r) for r in range(per_cluster)])
@@ -106,6 +111,10 @@ def run(quick: bool = False) -> BenchResult:
     finally:
         cluster.close()
     figures["speedup_cluster"] = figures[f"replicates_per_s_cluster_{big}"] / figures[f"replicates_per_s_serial_{big}"]
+    # The same ratio in CPU time (replicates per CPU-second): 1.0 means the workers waste nothing; the wall-time
+    # speedup is then bounded by how many cores the machine gave the cluster (cores_used_cluster_*).
+    figures["cpu_efficiency_cluster"] = (figures[f"cpu_s_per_replicate_serial_{big}"]
+                                         / figures[f"cpu_s_per_replicate_cluster_{big}"])
     figures["workers"] = float(workers)
     figures["cluster_startup_s"] = startup
     figures["load_1min_start"] = load_start

@@ -11,6 +11,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import pandas as pd
 
 from studyctl.report.figures import DPI
@@ -72,6 +73,9 @@ def power_curve_figure(
     """
     from matplotlib.figure import Figure
 
+    table = table.copy()
+    for col in ("test_id", "test", "kind", "metric", "split", "groups"):  # a CSV round trip reads "" as NaN
+        table[col] = table[col].fillna("").astype(str)
     drawn = table[table["kind"] != "posthoc"]
     tests = list(dict.fromkeys(drawn["test_id"]))
     n = max(len(tests), 1)
@@ -90,10 +94,13 @@ def power_curve_figure(
             ranked = last.sort_values("power", ascending=False)
             keep = list(dict.fromkeys(zip(ranked["metric"], ranked["split"], ranked["groups"], strict=True)))
             lines = [k for k in lines if k in set(keep[:max_lines])]
+        gaps = np.diff(sizes) if len(sizes) > 1 else np.array([1.0])
+        dodge = 0.25 * float(gaps.min()) / max(len(lines), 1)
         for i, key in enumerate(lines):
             g = sub[(sub["metric"] == key[0]) & (sub["split"] == key[1]) & (sub["groups"] == key[2])]
             g = g.sort_values("participants")
-            x = g["participants"].to_numpy(dtype=float)
+            # a small sideways dodge keeps overlapping curves and their intervals apart
+            x = g["participants"].to_numpy(dtype=float) + dodge * (i - (len(lines) - 1) / 2)
             y = g["power"].to_numpy(dtype=float)
             err = [y - g["power_ci_low"].to_numpy(dtype=float), g["power_ci_high"].to_numpy(dtype=float) - y]
             ax.errorbar(
@@ -119,7 +126,10 @@ def power_curve_figure(
         if sizes:
             ax.set_xticks(sizes)
         ax.grid(alpha=0.25)
-        ax.legend(fontsize=7, loc="best", frameon=False)
+        if len(lines) > 6:  # many curves: the legend goes beside the panel, not over it
+            ax.legend(fontsize=6.5, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        else:
+            ax.legend(fontsize=7, loc="best", frameon=False)
     caption = [f"{title}"]
     detail = []
     if replicates is not None:
