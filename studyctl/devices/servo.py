@@ -13,8 +13,10 @@ scene's spec and placement), so plugins are rebuilt in the child through the sam
 
 from __future__ import annotations
 
+import logging
 import math
 import multiprocessing as mp
+import os
 import queue
 import time
 import traceback
@@ -47,6 +49,7 @@ class ServoSpec:
     participant: str | None = None  # a virtual participant in the child; None: requests come from the parent
     participant_params: Mapping[str, Any] = field(default_factory=dict)
     seed: int = 0
+    nice: int = -10  # scheduling priority for the servo process (best effort; 0 leaves it unchanged)
 
 
 @dataclass(frozen=True)
@@ -165,7 +168,17 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
     from studyctl.engine.trial_loop import run_trial  # noqa: PLC0415
     from studyctl.plugins.registry import load_plugin  # noqa: PLC0415
 
+    # Safety events travel to the parent as events; printing each one here would cost the loop its time.
+    quiet = logging.getLogger("studyctl")
+    quiet.addHandler(logging.NullHandler())
+    quiet.propagate = False
     try:
+        niced = 0
+        if spec.nice:
+            try:  # a haptic servo runs above the UI, as CHAI3D's haptics thread does; needs the privilege
+                niced = _renice(spec.nice)
+            except OSError:
+                niced = 0
         rng = np.random.default_rng(spec.seed)
         scene = None
         if spec.scene:
@@ -233,10 +246,16 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
             device.close()
         flush()
         timing = clock.timing(1.0 / spec.info.rate_hz)
-        outbox.put(("event", outcome.duration_s, "servo_timing", timing.as_dict()))
+        outbox.put(("event", outcome.duration_s, "servo_timing", {**timing.as_dict(), "nice": niced}))
         outbox.put(("outcome", _plain(outcome.__dict__)))
     except BaseException as exc:  # the parent must learn why the child ended
         outbox.put(("error", f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+
+
+def _renice(delta: int) -> int:
+    """Change this process's niceness by ``delta``; return the change actually made."""
+    before = os.nice(0)
+    return os.nice(delta) - before
 
 
 def _plain(value: Any) -> Any:
@@ -314,7 +333,7 @@ def run_trial_in_servo_process(
             elif kind == "event":
                 _, t, ev_kind, payload = msg
                 if ev_kind == "servo_timing":
-                    timing = ServoTiming(**payload)
+                    timing = ServoTiming(**{k: v for k, v in payload.items() if k != "nice"})
                 if on_event is not None:
                     on_event(t, ev_kind, payload)
             elif kind == "outcome":
