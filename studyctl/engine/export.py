@@ -23,7 +23,7 @@ from sqlalchemy import select
 
 from studyctl import __version__
 from studyctl.engine.plan import SessionPlan
-from studyctl.errors import UsageError
+from studyctl.errors import SessionError, UsageError
 from studyctl.store import StudyStore
 from studyctl.store.models import Event, LocationReport, Participant, QuestionnaireResponse, Session, Trial
 
@@ -59,9 +59,10 @@ TRIAL_COLUMNS = {
     "started_at": ("Wall-clock start (UTC, ISO 8601)", "", "datetime"),
     "ended_at": ("Wall-clock end (UTC, ISO 8601)", "", "datetime"),
 }
+# the key columns every per-session file starts with, described once
+_SESSION_KEYS = {name: TRIAL_COLUMNS[name] for name in ("participant", "session_id")}
 EVENT_COLUMNS = {
-    "participant": TRIAL_COLUMNS["participant"],
-    "session_id": TRIAL_COLUMNS["session_id"],
+    **_SESSION_KEYS,
     "seq": ("1-based order of the event in its session", "", "integer"),
     "trial_id": ("Trial attempt the event happened in (empty: between trials)", "", "integer"),
     "t": ("Time: trial time since the loop started for events with a trial_id, else session time", "s", "number"),
@@ -70,8 +71,7 @@ EVENT_COLUMNS = {
     "payload": ("Event details (JSON)", "", "json"),
 }
 RESPONSE_COLUMNS = {
-    "participant": TRIAL_COLUMNS["participant"],
-    "session_id": TRIAL_COLUMNS["session_id"],
+    **_SESSION_KEYS,
     "step": ("Plan step position of the questionnaire", "", "integer"),
     "condition": ("Condition the questionnaire followed (empty: start or end of study)", "", "string"),
     "instrument": ("Instrument id", "", "string"),
@@ -83,8 +83,7 @@ RESPONSE_COLUMNS = {
     "answered_at": ("Wall-clock time of the answer (UTC, ISO 8601)", "", "datetime"),
 }
 REPORT_COLUMNS = {
-    "participant": TRIAL_COLUMNS["participant"],
-    "session_id": TRIAL_COLUMNS["session_id"],
+    **_SESSION_KEYS,
     "trial_id": TRIAL_COLUMNS["trial_id"],
     "t": ("Trial time of the report", "s", "number"),
     "column": ("Reported grid column (grid-cell reports)", "", "string"),
@@ -163,7 +162,6 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
     code = {sid: people[x.participant_id].code for sid, x in sessions.items()}
     trial_session = {t.id: t.session_id for t in trials}
 
-    rows: dict[str, int] = {}
     trial_rows = []
     for t in trials:
         o = dict(t.outcome or {})
@@ -174,11 +172,10 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
             t.time_limit_s, o.get("scans"), o.get("reports"), o.get("ticks"), o.get("rate_hz"), t.replaces_trial_id,
             t.invalid_reason, _json(t.placement), _iso(t.started_at), _iso(t.ended_at),
         ])
-    rows["trials.csv"] = _write(out / "trials.csv", list(TRIAL_COLUMNS), trial_rows)
-    rows["events.csv"] = _write(out / "events.csv", list(EVENT_COLUMNS), [
+    event_rows = [
         [code[e.session_id], e.session_id, e.seq, e.trial_id, e.t_mono, _iso(e.t_wall), e.kind, _json(e.payload)]
         for e in events
-    ])
+    ]
     resp_rows = []
     for r in responses:
         step = int(r.context.split(":", 1)[1]) if r.context and r.context.startswith("step:") else None
@@ -192,26 +189,27 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
             if step is not None:
                 try:
                     cond = plan.step(step).condition
-                except Exception:
+                except SessionError:  # the answer names a step the plan does not have
                     cond = None
         resp_rows.append([people[r.participant_id].code, r.session_id, step, cond, r.instrument, r.instrument_version,
                           r.item, r.code, label, reverse, _iso(r.answered_at)])
-    rows["responses.csv"] = _write(out / "responses.csv", list(RESPONSE_COLUMNS), resp_rows)
-    rows["reports.csv"] = _write(out / "reports.csv", list(REPORT_COLUMNS), [
+    report_rows = [
         [code[trial_session[r.trial_id]], trial_session[r.trial_id], r.trial_id, r.t, r.payload.get("column"),
          r.payload.get("row"), r.payload.get("x_mm"), r.payload.get("y_mm"), r.correct]
         for r in reports
-    ])
+    ]
+    tables = {
+        "trials.csv": (TRIAL_COLUMNS, trial_rows),
+        "events.csv": (EVENT_COLUMNS, event_rows),
+        "responses.csv": (RESPONSE_COLUMNS, resp_rows),
+        "reports.csv": (REPORT_COLUMNS, report_rows),
+    }
+    rows = {name: _write(out / name, list(columns), body) for name, (columns, body) in tables.items()}
     dictionary: dict[str, Any] = {
         "studyctl_version": __version__,
         "study": target.name,
         "protocol_sha256": target.protocol_sha256,
-        "files": {
-            "trials.csv": _describe(TRIAL_COLUMNS),
-            "events.csv": _describe(EVENT_COLUMNS),
-            "responses.csv": _describe(RESPONSE_COLUMNS),
-            "reports.csv": _describe(REPORT_COLUMNS),
-        },
+        "files": {name: _describe(columns) for name, (columns, _) in tables.items()},
     }
     if samples:
         channels: list[str] = []
