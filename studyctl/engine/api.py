@@ -52,7 +52,7 @@ class _Setup:
     cleanup: Callable[[], None]
 
 
-def _setup(
+def _prepare(
     plan: SessionPlan,
     seed: int,
     *,
@@ -64,6 +64,10 @@ def _setup(
     script: Script | None,
     log: Callable[[str], None] | None,
 ) -> _Setup:
+    """Preflight, then the participant, prompts and clock: all before anything is written."""
+    report = preflight(plan, factory, virtual=virtual,
+                       person_participant=participant is None and script is None and ui is None)
+    report.raise_if_missing()
     cleanup: Callable[[], None] = lambda: None  # noqa: E731
     if virtual:
         if participant is None:
@@ -82,6 +86,9 @@ def _setup(
         participant = participant or ScriptedParticipant(script, log=log)
         ui = ui or ScriptedUI(script, log=log)
         return _Setup(participant, ui, clock or SimulatedClock(), cleanup)
+    if plan.hardware_device is None and log is not None:
+        log("note: the protocol names no hardware device; this session runs on the simulated device "
+            f"{(plan.simulated_device or {}).get('plugin', '?')} (rehearsal)")
     if ui is None or participant is None:
         from studyctl.engine.person import TerminalParticipant
         from studyctl.engine.terminal import Terminal, TerminalUI
@@ -96,37 +103,34 @@ def _setup(
     return _Setup(participant, ui, clock or RealClock(), cleanup)
 
 
-def _prepare(
+def _launch(
     plan: SessionPlan,
     seed: int,
-    *,
     virtual: bool,
-    factory: PluginFactory,
+    begin: Callable[[], StoreRecorder],
+    *,
     participant: Participant | None,
     ui: SessionUI | None,
     clock: Clock | None,
-    script: Script | None,
-    log: Callable[[str], None] | None,
-) -> _Setup:
-    """Preflight, then the participant, prompts and clock: all before anything is written."""
-    report = preflight(plan, factory, virtual=virtual,
-                       person_participant=participant is None and script is None and ui is None)
-    report.raise_if_missing()
-    if not virtual and script is None and plan.hardware_device is None and log is not None:
-        log("note: the protocol names no hardware device; this session runs on the simulated device "
-            f"{(plan.simulated_device or {}).get('plugin', '?')} (rehearsal)")
-    return _setup(plan, seed, virtual=virtual, factory=factory, participant=participant, ui=ui, clock=clock,
-                  script=script, log=log)
-
-
-def _run(
-    rec: StoreRecorder,
-    setup: _Setup,
-    factory: PluginFactory,
+    script: Script | str | Path | None,
+    factory: PluginFactory | None,
     progress: ProgressFn | None,
-    frontend: Frontend | None = None,
+    speed: float | None,
+    log: Callable[[str], None] | None,
+    frontend: Frontend | None,
 ) -> SessionResult:
+    """Prepare everything, then ``begin()`` the stored session (create or reopen it) and run it.
+
+    Plugins, terminal and clock are ready before ``begin`` writes anything: a failure leaves no half-started
+    session, and the terminal is restored whatever happens.
+    """
+    if isinstance(script, (str, Path)):
+        script = Script.load(script)
+    factory = factory or EntryPointFactory()
+    setup = _prepare(plan, seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
+                     clock=clock or _paced(speed), script=script, log=log)
     try:
+        rec = begin()
         if frontend is not None:
             setup.participant, setup.ui = frontend(setup.participant, setup.ui, rec)
         runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock, factory=factory,
@@ -224,19 +228,11 @@ def run_session(
         raise SessionError(f"participant {participant_code} has no stored schedule; enroll with `studyctl enroll`")
     protocol = study_protocol(target)
     plan = plan_for_participant(protocol, Schedule.from_json(person.schedule))
-    if isinstance(script, (str, Path)):
-        script = Script.load(script)
-    factory = factory or EntryPointFactory()
     seed = session_seed(int(target.seed), participant_code) if seed is None else int(seed)
-    # Plugins, terminal and clock are ready before anything is written: a failure leaves no half-started session.
-    setup = _prepare(plan, seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
-                     clock=clock or _paced(speed), script=script, log=log)
-    try:
-        rec = StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site)
-    except BaseException:
-        setup.cleanup()
-        raise
-    return _run(rec, setup, factory, progress, frontend)
+    return _launch(plan, seed, virtual,
+                   lambda: StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site),
+                   participant=participant, ui=ui, clock=clock, script=script, factory=factory, progress=progress,
+                   speed=speed, log=log, frontend=frontend)
 
 
 def session_is_virtual(store: StudyStore, session_id: int) -> bool:
@@ -300,18 +296,14 @@ def resume_session(
             raise SessionError(f"session {session_id} is being run by process {pid} on this machine; stop it "
                                "first (Ctrl-C in its terminal) or wait for it to end")
     rec = StoreRecorder.load(store, session_id)
-    if isinstance(script, (str, Path)):
-        script = Script.load(script)
-    factory = factory or EntryPointFactory()
     state = rec.state()
-    setup = _prepare(state.plan, state.seed, virtual=state.virtual, factory=factory, participant=participant,
-                     ui=ui, clock=clock or _paced(speed), script=script, log=log)
-    try:
+
+    def begin() -> StoreRecorder:
         rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=state.last_t)
-    except BaseException:
-        setup.cleanup()
-        raise
-    return _run(rec, setup, factory, progress, frontend)
+        return rec
+
+    return _launch(state.plan, state.seed, state.virtual, begin, participant=participant, ui=ui, clock=clock,
+                   script=script, factory=factory, progress=progress, speed=speed, log=log, frontend=frontend)
 
 
 def _paced(speed: float | None) -> Clock | None:
