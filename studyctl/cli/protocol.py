@@ -24,8 +24,6 @@ class Format(StrEnum):
     json = "json"
 
 
-
-
 def _load(file: str):
     return load_protocol(resolve_protocol(file))
 

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import typer
 from rich.console import Console
@@ -12,11 +15,13 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
 from studyctl.engine.api import resume_session, run_session, session_is_virtual
 from studyctl.engine.export import export_study
-from studyctl.store.workspace import open_study
+from studyctl.store.workspace import OpenStudy, open_study
 from studyctl.view import open_view
 
-VIEW_HELP = ("Also show the session on the participant's screen: serves the participant view on this machine "
-             "and prints its URL (instructions, countdown, CT/cursor view, prompts; the terminal stays in control).")
+VIEW_OPTION = typer.Option(
+    False, "--view", help="Also show the session on the participant's screen: serves the participant view on this "
+    "machine and prints its URL (instructions, countdown, CT/cursor view, prompts; the terminal stays in control).")
+VIEW_PORT_OPTION = typer.Option(0, "--view-port", help="Port of the participant view (default: a free one).")
 
 
 class _Bar:
@@ -50,6 +55,16 @@ def _summary(result) -> None:
                f"{result.trials_invalid} invalid, {result.answers} answers, {result.resumes} resume(s)")
 
 
+@contextmanager
+def _live(db: str | None, workspace: Path | None, study: str | None, view: bool, view_port: int,
+          bar_when: Callable[[OpenStudy], bool]) -> Iterator[tuple[OpenStudy, dict[str, Any]]]:
+    """The open study and the keyword arguments run/resume share: progress bar, log to stderr, view front end."""
+    with open_study(db, workspace_arg(workspace), study) as opened, open_view(view, port=view_port) as pv, \
+            _Bar(bar_when(opened)) as bar:
+        yield opened, {"progress": bar, "log": lambda m: typer.echo(m, err=True),
+                       "frontend": pv.attach if pv else None}
+
+
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
@@ -61,18 +76,17 @@ def register(app: typer.Typer) -> None:
                                         "run without a terminal."),
         speed: float = typer.Option(None, "--speed", help="Virtual/scripted runs: at most this many times real "
                                     "time (default: as fast as possible)."),
-        view: bool = typer.Option(False, "--view", help=VIEW_HELP),
-        view_port: int = typer.Option(0, "--view-port", help="Port of the participant view (default: a free one)."),
+        view: bool = VIEW_OPTION,
+        view_port: int = VIEW_PORT_OPTION,
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
         """Run a participant's session: instructions, practice, trials, breaks and questionnaires."""
-        with open_study(db, workspace_arg(workspace), study) as opened, open_view(view, port=view_port) as pv, \
-                _Bar(virtual or input_file is not None) as bar:
+        unattended = virtual or input_file is not None
+        with _live(db, workspace, study, view, view_port, lambda _: unattended) as (opened, hooks):
             result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
-                                 script=input_file, progress=bar, speed=speed,
-                                 log=lambda m: typer.echo(m, err=True), frontend=pv.attach if pv else None)
+                                 script=input_file, speed=speed, **hooks)
         _summary(result)
 
     @app.command("resume")
@@ -82,17 +96,16 @@ def register(app: typer.Typer) -> None:
                                         "session (person sessions without a terminal)."),
         speed: float = typer.Option(None, "--speed", help="Virtual/scripted sessions: at most this many times real "
                                     "time (default: as fast as possible)."),
-        view: bool = typer.Option(False, "--view", help=VIEW_HELP),
-        view_port: int = typer.Option(0, "--view-port", help="Port of the participant view (default: a free one)."),
+        view: bool = VIEW_OPTION,
+        view_port: int = VIEW_PORT_OPTION,
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
         """Continue an interrupted session from its stored plan (crash, kill, Ctrl-C or device fault)."""
-        with open_study(db, workspace_arg(workspace), study) as opened, open_view(view, port=view_port) as pv, \
-                _Bar(input_file is not None or session_is_virtual(opened.store, session)) as bar:
-            result = resume_session(opened.store, session, script=input_file, progress=bar, speed=speed,
-                                    log=lambda m: typer.echo(m, err=True), frontend=pv.attach if pv else None)
+        bar_when = lambda opened: input_file is not None or session_is_virtual(opened.store, session)  # noqa: E731
+        with _live(db, workspace, study, view, view_port, bar_when) as (opened, hooks):
+            result = resume_session(opened.store, session, script=input_file, speed=speed, **hooks)
         _summary(result)
 
     @app.command("export")
