@@ -108,6 +108,7 @@ def register(app: typer.Typer) -> None:
             TimeRemainingColumn,
         )
 
+        from studyctl.errors import SessionInterrupted
         from studyctl.power import prepare_power, run_power
 
         console = Console(highlight=False)
@@ -140,9 +141,9 @@ def register(app: typer.Typer) -> None:
                                on_backend=lambda d: err.print(f"running on: {d}", markup=False))
         except KeyboardInterrupt:
             progress.stop()
-            err.print(f"Interrupted: {state.get('done', 0)} of {len(spec.tasks())} replicates are kept in {out}; "
-                      "run the same command again to continue.", markup=False)
-            raise typer.Exit(130) from None
+            # SessionInterrupted: the CLI prints it as one line and exits with 130, like an interrupted session.
+            raise SessionInterrupted(f"interrupted: {state.get('done', 0)} of {len(spec.tasks())} replicates are "
+                                     f"kept in {out}; run the same command again to continue") from None
         finally:
             progress.stop()
         _print_table(result, console, show_posthoc)

@@ -17,7 +17,7 @@ from typing import Any
 
 import pandas as pd
 
-from studyctl.errors import StudyctlError
+from studyctl.errors import SessionInterrupted, StudyctlError
 from studyctl.power.seeds import replicate_seeds
 from studyctl.power.spec import TEST_KINDS, PowerSpec
 
@@ -179,15 +179,13 @@ def simulate_replicate(
             enrolled = enroll(store, stratum if several else None, study=study.name, code=participant_code(prefix, i))
             actor, n_clipped = model.actor(enrolled.stratum, model.draw_offsets(offsets_rng))
             clipped += n_clipped
-            result = run_session(
-                store,
-                enrolled.code,
-                study=study.name,
-                virtual=True,
-                seed=seeds.session_seeds[i],
-                participant=actor,
-                factory=factory,
-            )
+            try:
+                result = run_session(store, enrolled.code, study=study.name, virtual=True,
+                                     seed=seeds.session_seeds[i], participant=actor, factory=factory)
+            except SessionInterrupted:
+                # Ctrl-C inside a session: the engine made it resumable, but this study lives in memory and is
+                # dropped; the replicate simply did not finish (a rerun of the power command redoes it).
+                raise KeyboardInterrupt from None
             completed += getattr(result, "status", "") == "completed"
             peak = max(peak, _check_memory(spec.memory_limit, where))
         table = compute_metrics(spec.plan, store, study)

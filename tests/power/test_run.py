@@ -127,3 +127,11 @@ def test_figure_draws_one_panel_per_test(serial_run):
     visible = [ax for ax in fig.axes if ax.get_visible()]
     assert len(visible) == serial_run.to_frame()["test_id"].nunique()
     assert "linear: balloon_weber +0.1" in fig.get_supxlabel() if hasattr(fig, "get_supxlabel") else True
+
+
+def test_memory_cap_stops_a_replicate_with_a_clear_error(mini_spec):
+    from studyctl.power.replicate import WorkerMemoryError
+
+    tiny = replace(mini_spec, memory_limit=1024)  # below any Python process: refused before the first session
+    with pytest.raises(WorkerMemoryError, match=r"over the cap of 0 MiB per worker; raise --memory-limit"):
+        simulate_replicate(tiny, 2, 0)
