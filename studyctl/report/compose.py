@@ -71,8 +71,9 @@ def _proportion(result: AnalysisResult, spec: FigureEntry, data: Any, title: str
         return F.message_figure(f"no counts for {mid}", title=title), f"no counts for {mid}"
     levels = None
     if by_level:
-        lv = sel["level"].dropna()
-        levels = list(dict.fromkeys(lv))
+        present = list(dict.fromkeys(sel["level"].dropna()))
+        preferred = [str(x) for x in spec.options.get("levels", [])]
+        levels = [x for x in preferred if x in present] + [x for x in present if x not in preferred]
         if not levels:
             by_level = False
     if not by_level:

@@ -38,8 +38,19 @@ def _figure(
     return fig, axes[:n_panels]
 
 
+def _wrap_title(fig: Figure) -> None:
+    """Break a suptitle wider than its figure over lines (about 10 characters per inch at 11 pt)."""
+    import textwrap
+
+    title = fig.get_suptitle()
+    width = int(fig.get_figwidth() * 10)
+    if title and len(title) > width:
+        fig.suptitle("\n".join(textwrap.wrap(title, width)), fontsize=11)
+
+
 def png_bytes(fig: Figure) -> bytes:
     """The figure as PNG bytes."""
+    _wrap_title(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
     return buf.getvalue()

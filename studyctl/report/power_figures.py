@@ -33,9 +33,11 @@ def _label(row: pd.Series) -> str:
     return " · ".join(parts)
 
 
-def _population_text(population: Any) -> str:
+def population_text(population: Any) -> str:
+    """One line stating the simulated population's knobs (the figure caption and the CLI print it)."""
     if population is None or getattr(population, "is_empty", True):
-        return "population: the protocol's virtual participant, no extra effects stated"
+        return ("population: the protocol's virtual participant as configured, no extra effects stated "
+                "(differences come from the simulated feedback and perception alone)")
     d = population.to_dict()
     bits = []
     for c, shifts in d["condition_effects"].items():
@@ -137,7 +139,7 @@ def power_curve_figure(
     if alpha is not None:
         detail.append(f"alpha = {alpha:g} (dotted); 0.8 dashed; bars: 95% Wilson intervals")
     fig.suptitle(caption[0], fontsize=11)
-    fig.supxlabel("; ".join(detail) + "\n" + _population_text(population), fontsize=8)
+    fig.supxlabel("; ".join(detail) + "\n" + population_text(population), fontsize=8)
     return fig
 
 
