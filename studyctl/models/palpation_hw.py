@@ -120,6 +120,16 @@ _LISTS: dict[SensorCalibration, list[float]] = {}
 A201 = SensorCalibration()
 
 
+def first_order_step(value: float, target: float, dt: float, tau_s: float) -> float:
+    """``value`` after ``dt`` seconds of an exact first-order lag (time constant ``tau_s``) towards ``target``.
+
+    ``tau_s <= 0`` jumps to the target at once; ``dt <= 0`` (no time passed) keeps ``value``.
+    """
+    if tau_s <= 0 or dt <= 0:
+        return target if dt > 0 or tau_s <= 0 else value
+    return target + (value - target) * math.exp(-dt / tau_s)
+
+
 # --------------------------------------------------------------------------------------------------
 # Pneumatic balloon: pressure against control amount (solenoid valve opening, 0-100)
 # --------------------------------------------------------------------------------------------------
@@ -148,10 +158,7 @@ class BalloonModel:
 
     def step(self, psi: float, control: float, dt: float) -> float:
         """Pressure after ``dt`` seconds at ``control``, starting from ``psi`` (exact first-order step)."""
-        target = self.static_psi(control)
-        if self.tau_s <= 0 or dt <= 0:
-            return target if dt > 0 or self.tau_s <= 0 else psi
-        return target + (psi - target) * math.exp(-dt / self.tau_s)
+        return first_order_step(psi, self.static_psi(control), dt, self.tau_s)
 
 
 # PSI → N/mm²; the paper's K_psi (6.896e-3), i.e. 0.454 kgf·9.8 / 25.4² as in the BHF code.
@@ -189,15 +196,11 @@ class VibrationMotorModel:
 
     def static(self, duty: float) -> tuple[float, float]:
         """(frequency Hz, acceleration m/s²) at steady state for a PWM duty."""
-        x = self._x(duty)
-        return self.f_max_hz * (1.3 * x - 0.3 * x * x), self.a_max_ms2 * x * x
+        return self.output(self._x(duty))
 
     def step(self, speed: float, duty: float, dt: float) -> float:
         """Normalised speed x after ``dt`` seconds at ``duty`` (exact first-order step)."""
-        target = self._x(duty)
-        if self.tau_s <= 0 or dt <= 0:
-            return target if dt > 0 or self.tau_s <= 0 else speed
-        return target + (speed - target) * math.exp(-dt / self.tau_s)
+        return first_order_step(speed, self._x(duty), dt, self.tau_s)
 
     def output(self, speed: float) -> tuple[float, float]:
         """(frequency Hz, acceleration m/s²) at normalised speed x."""
