@@ -158,13 +158,29 @@ class Board:
         self.status_flags &= ~bp.ST_REJECTED
 
 
+def _numbers(text: str, count: int) -> tuple[float, ...]:
+    """``count`` colon-separated numbers; ValueError when there are more or fewer or one is not a number."""
+    parts = text.split(":")
+    if len(parts) != count:
+        raise ValueError(text)
+    return tuple(float(x) for x in parts)
+
+
 def serve(args: argparse.Namespace) -> int:
-    if args.profile:
-        parts = args.profile.split(":")
-        if parts[0] != "trapezoid" or len(parts) != 5:
-            print("Error: --profile must be trapezoid:PEAK_N:RATE_N_S:HOLD_S:REST_S", file=sys.stderr)
-            return 2
-        peak, rate, hold, rest = (float(x) for x in parts[1:])
+    try:
+        if args.profile and not args.profile.startswith("trapezoid:"):
+            raise ValueError(args.profile)
+        profile = _numbers(args.profile.removeprefix("trapezoid:"), 4) if args.profile else None
+    except ValueError:
+        print("Error: --profile must be trapezoid:PEAK_N:RATE_N_S:HOLD_S:REST_S", file=sys.stderr)
+        return 2
+    try:
+        glitch = _numbers(args.adc_glitch, 2) if args.adc_glitch else None
+    except ValueError:
+        print("Error: --adc-glitch must be START_S:DURATION_S", file=sys.stderr)
+        return 2
+    if profile is not None:
+        peak, rate, hold, rest = profile
 
         def force_fn(t: float) -> float:
             return trapezoid(t, peak, rate, hold, rest)
@@ -174,10 +190,6 @@ def serve(args: argparse.Namespace) -> int:
         def force_fn(t: float) -> float:
             return const
 
-    glitch = None
-    if args.adc_glitch:
-        a, b = args.adc_glitch.split(":")
-        glitch = (float(a), float(b))
     board = Board(
         force_fn,
         rate_hz=args.rate,
