@@ -121,8 +121,7 @@ class BioInspiredController(PalpationController):
 
     def reset(self) -> None:
         super().reset()
-        if hasattr(self, "model"):
-            self.model.reset()
+        self.model.reset()  # validate() built it before the first reset()
         self.last_rates: dict[str, float] = {}
         self.last_intensity: dict[str, float] = {}
 

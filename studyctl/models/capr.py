@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
 from types import MappingProxyType
 
@@ -194,34 +194,6 @@ def discretise(t: AfferentType, dt: float, method: str = "foh"):
         raise ModelParameterError(f"CAPR: time step {dt!r} must be > 0 s")
     ad, bd, cd, dd, _ = signal.cont2discrete(state_space(t), dt, method=method)
     return ad, bd, cd, dd
-
-
-def impulse_l1(t: AfferentType) -> float:
-    """∫|h(t)|dt of eq. 2 (numerically, 10 µs steps over 20 slowest time constants, +1 % margin).
-
-    Bounds the drive of a unit for bounded input: |S| ≤ gain·‖h‖₁·max|F|.
-    """
-    return _impulse_l1(t)
-
-
-@lru_cache(maxsize=32)
-def _impulse_l1(t: AfferentType) -> float:
-    a, b, c, _ = state_space(t)
-    slowest = min(abs(np.linalg.eigvals(a).real))
-    horizon = 20.0 / slowest
-    dt = 1e-5
-    n = int(horizon / dt)
-    ad = linalg.expm(a * dt)
-    x = b[:, 0].copy()
-    total = 0.0
-    for chunk_start in range(0, n, 4096):
-        m = min(4096, n - chunk_start)
-        ys = np.empty(m)
-        for i in range(m):
-            ys[i] = c[0] @ x
-            x = ad @ x
-        total += np.abs(ys).sum() * dt
-    return 1.01 * total
 
 
 # --------------------------------------------------------------------------------------------------
@@ -544,7 +516,6 @@ class CaprModel:
         c_all = linalg.block_diag(*(b[2] for b in blocks))
         b_all = linalg.block_diag(*(b[1] for b in blocks))  # (states, types): input t drives type t
         ad, bd, cd, dd, _ = signal.cont2discrete((a_all, b_all, c_all, np.zeros((n_types, n_types))), self.dt, "foh")
-        self.discrete_system = (ad, bd, cd, dd)
         am, obs, toe, ctrl = _lift(ad, bd, cd, dd, m)
         n = am.shape[0]
         frac = np.arange(1, m + 1) / m
@@ -658,9 +629,7 @@ class CaprModel:
     # -- batch ---------------------------------------------------------------------------------------
     def run(self, force_n: np.ndarray) -> CaprResponse:
         """Whole force sequence (at ``input_rate_hz``) from rest; identical to calling :meth:`step` per sample."""
-        f = np.asarray(force_n, dtype=float)
-        if f.ndim != 1 or not np.all(np.isfinite(f)):
-            raise ModelParameterError("CAPR: force sequence must be a 1-D array of finite numbers")
+        f = _force_sequence(force_n)
         self.reset()
         rates = {name: np.empty(f.size) for name in self.types}
         active = {name: np.empty(f.size) for name in self.types}
@@ -680,9 +649,7 @@ class CaprModel:
         differences of cumulative sums. Equal to streaming to ~1e-6 relative (float32 nonlinear stage; tested).
         Leaves the streaming state reset.
         """
-        f = np.asarray(force_n, dtype=float)
-        if f.ndim != 1 or not np.all(np.isfinite(f)):
-            raise ModelParameterError("CAPR: force sequence must be a 1-D array of finite numbers")
+        f = _force_sequence(force_n)
         self.reset()
         m, k_ticks, n_types = self.m, f.size, len(self.types)
         prev = np.concatenate([[0.0], f[:-1]])
@@ -691,7 +658,7 @@ class CaprModel:
         y_force = np.empty((n_types, u.size - 1))
         y_deep = np.zeros((n_types, u.size - 1))
         deep_any = False
-        for i, sos in enumerate(self._sos()):
+        for i, sos in enumerate(self._sos):
             y_force[i] = signal.sosfilt(sos, u)[1:]
             u2 = np.maximum(u - self._crit[i], 0.0)
             if u2.any():
@@ -727,17 +694,17 @@ class CaprModel:
         active = {name: counts[i] for i, name in enumerate(self.types)}
         return CaprResponse(t, f, MappingProxyType(rates), MappingProxyType(active))
 
+    @cached_property
     def _sos(self) -> list[np.ndarray]:
-        """Second-order sections of each type's discrete filter (FOH at ``fs_model``), cached."""
-        cached = getattr(self, "_sos_cache", None)
-        if cached is None:
-            cached = []
-            for pop in self.populations:
-                ad, bd, cd, dd = discretise(pop.afferent, self.dt)
-                z, p, k = signal.ss2zpk(ad, bd, cd, dd)
-                cached.append(signal.zpk2sos(z, p, k))
-            self._sos_cache = cached
-        return cached
+        """Second-order sections of each type's discrete filter (FOH at ``fs_model``), built on first use."""
+        return [signal.zpk2sos(*signal.ss2zpk(*discretise(pop.afferent, self.dt))) for pop in self.populations]
+
+
+def _force_sequence(force_n: np.ndarray) -> np.ndarray:
+    f = np.asarray(force_n, dtype=float)
+    if f.ndim != 1 or not np.all(np.isfinite(f)):
+        raise ModelParameterError("CAPR: force sequence must be a 1-D array of finite numbers")
+    return f
 
 
 # --------------------------------------------------------------------------------------------------
