@@ -105,6 +105,10 @@ class VirtualPalpator(Participant):
         self._note_keys = tuple(
             (ch, (ch, "peak"), tuple((c, (ch, f"{c:g}")) for c in self.checkpoints)) for ch in CHANNELS
         )
+        # every (channel, note) a cell is scored on: the checkpoints of each channel, then the peaks
+        self._keys = tuple((ch, f"{c:g}") for ch in CHANNELS for c in self.checkpoints) + tuple(
+            (ch, "peak") for ch in CHANNELS
+        )
         self._rng: np.random.Generator | None = None
 
     # -- trial --------------------------------------------------------------------------------------
@@ -119,6 +123,8 @@ class VirtualPalpator(Participant):
         self._pose = (self.origin[0] - 5.0, self.origin[1] - 5.0, -5.0)
         self._notes: dict[tuple[str, str], float] = {}
         self._belief_depth = 0.0
+        self._pressing: _Segment | None = None
+        self._ref: dict[tuple[str, str], float | None] | None = None  # normal-tissue reference, after the sweep
         self._finished = False
         for row in range(1, self.rows + 1):
             cols = range(1, self.columns + 1) if row % 2 else range(self.columns, 0, -1)  # boustrophedon
@@ -176,7 +182,7 @@ class VirtualPalpator(Participant):
 
     def _note(self, percept: Mapping[str, Any]) -> None:
         """Note what the actuators deliver (this tick's percept is the feel at the previous tick's depth)."""
-        seg = getattr(self, "_pressing", None)
+        seg = self._pressing
         if seg is None:
             return
         believed = self._belief_depth
@@ -204,9 +210,6 @@ class VirtualPalpator(Participant):
         self._notes = {}
         self._pressing = None
 
-    def _keys(self) -> list[tuple[str, str]]:
-        return [(ch, f"{c:g}") for ch in CHANNELS for c in self.checkpoints] + [(ch, "peak") for ch in CHANNELS]
-
     def _reference(self) -> dict[tuple[str, str], float | None]:
         """Median log-percept over the swept cells per (channel, checkpoint); None when normal tissue is not felt.
 
@@ -216,7 +219,7 @@ class VirtualPalpator(Participant):
         ref: dict[tuple[str, str], float | None] = {}
         self._felt_rate = {}
         n = len(self.evidence)
-        for key in self._keys():
+        for key in self._keys:
             first = [ev.logs[key][0] if ev.logs.get(key) else -math.inf for ev in self.evidence.values()]
             med = float(np.median(first)) if first else -math.inf
             ref[key] = med if math.isfinite(med) else None
@@ -227,7 +230,7 @@ class VirtualPalpator(Participant):
     def _score(self, ev: _CellEvidence, ref: dict[tuple[str, str], float | None]) -> float:
         """Evidence that a cell differs from normal tissue, in noise SDs of its mean (inf: felt only here)."""
         best = -math.inf
-        for key in self._keys():
+        for key in self._keys:
             sigma = self.senses[key[0]].sigma
             logs = ev.logs.get(key)
             if ref[key] is None:
@@ -253,7 +256,7 @@ class VirtualPalpator(Participant):
     def _decide_and_finish(self) -> Action:
         if self._finished:
             return Action(requests=(Request("finish"),))
-        ref = getattr(self, "_ref", None) or self._reference()
+        ref = self._ref or self._reference()
         scored = sorted(
             ((self._score(ev, ref), cell) for cell, ev in self.evidence.items()),
             key=lambda sc: (-sc[0], sc[1]),
