@@ -59,8 +59,8 @@ def _summary(result) -> None:
 def _live(db: str | None, workspace: Path | None, study: str | None, view: bool, view_port: int,
           bar_when: Callable[[OpenStudy], bool]) -> Iterator[tuple[OpenStudy, dict[str, Any]]]:
     """The open study and the keyword arguments run/resume share: progress bar, log to stderr, view front end."""
-    with open_study(db, workspace_arg(workspace), study) as opened, open_view(view, port=view_port) as pv, \
-            _Bar(bar_when(opened)) as bar:
+    with open_study(db, workspace_arg(workspace), study) as opened, \
+            open_view(view, port=view_port, announce=typer.echo) as pv, _Bar(bar_when(opened)) as bar:
         yield opened, {"progress": bar, "log": lambda m: typer.echo(m, err=True),
                        "frontend": pv.attach if pv else None}
 

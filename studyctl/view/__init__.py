@@ -90,9 +90,10 @@ class ParticipantView:
 
 @contextmanager
 def open_view(
-    enabled: bool, *, port: int = 0, announce: Callable[[str], None] = print
+    enabled: bool, *, announce: Callable[[str], None], port: int = 0
 ) -> Iterator[ParticipantView | None]:
-    """The CLI's ``--view``: a started :class:`ParticipantView` whose URL is announced, or None when off."""
+    """The CLI's ``--view``: a started :class:`ParticipantView` whose URL is passed to ``announce``, or None
+    when off."""
     if not enabled:
         yield None
         return

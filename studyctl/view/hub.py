@@ -20,7 +20,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -241,8 +241,7 @@ class ViewHub:
                          key=lambda c: c.first_seen)
         self.controller = waiting[0].id if waiting else None
         self._controller_lost = None
-        self.pending_log.append(("view_client", {"action": "control_released", "client": old,
-                                                 "to": self.controller, "wall": time.time()}))
+        self.note("view_client", {"action": "control_released", "client": old, "to": self.controller})
 
     # ================================================================ server threads: participant input
     def submit(self, client_id: str, body: Mapping[str, Any]) -> tuple[int, dict[str, Any]]:
@@ -350,11 +349,7 @@ class ViewHub:
         """Record when a browser drew frames / screens (times already converted to our clock)."""
         n = 0
         trial = self.trial
-        for item in frames[:600]:
-            try:
-                seq, drawn = int(item[0]), float(item[1])
-            except (TypeError, ValueError, IndexError):
-                continue
+        for seq, drawn in _stamps(frames[:600]):
             with self._enc_lock:
                 state = self._sent.get(seq)
             if state is None or not math.isfinite(drawn):
@@ -367,11 +362,7 @@ class ViewHub:
                                   "drawn_t": state.t + (drawn - state.ts), "latency_ms": latency,
                                   "client": client_id})
             n += 1
-        for item in screens[:50]:
-            try:
-                version, drawn = int(item[0]), float(item[1])
-            except (TypeError, ValueError, IndexError):
-                continue
+        for version, drawn in _stamps(screens[:50]):
             with self.lock:
                 summary = self._screen_summary.get(version)
                 if summary is None or version in self._screen_shown:
@@ -396,3 +387,12 @@ class ViewHub:
         while self.pending_log:
             out.append(self.pending_log.popleft())
         return out
+
+
+def _stamps(items: list) -> Iterator[tuple[int, float]]:
+    """The well-formed ``[id, time]`` pairs a browser sent (anything else is skipped)."""
+    for item in items:
+        try:
+            yield int(item[0]), float(item[1])
+        except (TypeError, ValueError, IndexError):
+            continue
