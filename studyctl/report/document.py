@@ -168,6 +168,18 @@ def _published(entry: PlanTest) -> Block | None:
     return ("p", f"Published values (the paper): {text}.")
 
 
+def _posthoc_text(entry: PlanTest) -> str:
+    ph = entry.posthoc
+    if ph.test == "multcompare":
+        how = "MATLAB multcompare: studentized range on mean ranks"
+    elif ph.test == "tukey_hsd":
+        how = "studentized range"
+    else:
+        how = f"{ph.p_adjust}-adjusted"
+    when = "after a significant omnibus test" if ph.when == "significant" else "always"
+    return f"{ph.test} ({how}, {when})"
+
+
 def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
     name = catalog.ALIASES.get(entry.test, entry.test)
     blocks: list[Block] = [("h", 3, entry.title or entry.id)]
@@ -177,7 +189,7 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
             "p",
             f"{spec.summary}. Compared: {entry.compare}"
             + (f"; separately for each {', '.join(entry.by)}" if entry.by else "")
-            + (f"; post-hoc: {entry.posthoc.test} ({entry.posthoc.p_adjust})" if entry.posthoc else "")
+            + (f"; post-hoc: {_posthoc_text(entry)}" if entry.posthoc else "")
             + (f"; correction across rows: {entry.correction}" if entry.correction != "none" else "")
             + f"; alpha = {entry.alpha if entry.alpha is not None else result.plan.alpha}.",
         )
