@@ -17,13 +17,7 @@ from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 
 def report_spec(info: TrialInfo) -> ReportSpec:
     """The report rules the engine put in ``info.public['report']``."""
-    rep = dict(info.public.get("report") or {})
-    return ReportSpec(
-        kind=rep.get("kind", "none"),
-        columns=tuple(rep.get("columns", ())),
-        rows=tuple(rep.get("rows", ())),
-        bounds_mm=tuple(rep.get("bounds_mm", (0.0, 0.0, 0.0, 0.0))),  # type: ignore[arg-type]
-    )
+    return ReportSpec.from_json(info.public.get("report"))
 
 
 class TerminalParticipant(Participant):

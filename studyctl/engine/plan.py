@@ -83,6 +83,18 @@ class ReportSpec:
     rows: tuple[str, ...] = ()
     bounds_mm: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # x_min, x_max, y_min, y_max
 
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any] | None) -> ReportSpec:
+        """Inverse of ``dataclasses.asdict`` (missing keys take the defaults; ``None`` is no report)."""
+        rep = dict(data or {})
+        x0, x1, y0, y1 = (float(b) for b in rep.get("bounds_mm", (0, 0, 0, 0)))
+        return cls(
+            kind=rep.get("kind", "none"),
+            columns=tuple(str(c) for c in rep.get("columns", ())),
+            rows=tuple(str(r) for r in rep.get("rows", ())),
+            bounds_mm=(x0, x1, y0, y1),
+        )
+
     def describe(self) -> str:
         if self.kind == "grid":
             return (
@@ -261,13 +273,7 @@ class SessionPlan:
                 f"stored plan version {data.get('version')!r} is not supported by this studyctl "
                 f"(expects {PLAN_VERSION}); upgrade studyctl"
             )
-        rep = dict(data.get("report") or {})
-        report = ReportSpec(
-            kind=rep.get("kind", "none"),
-            columns=tuple(str(c) for c in rep.get("columns", ())),
-            rows=tuple(str(r) for r in rep.get("rows", ())),
-            bounds_mm=tuple(float(b) for b in rep.get("bounds_mm", (0, 0, 0, 0))),  # type: ignore[arg-type]
-        )
+        report = ReportSpec.from_json(data.get("report"))
         conditions = {k: ConditionSpec(**v) for k, v in data["conditions"].items()}
         instruments = {
             k: Instrument(
