@@ -110,6 +110,7 @@ def register(app: typer.Typer) -> None:
 
         from studyctl.errors import SessionInterrupted
         from studyctl.power import prepare_power, run_power
+        from studyctl.report.power_figures import population_text
 
         console = Console(highlight=False)
         err = Console(stderr=True, highlight=False)
@@ -119,6 +120,7 @@ def register(app: typer.Typer) -> None:
         sizes = ", ".join(map(str, spec.sizes))
         console.print(f"power: {spec.study_id}, plan {spec.plan.title!r}; participants {sizes}; "
                       f"{spec.replicates} replicates each; seed {spec.seed}", markup=False)
+        console.print(population_text(spec.population), markup=False)
         state = {"kept": 0}
         progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                             TimeRemainingColumn(), console=err, transient=False)
