@@ -17,7 +17,7 @@ import hashlib
 import secrets
 from collections.abc import Iterator, Mapping, Sequence
 from datetime import datetime
-from typing import Any
+from typing import Any, TypeVar
 
 import pandas as pd
 from sqlalchemy import func, insert, select
@@ -49,6 +49,7 @@ _TRIAL_FIELDS = frozenset(
     {"status", "timed_out", "started_at", "ended_at", "outcome", "invalid_reason", "placement", "time_limit_s"}
 )
 _SESSION_FIELDS = frozenset({"status", "ended_at", "resume_count", "seed", "site"})
+_Row = TypeVar("_Row", Study, Participant, Session, Trial)
 
 
 def check_text(value: Any, what: str, *, max_len: int = MAX_TEXT, allow_none: bool = False) -> str | None:
@@ -69,6 +70,14 @@ def check_text(value: Any, what: str, *, max_len: int = MAX_TEXT, allow_none: bo
     except UnicodeEncodeError:
         raise UsageError(f"{what} {value!r} is not valid Unicode text (a lone surrogate); re-type it") from None
     return value
+
+
+def _require(s: OrmSession, model: type[_Row], key: int) -> _Row:
+    """``s.get(model, key)``, or :class:`NotFoundError` ``no <table> with id <key>``."""
+    row = s.get(model, key)
+    if row is None:
+        raise NotFoundError(f"no {model.__tablename__} with id {key}")
+    return row
 
 
 def _check_choice(value: str, allowed: tuple[str, ...], what: str) -> str:
@@ -229,8 +238,7 @@ class StudyStore:
             raise UsageError(f"sequence slot must be an integer, got {sequence_slot!r}")
         digest = None if schedule is None else schedule_sha256(schedule)
         with self._tx(tx) as s:
-            if s.get(Study, study_id) is None:
-                raise NotFoundError(f"no study with id {study_id}")
+            _require(s, Study, study_id)
             clash = s.scalar(select(Participant.id).where(Participant.study_id == study_id, Participant.code == code))
             if clash is not None:
                 raise UsageError(f"participant code {code!r} is already enrolled in this study; codes must be unique")
@@ -256,10 +264,7 @@ class StudyStore:
 
     def get_participant_by_id(self, participant_id: int, *, tx: OrmSession | None = None) -> Participant:
         with self._read(tx) as s:
-            p = s.get(Participant, participant_id)
-        if p is None:
-            raise NotFoundError(f"no participant with id {participant_id}")
-        return p
+            return _require(s, Participant, participant_id)
 
     def list_participants(self, study_id: int, *, tx: OrmSession | None = None) -> list[Participant]:
         """All participants of a study in enrollment order."""
@@ -272,9 +277,7 @@ class StudyStore:
         """Change a participant's status (``withdrawn`` records the time and the reason)."""
         _check_choice(status, PARTICIPANT_STATUSES, "participant status")
         with self._tx(tx) as s:
-            p = s.get(Participant, participant_id)
-            if p is None:
-                raise NotFoundError(f"no participant with id {participant_id}")
+            p = _require(s, Participant, participant_id)
             old = p.status
             p.status = status
             if status == "withdrawn":
@@ -298,8 +301,7 @@ class StudyStore:
         _check_seed(seed, "session seed")
         check_text(site, "site", allow_none=True)
         with self._tx(tx) as s:
-            if s.get(Participant, participant_id) is None:
-                raise NotFoundError(f"no participant with id {participant_id}")
+            _require(s, Participant, participant_id)
             sess = Session(participant_id=participant_id, status="running", started_at=utcnow(), seed=seed,
                            resume_count=0, site=site)
             s.add(sess)
@@ -310,10 +312,7 @@ class StudyStore:
 
     def get_session(self, session_id: int, *, tx: OrmSession | None = None) -> Session:
         with self._read(tx) as s:
-            sess = s.get(Session, session_id)
-        if sess is None:
-            raise NotFoundError(f"no session with id {session_id}")
-        return sess
+            return _require(s, Session, session_id)
 
     def list_sessions(self, participant_id: int, *, tx: OrmSession | None = None) -> list[Session]:
         with self._read(tx) as s:
@@ -327,9 +326,7 @@ class StudyStore:
         if "status" in fields:
             _check_choice(fields["status"], SESSION_STATUSES, "session status")
         with self._tx(tx) as s:
-            sess = s.get(Session, session_id)
-            if sess is None:
-                raise NotFoundError(f"no session with id {session_id}")
+            sess = _require(s, Session, session_id)
             before = {k: getattr(sess, k) for k in fields}
             for k, v in fields.items():
                 setattr(sess, k, v)
@@ -363,9 +360,7 @@ class StudyStore:
         if time_limit_s is not None and not (time_limit_s > 0):
             raise UsageError(f"time_limit_s must be > 0, got {time_limit_s!r}")
         with self._tx(tx) as s:
-            sess = s.get(Session, session_id)
-            if sess is None:
-                raise NotFoundError(f"no session with id {session_id}")
+            sess = _require(s, Session, session_id)
             if replaces_trial_id is not None and s.get(Trial, replaces_trial_id) is None:
                 raise NotFoundError(f"trial {replaces_trial_id} to replace does not exist")
             trial = Trial(session_id=session_id, participant_id=sess.participant_id, plan_position=plan_position,
@@ -391,9 +386,7 @@ class StudyStore:
         if "status" in fields:
             _check_choice(fields["status"], TRIAL_STATUSES, "trial status")
         with self._tx(tx) as s:
-            trial = s.get(Trial, trial_id)
-            if trial is None:
-                raise NotFoundError(f"no trial with id {trial_id}")
+            trial = _require(s, Trial, trial_id)
             old_status = trial.status
             for k, v in fields.items():
                 setattr(trial, k, v)
@@ -406,10 +399,7 @@ class StudyStore:
 
     def get_trial(self, trial_id: int, *, tx: OrmSession | None = None) -> Trial:
         with self._read(tx) as s:
-            trial = s.get(Trial, trial_id)
-        if trial is None:
-            raise NotFoundError(f"no trial with id {trial_id}")
-        return trial
+            return _require(s, Trial, trial_id)
 
     def list_trials(
         self, *, session_id: int | None = None, participant_id: int | None = None, tx: OrmSession | None = None
