@@ -75,14 +75,19 @@ def check_choice(value: str, name: str, allowed: Sequence[str]) -> str:
     return value
 
 
-def check_confidence(confidence: float) -> float:
+def check_probability(value: Any, name: str) -> float:
+    """A number strictly between 0 and 1 (a confidence level, α, a quantile's probability)."""
     try:
-        c = float(confidence)
+        c = float(value)
     except (TypeError, ValueError):
-        raise StatsInputError(f"confidence must be a number in (0, 1), got {confidence!r}") from None
+        raise StatsInputError(f"{name} must be a number in (0, 1), got {value!r}") from None
     if not (0.0 < c < 1.0):
-        raise StatsInputError(f"confidence must be in the open interval (0, 1), got {confidence!r}")
+        raise StatsInputError(f"{name} must be in the open interval (0, 1), got {value!r}")
     return c
+
+
+def check_confidence(confidence: float) -> float:
+    return check_probability(confidence, "confidence")
 
 
 def check_count(value: Any, name: str) -> int:

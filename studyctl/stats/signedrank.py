@@ -12,7 +12,7 @@ from studyctl.errors import StatsInputError
 
 from . import _exact
 from ._ranks import midranks, tie_term
-from ._validate import as_array, as_sample, check_alternative, check_choice
+from ._validate import as_array, as_sample, check_alternative, check_choice, check_probability
 from .ranksum import correction, normal_p
 from .results import SignedRankResult
 
@@ -269,12 +269,7 @@ def signed_rank_critical(n: int, alpha: float = 0.05, alternative: str = "two-si
     check_alternative(alternative)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise StatsInputError(f"n must be an integer ≥ 1, got {n!r}")
-    try:
-        a = float(alpha)
-    except (TypeError, ValueError):
-        raise StatsInputError(f"alpha must be a number in (0, 1), got {alpha!r}") from None
-    if not (0.0 < a < 1.0):
-        raise StatsInputError(f"alpha must be in the open interval (0, 1), got {alpha!r}")
+    a = check_probability(alpha, "alpha")
     level = Fraction(repr(a)) / (2 if alternative == "two-sided" else 1)
     counts = _signed_rank_counts(int(n))
     bound = level * (1 << int(n))  # P(W ≤ w) ≤ level  ⇔  cumulative count ≤ level·2^n

@@ -26,6 +26,8 @@ from scipy import interpolate, optimize, special
 
 from studyctl.errors import StatsInputError
 
+from ._validate import check_probability
+
 _NZ = 64  # Gauss-Legendre nodes per panel of the z integral (two panels split at the peak)
 _NS = 48  # nodes per panel of the s integral
 _W_MAX = 60.0  # log P(R > w) is tabulated on [0, _W_MAX]; beyond, it is integrated directly
@@ -258,7 +260,4 @@ def studentized_range_ppf(p: float, k: int, df: float) -> float:
     3.8768
     """
     k, df = _check(k, df)
-    p = float(p)
-    if not (0.0 < p < 1.0):
-        raise StatsInputError(f"p must be in the open interval (0, 1), got {p!r}")
-    return _ppf_cached(p, k, df)
+    return _ppf_cached(check_probability(p, "p"), k, df)
