@@ -218,8 +218,13 @@ class Script:
         text = p.read_text(encoding="utf-8")
         try:
             data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
-        except (json.JSONDecodeError, yaml.YAMLError) as exc:
-            raise UsageError(f"{p}: cannot parse answers file: {str(exc).splitlines()[0]}") from None
+        except json.JSONDecodeError as exc:
+            raise UsageError(f"{p}:{exc.lineno}:{exc.colno}: cannot parse answers file: {exc.msg}") from None
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f"{p}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(p)
+            what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            raise UsageError(f"{where}: cannot parse answers file: {what}") from None
         return cls.from_mapping(data or {}, source=str(p))
 
     @classmethod
