@@ -7,7 +7,7 @@ drop-out does not leave a slot counted (see research notes on allocation).
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, defaultdict
 from dataclasses import dataclass
 
 import pandas as pd
@@ -36,15 +36,19 @@ class ProgressRow:
 
 @dataclass(frozen=True)
 class StudyProgress:
-    """Rows per participant × condition plus balance counts (first condition and position × condition)."""
+    """Rows per participant × condition plus balance counts (position × condition, and the first condition)."""
 
     study: str
     rows: tuple[ProgressRow, ...]
-    first_condition: dict[str, dict[str, int]]  # stratum → condition → participants starting with it
     position_counts: dict[str, dict[int, dict[str, int]]]  # stratum → position → condition → count
 
     COLUMNS = ("participant", "stratum", "participant_status", "session_id", "session_status", "condition",
                "planned", "done", "running", "aborted", "invalid", "left")
+
+    @property
+    def first_condition(self) -> dict[str, dict[str, int]]:
+        """Stratum → condition → participants starting with it (position 1 of :attr:`position_counts`)."""
+        return {k: dict(v.get(1, {})) for k, v in self.position_counts.items()}
 
     def to_frame(self) -> pd.DataFrame:
         return pd.DataFrame([tuple(r.__dict__[c] for c in self.COLUMNS) for r in self.rows],
@@ -75,14 +79,16 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
                                   .order_by(Session.id)))
         trials = list(s.scalars(select(Trial).where(Trial.participant_id.in_([p.id for p in people]))))
     latest = {x.participant_id: x for x in sessions}
+    by_session: dict[int, list[Trial]] = defaultdict(list)
+    for t in trials:
+        by_session[t.session_id].append(t)
     rows: list[ProgressRow] = []
-    first: dict[str, Counter] = {}
     positions: dict[str, dict[int, Counter]] = {}
     for p in people:
         schedule = Schedule.from_json(p.schedule) if p.schedule else None
         planned = Counter(e.condition for e in schedule.entries) if schedule else Counter()
         sess = latest.get(p.id)
-        mine = [t for t in trials if sess is not None and t.session_id == sess.id]
+        mine = by_session.get(sess.id, []) if sess is not None else []
         finished_positions = {(t.condition, t.plan_position) for t in mine if t.status in ("completed", "invalid")}
         order = schedule.order if schedule else ()
         conditions = list(dict.fromkeys([*order, *planned, *(t.condition for t in mine)]))
@@ -102,13 +108,11 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
             ))
         if schedule and p.status != "withdrawn":
             key = p.stratum or "all"
-            first.setdefault(key, Counter())[schedule.order[0]] += 1
             for pos, cond in enumerate(schedule.order, start=1):
                 positions.setdefault(key, {}).setdefault(pos, Counter())[cond] += 1
     return StudyProgress(
         study=target.name,
         rows=tuple(rows),
-        first_condition={k: dict(v) for k, v in first.items()},
         position_counts={k: {pos: dict(c) for pos, c in v.items()} for k, v in positions.items()},
     )
 
@@ -147,8 +151,9 @@ def progress_lines(progress: StudyProgress) -> list[str]:
 
 def progress_json(progress: StudyProgress) -> dict:
     """The progress as JSON-ready data (``studyctl status --json``)."""
+    frame = progress.to_frame()
     return {
-        "rows": progress.to_frame().astype(object).where(progress.to_frame().notna(), None).to_dict("records"),
+        "rows": frame.astype(object).where(frame.notna(), None).to_dict("records"),
         "totals": progress.totals(),
         "first_condition": progress.first_condition,
         "position_counts": {s: {str(p): c for p, c in v.items()} for s, v in progress.position_counts.items()},
