@@ -15,8 +15,6 @@ from typing import Any, Protocol
 
 from studyctl.engine.plan import SessionPlan
 
-TRIAL_STATUSES = ("planned", "running", "completed", "aborted", "invalid")
-
 
 @dataclass(frozen=True)
 class TrialRecord:
