@@ -43,3 +43,23 @@ def test_console_script_runs():
     out = subprocess.run([sys.executable, "-m", "studyctl", "--help"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert "Usage" in out.stdout
+
+
+def test_exit_code_of_a_command_is_kept():
+    import typer as _typer
+
+    from studyctl.cli import app as app_module
+
+    probe = _typer.Typer()
+
+    @probe.command()
+    def fail() -> None:
+        """Exit with code 3."""
+        raise _typer.Exit(3)
+
+    original = app_module.app
+    app_module.app = probe
+    try:
+        assert app_module.main([]) == 3
+    finally:
+        app_module.app = original

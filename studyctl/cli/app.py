@@ -57,7 +57,8 @@ for _module in COMMAND_MODULES:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: run the CLI and turn any StudyctlError into one ``Error:`` line."""
     try:
-        app(args=argv, standalone_mode=False)
+        # In non-standalone mode click hands ``typer.Exit(n)`` back as the return value.
+        returned = app(args=argv, standalone_mode=False)
     except StudyctlError as exc:
         typer.echo(f"Error: {exc}", err=True)
         return exc.exit_code
@@ -76,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
             exc.show()
             return int(exc.exit_code)
         raise
-    return 0
+    return returned if isinstance(returned, int) else 0
 
 
 def console_main() -> None:
