@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 from studyctl.engine.plan import SessionPlan
@@ -49,6 +49,17 @@ class SessionState:
     def attempts(self, position: int) -> list[TrialRecord]:
         """Started attempts at the trial step ``position`` (planned rows are not attempts)."""
         return [t for t in self.trials if t.position == position and t.status != "planned"]
+
+    def set_trial(
+        self, trial_id: int, status: str, reason: str, outcome: Mapping[str, Any] | None = None
+    ) -> bool:
+        """Give trial ``trial_id`` a new status and reason (and outcome); False when there is no such trial."""
+        for i, r in enumerate(self.trials):
+            if r.trial_id == trial_id:
+                self.trials[i] = replace(r, status=status, reason=reason,
+                                         outcome=dict(outcome) if outcome is not None else r.outcome)
+                return True
+        return False
 
 
 class SampleSink(Protocol):
@@ -178,14 +189,8 @@ class MemoryRecorder:
         return tid
 
     def _set_trial(self, trial_id: int, status: str, reason: str, outcome=None) -> None:
-        for i, rec in enumerate(self._state.trials):
-            if rec.trial_id == trial_id:
-                self._state.trials[i] = TrialRecord(
-                    rec.trial_id, rec.position, rec.attempt, status, reason,
-                    dict(outcome) if outcome is not None else rec.outcome, rec.condition,
-                )
-                return
-        raise KeyError(trial_id)
+        if not self._state.set_trial(trial_id, status, reason, outcome):
+            raise KeyError(trial_id)
 
     def trial_finished(self, trial_id, status, outcome, reports, *, position, t, reason="", complete_step=True):
         self._set_trial(trial_id, status, reason, outcome)

@@ -19,6 +19,7 @@ rebuilds it from the database in :meth:`StoreRecorder.load`.
 
 from __future__ import annotations
 
+import math
 import operator
 import os
 import socket
@@ -293,13 +294,6 @@ class StoreRecorder:
         self._state.trials.sort(key=lambda r: r.trial_id)
         return tid
 
-    def _set_trial(self, trial_id: int, status: str, reason: str, outcome=None) -> None:
-        for i, r in enumerate(self._state.trials):
-            if r.trial_id == trial_id:
-                self._state.trials[i] = TrialRecord(r.trial_id, r.position, r.attempt, status, reason,
-                                                    dict(outcome) if outcome is not None else r.outcome, r.condition)
-                return
-
     def trial_finished(self, trial_id, status, outcome, reports, *, position, t, reason="", complete_step=True):
         with self.store.in_transaction() as tx:
             self._flush_pending(tx)
@@ -314,7 +308,7 @@ class StoreRecorder:
             self._append(tx, "trial_end", {"status": status, "reason": reason, "trial_id": trial_id, **out}, t, None)
             if complete_step:
                 self._append(tx, "step_done", {"position": position, "trial_id": trial_id, "status": status}, t, None)
-        self._set_trial(trial_id, status, reason, out)
+        self._state.set_trial(trial_id, status, reason, out)
         if complete_step:
             self._state.completed.add(position)
 
@@ -322,7 +316,7 @@ class StoreRecorder:
         with self.store.in_transaction() as tx:
             self.store.update_trial(trial_id, status=status, invalid_reason=reason, tx=tx)
             self._append(tx, "trial_marked", {"trial_id": trial_id, "status": status, "reason": reason}, None, None)
-        self._set_trial(trial_id, status, reason)
+        self._state.set_trial(trial_id, status, reason)
 
     def samples(self, trial_id: int, channels: list[str]) -> _StoreSamples:
         return _StoreSamples(self.store, trial_id)
@@ -365,8 +359,6 @@ class StoreRecorder:
 
 def _jsonable(value: Any) -> Any:
     """Plain JSON types (numpy scalars → Python; inf/nan → None; tuples → lists)."""
-    import math
-
     if isinstance(value, Mapping):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
