@@ -125,14 +125,17 @@ class PlanEntry:
             condition=str(data["condition"]),
             repetition=int(data["repetition"]),
             placement=None if placement is None else tuple((str(k), int(v)) for k, v in placement.items()),
-            orientation_deg=None if data.get("orientation_deg") is None else float(data["orientation_deg"]),
-            time_limit_s=None if data.get("time_limit_s") is None else float(data["time_limit_s"]),
-            familiarisation_max_s=(
-                None if data.get("familiarisation_max_s") is None else float(data["familiarisation_max_s"])
-            ),
+            orientation_deg=_optional_float(data, "orientation_deg"),
+            time_limit_s=_optional_float(data, "time_limit_s"),
+            familiarisation_max_s=_optional_float(data, "familiarisation_max_s"),
             break_before_s=float(data.get("break_before_s", 0.0)),
             questionnaires_after=tuple(data.get("questionnaires_after", ())),
         )
+
+
+def _optional_float(data: dict[str, Any], key: str) -> float | None:
+    value = data.get(key)
+    return None if value is None else float(value)
 
 
 def format_placement(placement: tuple[tuple[str, int], ...] | None) -> str:
