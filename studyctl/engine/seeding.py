@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 # Purpose tags keep the streams of one step independent of each other.
-_SCENE, _PARTICIPANT, _DEVICE, _ANSWER, _REPLACEMENT = 1, 2, 3, 4, 5
+_SCENE, _PARTICIPANT, _DEVICE, _ANSWER, _REPLACEMENT, _PERSON = 1, 2, 3, 4, 5, 6
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,12 @@ def trial_streams(seed: int, position: int) -> TrialStreams:
         participant=_rng(seed, position, _PARTICIPANT),
         device=_rng(seed, position, _DEVICE),
     )
+
+
+def person_rng(seed: int) -> np.random.Generator:
+    """Generator for what a virtual participant draws once per session (its traits), handed to it at the start
+    of every run of the session, so a resumed session's participant is the same person."""
+    return _rng(seed, 0, _PERSON)
 
 
 def answer_rng(seed: int, position: int, item_number: int) -> np.random.Generator:

@@ -36,7 +36,7 @@ from studyctl.engine.factory import (
 )
 from studyctl.engine.plan import ConditionSpec, InvalidAnswer, SessionPlan, Step
 from studyctl.engine.recorder import Recorder, SessionState
-from studyctl.engine.seeding import TrialStreams, trial_streams
+from studyctl.engine.seeding import TrialStreams, person_rng, trial_streams
 from studyctl.engine.trial_loop import TrialOutcome, run_trial
 from studyctl.engine.ui import Control, ManualOutcome, SessionUI
 from studyctl.errors import DeviceError, SessionError, SessionInterrupted, StudyctlError
@@ -145,6 +145,9 @@ class SessionRunner:
                 "be resumed"
             )
         self._seed = state.seed
+        begin_session = getattr(self.participant, "begin_session", None)
+        if callable(begin_session):  # per-person traits from the session seed: the same after a resume
+            begin_session(person_rng(self._seed))
         self._offset = state.last_t
         self._clock0 = self.clock.now()
         resuming = bool(state.started)
@@ -343,8 +346,8 @@ class SessionRunner:
             # every completed trial in plan order: a participant may base answers on it instead of memory,
             # so a resumed session answers exactly as an uninterrupted one
             "history": [
-                {"condition": t.condition, **dict(t.outcome)} for t in self._in_plan_order(state)
-                if t.status == "completed"
+                {"condition": t.condition, **self._told(plan, t.condition), **dict(t.outcome)}
+                for t in self._in_plan_order(state) if t.status == "completed"
             ],
         }
         for number, item in enumerate(instrument.items, start=1):
@@ -359,6 +362,15 @@ class SessionRunner:
             self.rec.answer(step.position, instrument.id, instrument.version, item.id, code, rt)
         self.rec.step_completed(step.position, self.now(), {"instrument": instrument.id,
                                                             "version": instrument.version})
+
+    @staticmethod
+    def _told(plan: SessionPlan, condition: str | None) -> dict[str, Any]:
+        """What the participant was told about a trial's condition (its name, the view it had, whether it was
+        manual): known to a person, and needed to judge one scenario against another from the record."""
+        spec = plan.conditions.get(condition) if condition else None
+        if spec is None:
+            return {}
+        return {"label": spec.label or spec.id, "visual": spec.visual, "manual": spec.manual}
 
     @staticmethod
     def _in_plan_order(state: SessionState) -> list:

@@ -25,7 +25,11 @@ scene. What it does, and why each part is there:
 
 Outcomes (scans, duration, errors) are therefore whatever happens when this behaviour meets the
 controller, the device and the scene; no metric is written here. Behaviour parameters (``PARAMS``) are
-our choices, stated with their reasons; the per-participant traits are drawn once, at the first trial.
+our choices, stated with their reasons; the per-participant traits are drawn once per session from the
+stream the engine hands to :meth:`VirtualNeedleOperator.begin_session` (the same after a resume).
+
+Questionnaire answers are judged from the session's stored trial record the engine passes with each item
+(durations, scans, timeouts, each scenario's view), never from memory that a resumed process would lack.
 """
 
 from __future__ import annotations
@@ -148,8 +152,12 @@ class VirtualNeedleOperator(Participant):
 
         return {"speed": f(), "noise": f(), "drift": f(), "read": f(), "threshold": f()}
 
+    def begin_session(self, rng: np.random.Generator) -> None:
+        """The engine hands over the session's person stream at every (re)start: the same traits after a resume."""
+        self.traits = self._draw_traits(rng)
+
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
-        if self.traits is None:
+        if self.traits is None:  # run outside a session (a bare trial loop): the first trial's stream
             self.traits = self._draw_traits(rng)
         p, tr = self.p, self.traits
         self.info = info
@@ -648,54 +656,65 @@ class VirtualNeedleOperator(Participant):
 
     # ------------------------------------------------------------------ questionnaires
     def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:
-        """A Likert code from its own experience of the scenarios (faster, fewer scans, clearer cues)."""
+        """A Likert code judged from the completed trials of the session (faster, fewer scans, fewer timeouts).
+
+        The trials are the engine's stored record (``item["history"]``: condition, its view, duration, scans,
+        how each ended, in plan order), so an interrupted and resumed session answers as an uninterrupted one;
+        its own memory (:attr:`history`) serves only when the item carries no record (a bare trial loop).
+        """
         codes = list(item.get("codes") or [1, 2, 3, 4, 5])
         lo, hi = min(codes), max(codes)
         mid = (lo + hi) / 2.0
         half = (hi - lo) / 2.0
+        record = item.get("history")
+        rows = [dict(r) for r in (record if record is not None else self.history)]
         cond = item.get("condition")
         key = f"{item.get('id', '')} {item.get('text', '')}".lower()
-        mine = [h for h in self.history if h["condition"] == cond] if cond else []
-        first = self.history[0]["condition"] if self.history else None
-        base = [h for h in self.history if h["condition"] == first]
+        mine = [r for r in rows if r.get("condition") == cond] if cond else []
+        first = rows[0].get("condition") if rows else None
+        base = [r for r in rows if r.get("condition") == first]
 
-        def mean(rows: list[dict[str, Any]], k: str) -> float:
-            vals = [float(r[k]) for r in rows if k in r]
+        def mean(sel: list[dict[str, Any]], k: str) -> float:
+            vals = [float(r[k]) for r in sel if r.get(k) is not None]
             return sum(vals) / len(vals) if vals else math.nan
 
-        def gain(rows: list[dict[str, Any]]) -> float:
-            """Relative improvement over the first scenario (time counts twice as much as scans)."""
-            if not rows or not base:
-                return 0.0
-            d0, d1 = mean(base, "duration_s"), mean(rows, "duration_s")
-            s0, s1 = mean(base, "scans"), mean(rows, "scans")
-            g = (d0 - d1) / max(d0, 1e-9)
-            if s0 > 0:
-                g = (2 * g + (s0 - s1) / s0) / 3
-            return g
+        def faster(sel: list[dict[str, Any]]) -> float:
+            d0, d1 = mean(base, "duration_s"), mean(sel, "duration_s")
+            return (d0 - d1) / d0 if sel and base and d0 > 0 else 0.0
 
+        def fewer_scans(sel: list[dict[str, Any]]) -> float:
+            s0, s1 = mean(base, "scans"), mean(sel, "scans")
+            return (s0 - s1) / s0 if sel and base and s0 > 0 else 0.0
+
+        def gain(sel: list[dict[str, Any]]) -> float:
+            """Relative improvement over the first scenario (time counts twice as much as scans)."""
+            if not sel or not base:
+                return 0.0
+            if mean(base, "scans") > 0:
+                return (2 * faster(sel) + fewer_scans(sel)) / 3
+            return faster(sel)
+
+        def timeouts(sel: list[dict[str, Any]]) -> float:
+            """Share of trials stopped by the time limit (the target not reached in time)."""
+            late = sum(1 for r in sel if r.get("timed_out") or r.get("ended_by") == "time_limit")
+            return late / len(sel) if sel else 0.0
+
+        # the scenarios with enhanced haptics: after the first (baseline) one, without the real-time image
+        haptic = [r for r in rows if r.get("visual") != "realtime" and r.get("condition") != first]
         if "baseline" in key or "improv" in key:
             score = mid + half * math.tanh(3.0 * gain(mine))
         elif "navigat" in key or "easy" in key and "haptic" not in key:
-            felt = mean(mine, "radial_felt_s") if mine else 0.0
-            cues = sum(1 for h in mine if h.get("cue")) / len(mine) if mine else 0.0
-            score = mid + half * math.tanh(2.0 * gain(mine) + 0.1 * felt + 0.5 * cues)
+            score = mid + half * math.tanh(3.0 * faster(mine) - 1.5 * timeouts(mine))
         elif "confiden" in key:
-            cues = sum(1 for h in mine if h.get("cue")) / len(mine) if mine else 0.0
-            score = mid + half * math.tanh(2.5 * gain(mine) + 0.4 * cues)
+            score = mid + half * math.tanh(1.5 * gain(mine) + 1.5 * fewer_scans(mine) - 1.5 * timeouts(mine))
         elif "equal" in key:
-            rt = [h for h in self.history if h.get("visual") == "realtime"]
-            hap = [h for h in self.history if h.get("cue") and h.get("visual") != "realtime"]
-            if rt and hap:
-                score = hi - 4 * half * abs(gain(rt) - gain(hap))
-            else:
-                score = mid
+            rt = [r for r in rows if r.get("visual") == "realtime"]
+            score = hi - 4 * half * abs(gain(rt) - gain(haptic)) if rt and haptic else mid
         elif "haptic" in key or "easier" in key:
-            hap = [h for h in self.history if h.get("visual") != "realtime" and h["condition"] != first]
-            score = mid + half * math.tanh(3.0 * gain(hap))
+            score = mid + half * math.tanh(3.0 * gain(haptic))
         elif "learn" in key:
-            half_n = len(self.history) // 2
-            early, late = self.history[:half_n], self.history[half_n:]
+            half_n = len(rows) // 2
+            early, late = rows[:half_n], rows[half_n:]
             d0, d1 = mean(early, "duration_s"), mean(late, "duration_s")
             score = mid + half * (math.tanh(3.0 * (d0 - d1) / d0) if early and late and d0 > 0 else 0.0)
         else:

@@ -43,10 +43,13 @@ judging softness; it is fused with the force/displacement cue by inverse-varianc
 (``cutaneous_ratio``), so one press's stiffness judgement is about three times finer than through a stylus.
 
 Questionnaires: an item that compares combined feedback with force feedback alone (seed 003's end question)
-is answered from the participant's own trials: whether the trials in which it perceived both cues (force and
-cursor) gave it stronger evidence than those in which it felt force only, judged with the visual Weber noise.
-The experience is remembered in the participant object; a session resumed in a new process has forgotten
-it and answers the scale's lowest code ("no difference"). Other items get the scale's middle code.
+is answered from the session's stored trial record that the engine passes with the item (``history``: each
+completed trial's condition, its label, duration and number of reported spots), so a session resumed in a new
+process answers as an uninterrupted one: whether its searches with both feedbacks named (force and
+pseudo-haptic) found spots at a noticeably higher rate (spots + 1 per second, ``search_weber``) than those with
+force feedback alone. Clearer cues make its sequential follow-up settle sooner and more spots pass its report
+threshold, so the rate carries what it perceived. Only without a record (a bare trial loop) does it fall back on
+its remembered percepts (cues perceived, evidence strength). Other items get the scale's middle code.
 
 Parameters (``params=``): see :data:`PARAMS`.
 """
@@ -131,6 +134,14 @@ PARAMS = (
         source="Bergmann Tiest & Kappers 2009 (IEEE ToH 2:189): compliance Weber fraction 15% by direct touch, "
         "more than trebled without the finger's surface-deformation cue; optimal cue combination then gives the "
         "skin cue σ = 1/√8 of the force/displacement cue's",
+    ),
+    Param(
+        "search_weber",
+        0.15,
+        low=0.01,
+        high=1.0,
+        source="chosen: a search rate (spots found per time) this much higher is noticed; judgements of how long "
+        "a minutes-long search took are coarser than the 8-10 % of force and speed",
     ),
 )
 
@@ -568,13 +579,52 @@ class VirtualTissuePalpator(Participant):
         key = f"{item.get('id', '')} {item.get('text', '')}".lower()
         if "combin" not in key or "force" not in key:
             return codes[len(codes) // 2]
+        record = item.get("history")
+        if record is None:
+            return self._answer_from_memory(codes, rng)
+        both: list[Mapping[str, Any]] = []
+        force: list[Mapping[str, Any]] = []
+        for row in record:
+            if row.get("manual") or not row.get("duration_s"):
+                continue
+            told = _feedback_named(row)
+            if told == {"force", "cursor"}:
+                both.append(row)
+            elif told == {"force"}:
+                force.append(row)
+        if not both or not force:
+            return codes[0]
+        weber = self.params["search_weber"]
+        # how much faster spots were found with both feedbacks, as a judged (noisy) log ratio
+        judged = math.log(_search_rate(both) / _search_rate(force)) + weber * float(rng.normal())
+        steps = int(judged / math.log1p(weber)) if judged > 0 else 0  # in just-noticeable differences
+        return codes[min(steps, len(codes) - 1)]
+
+    def _answer_from_memory(self, codes: list[int], rng: np.random.Generator) -> int:
+        """Without a stored record: from remembered percepts (stronger evidence with both cues perceived?)."""
         felt = [e for e in self.experience if not e["direct"] and math.isfinite(e["z_max"]) and e["z_max"] > 0]
         both = [e["z_max"] for e in felt if {"force", "cursor"} <= set(e["cues"])]
         force = [e["z_max"] for e in felt if e["cues"] == ["force"]]
         if not both or not force:
             return codes[0]
         weber = self.params["visual_weber"]
-        # how much more clearly the stiff spots stood out with both cues, as a judged (noisy) log ratio
         judged = math.log(float(np.mean(both)) / float(np.mean(force))) + weber * float(rng.normal())
-        steps = int(judged / math.log1p(weber)) if judged > 0 else 0  # in just-noticeable differences
+        steps = int(judged / math.log1p(weber)) if judged > 0 else 0
         return codes[min(steps, len(codes) - 1)]
+
+
+def _feedback_named(row: Mapping[str, Any]) -> set[str]:
+    """The feedbacks a trial's condition was introduced with (its label, else its id): force, cursor or both."""
+    name = str(row.get("label") or row.get("condition") or "").lower()
+    told = set()
+    if "force" in name:
+        told.add("force")
+    if "pseudo" in name or "cursor" in name:
+        told.add("cursor")
+    return told
+
+
+def _search_rate(rows: list[Mapping[str, Any]]) -> float:
+    """Spots found per second of searching over the trials (one added, so an empty search still counts)."""
+    found = sum(float(r.get("reports") or 0) + 1.0 for r in rows)
+    return found / sum(float(r["duration_s"]) for r in rows)
