@@ -281,19 +281,7 @@ class _EntryRunner:
                 res = stats.signed_rank(matrix[:, 0], matrix[:, 1], **opts)
                 n_r = int(_get(res, "n_used", "n_nonzero", "n", default=n))
                 w_min = _f(_get(res, "w_min"))
-                row = self.row(
-                    metric,
-                    split,
-                    statistic_name="V (R+)",
-                    statistic=_f(res.statistic),
-                    z=_f(_get(res, "z")),
-                    p=_f(res.pvalue),
-                    method=str(_get(res, "method", default="")),
-                    effect_size_name="matched_pairs_r",
-                    effect_size=_f(_get(res, "effect_size")),
-                    significant=bool(_f(res.pvalue) < self.alpha),
-                    **common,
-                )
+                row = self._rank_row(metric, split, res, "V (R+)", "matched_pairs_r", [], common)
                 if critical:
                     crit = stats.signed_rank_critical(n_r, alpha=self.alpha)
                     crit_v = NAN if crit is None else float(crit)
@@ -314,22 +302,7 @@ class _EntryRunner:
             common.update(n=len(x) + len(y), n_per_group=f"{len(x)}; {len(y)}")
             if test == "rank_sum":
                 res = stats.rank_sum(x, y, **opts)
-                return [
-                    self.row(
-                        metric,
-                        split,
-                        statistic_name="U",
-                        statistic=_f(res.statistic),
-                        z=_f(_get(res, "z")),
-                        p=_f(res.pvalue),
-                        method=str(_get(res, "method", default="")),
-                        effect_size_name="rank_biserial",
-                        effect_size=_f(_get(res, "effect_size")),
-                        significant=bool(_f(res.pvalue) < self.alpha),
-                        warnings="; ".join(warns + _result_warnings(res)),
-                        **common,
-                    )
-                ]
+                return [self._rank_row(metric, split, res, "U", "rank_biserial", warns, common)]
             raise StatsInputError(f"{test} is not a two-sample test")
         except StudyctlError as exc:
             return [self.row(metric, split, status="not_computed", warnings=str(exc), **common)]
@@ -398,29 +371,9 @@ class _EntryRunner:
         ph = self.entry.posthoc
         if ph is not None:
             if ph.when == "significant" and not (row.p < self.alpha):
-                out[0] = row.with_(
-                    warnings="; ".join(
-                        filter(None, [row.warnings, f"post-hoc {ph.test} not run: p = {row.p:.3g} ≥ alpha"])
-                    )
-                )
+                out[0] = self._posthoc_skipped(row, ph.test)
             elif ph.test == "rank_sum":
-                ph_rows = []
-                for a, b in itertools.combinations(levels, 2):
-                    ph_rows.extend(
-                        self.run_two(
-                            metric,
-                            split,
-                            sub,
-                            col,
-                            a,
-                            b,
-                            kind="posthoc",
-                            parent=self.parent_label(metric, split),
-                            test="rank_sum",
-                            options={},
-                        )
-                    )
-                out.extend(self._adjust_posthoc(ph_rows, ph.p_adjust))
+                out.extend(self._pairs_posthoc(metric, split, sub, col, levels, "rank_sum", ph.p_adjust))
             else:
                 test = "dunn" if ph.test in ("dunn", "multcompare") else ph.test
                 variant = "multcompare" if ph.test == "multcompare" else (ph.variant or "dunn")
@@ -438,6 +391,42 @@ class _EntryRunner:
                     )
                 )
         return out
+
+    def _rank_row(
+        self, metric: str, split: str, res: Any, stat_name: str, es_name: str, warns: list[str], common: dict
+    ) -> TestRow:
+        """The row of a rank-sum or signed-rank result."""
+        p = _f(res.pvalue)
+        return self.row(
+            metric,
+            split,
+            statistic_name=stat_name,
+            statistic=_f(res.statistic),
+            z=_f(_get(res, "z")),
+            p=p,
+            method=str(_get(res, "method", default="")),
+            effect_size_name=es_name,
+            effect_size=_f(_get(res, "effect_size")),
+            significant=bool(p < self.alpha),
+            warnings="; ".join(warns + _result_warnings(res)),
+            **common,
+        )
+
+    def _posthoc_skipped(self, row: TestRow, test: str) -> TestRow:
+        note = f"post-hoc {test} not run: p = {row.p:.3g} ≥ alpha"
+        return row.with_(warnings="; ".join(filter(None, [row.warnings, note])))
+
+    def _pairs_posthoc(
+        self, metric: str, split: str, sub: pd.DataFrame, col: str, levels: list[str], test: str, adjust: str
+    ) -> list[TestRow]:
+        """Every pair of levels with a two-sample test, p-values adjusted over the pairs."""
+        rows: list[TestRow] = []
+        parent = self.parent_label(metric, split)
+        for a, b in itertools.combinations(levels, 2):
+            rows.extend(
+                self.run_two(metric, split, sub, col, a, b, kind="posthoc", parent=parent, test=test, options={})
+            )
+        return self._adjust_posthoc(rows, adjust)
 
     def parent_label(self, metric: str, split: str) -> str:
         return f"{self.entry.id}/{metric}" + (f"[{split}]" if split else "")
@@ -603,29 +592,9 @@ class _EntryRunner:
         ph = self.entry.posthoc
         if ph is not None:
             if ph.when == "significant" and not (row.p < self.alpha):
-                out[0] = row.with_(
-                    warnings="; ".join(
-                        filter(None, [row.warnings, f"post-hoc {ph.test} not run: p = {row.p:.3g} ≥ alpha"])
-                    )
-                )
+                out[0] = self._posthoc_skipped(row, ph.test)
             else:
-                ph_rows = []
-                for a, b in itertools.combinations(levels, 2):
-                    ph_rows.extend(
-                        self.run_two(
-                            metric,
-                            split,
-                            sub,
-                            col,
-                            a,
-                            b,
-                            kind="posthoc",
-                            parent=self.parent_label(metric, split),
-                            test="signed_rank",
-                            options={},
-                        )
-                    )
-                out.extend(self._adjust_posthoc(ph_rows, ph.p_adjust))
+                out.extend(self._pairs_posthoc(metric, split, sub, col, levels, "signed_rank", ph.p_adjust))
         return out
 
     def run_proportion(self, metric: str, split: str, sub: pd.DataFrame, col: str, levels: list[str]) -> list[TestRow]:
