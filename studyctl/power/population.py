@@ -410,6 +410,20 @@ class PopulationParticipant(Participant):
         self._instances: dict[str, Participant] = {}
         self._memory_keys: dict[str, tuple[str, ...]] = {}
         self._active: Participant | None = None
+        self._session_state: dict[str, Any] | None = None
+
+    def begin_session(self, rng: np.random.Generator) -> None:
+        """Pass the engine's once-per-session stream on, so per-person traits survive a resume."""
+        self._session_state = rng.bit_generator.state
+        for inst in self._instances.values():
+            self._begin_session(inst)
+
+    def _begin_session(self, inst: Participant) -> None:
+        begin = getattr(inst, "begin_session", None)
+        if callable(begin) and self._session_state is not None:
+            bit_generator = type(np.random.default_rng().bit_generator)()
+            bit_generator.state = self._session_state
+            begin(np.random.Generator(bit_generator))
 
     def instance_for(self, condition: str) -> Participant:
         """The plugin instance that acts in ``condition`` (built on first use)."""
@@ -421,6 +435,8 @@ class PopulationParticipant(Participant):
                 k for k, v in vars(inst).items() if v is None or (isinstance(v, list | dict | set) and not v)
             )
             self._instances[key] = inst
+            if not self._instances.keys() - {key}:  # later instances inherit the traits as memory
+                self._begin_session(inst)
         inst = self._instances[key]
         prev = self._active
         if prev is not None and prev is not inst:
