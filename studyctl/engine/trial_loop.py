@@ -106,6 +106,9 @@ def run_trial(
     feedback = device.feedback
     step = controller.step if controller is not None else None
     safety_filter = safety.filter
+    # The safety layer's fault causes (mutated in place, never rebound): fault_duration is only asked while
+    # a fault holds the device safe.
+    fault_causes = safety._fault_causes
     try:
         while True:
             t = now() - start
@@ -139,7 +142,7 @@ def run_trial(
                 for ev in controller_events:
                     emit(t, str(ev.get("kind", "controller")), {k: v for k, v in ev.items() if k != "kind"})
                 controller_events.clear()
-            if safety.fault_duration(t) >= FAULT_ABORT_S:
+            if fault_causes and safety.fault_duration(t) >= FAULT_ABORT_S:
                 ended_by = "fault"
                 break
             percept = dict(feedback())

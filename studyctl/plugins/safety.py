@@ -77,6 +77,10 @@ class SafetyLayer:
         self._fault_causes: dict[str, float] = {}  # cause -> start time
         self._ramping = False
         self._rate_limited = any(c.max_rate_per_s is not None for c in limits.outputs)
+        # Per-tick constants of the fast path (see filter): the channels with their bounds, and the force
+        # channels the device has, in FORCE_CHANNELS order.
+        self._bounds = tuple((name, c.safe, c.low, c.high) for name, c in self._by_name.items())
+        self._force_present = tuple(c for c in FORCE_CHANNELS if c in self._by_name)
 
     # -- state -------------------------------------------------------------------------------------
     def enable(self, t: float) -> None:
@@ -158,11 +162,14 @@ class SafetyLayer:
                 causes["stale_sensor"] = {"age_s": t - obs.sample_t, "limit_s": self.limits.sensor_stale_s}
             if obs.faults:
                 causes["sensor_fault"] = {"faults": list(obs.faults)}
-            bad = [
-                k for k, v in obs.values.items() if not (type(v) is float and v - v == 0.0) and not _finite_number(v)
-            ]
-            if bad:
-                causes["sensor_non_finite"] = {"channels": bad}
+            if not _all_finite_floats(obs.values.values()):
+                bad = [
+                    k
+                    for k, v in obs.values.items()
+                    if not (type(v) is float and v - v == 0.0) and not _finite_number(v)
+                ]
+                if bad:
+                    causes["sensor_non_finite"] = {"channels": bad}
         return causes
 
     def _update_faults(self, t: float, causes: dict[str, dict[str, Any]]) -> None:
@@ -189,7 +196,8 @@ class SafetyLayer:
         if self._enabled_at is None and self.auto_enable and self._last_t is None:
             self.enable(t)
         causes = self._check_watchdog(t, obs)
-        self._update_faults(t, causes)
+        if causes or self._fault_causes:
+            self._update_faults(t, causes)
         dt = None if self._last_t is None else t - self._last_t
         self._last_t = t
         if not isinstance(command, Mapping):
@@ -208,28 +216,23 @@ class SafetyLayer:
             return out
 
         values: dict[str, float] = {}
-        for name, limit in self._by_name.items():
-            raw = command.get(name, limit.safe)
-            if type(raw) is float and raw - raw == 0.0:  # fast path: a finite float
-                value = raw
-                self._quiet(t, "non_finite_command", name)
-            elif _finite_number(raw):
-                value = float(raw)
-                self._quiet(t, "non_finite_command", name)
-            else:
-                self._mark(t, "non_finite_command", name, True, value=repr(raw))
-                value = limit.safe
-            if value < limit.low or value > limit.high:
-                clamped = limit.low if value < limit.low else limit.high
-                self._mark(t, "clamped", name, True, value=value, low=limit.low, high=limit.high)
-                value = clamped
-            else:
-                self._quiet(t, "clamped", name)
-            values[name] = value
+        if not self._active:
+            # Fast path: no start/end pair is open, so every _quiet below would be a no-op. A channel whose
+            # command is a finite float inside its bounds passes unchanged; any other takes the full checks.
+            get = command.get
+            for name, safe, low, high in self._bounds:
+                raw = get(name, safe)
+                if type(raw) is float and raw - raw == 0.0 and low <= raw <= high:
+                    values[name] = raw
+                else:
+                    values[name] = self._check_channel(t, name, self._by_name[name], raw)
+        else:
+            for name, limit in self._by_name.items():
+                values[name] = self._check_channel(t, name, limit, command.get(name, limit.safe))
 
         if self.limits.max_force_n is not None:
-            present = [c for c in FORCE_CHANNELS if c in values]
-            norm = math.sqrt(sum(values[c] ** 2 for c in present))
+            present = self._force_present
+            norm = math.sqrt(sum([values[c] ** 2 for c in present]))
             if norm > self.limits.max_force_n:
                 self._mark(t, "force_norm", "force", True, norm_n=norm, max_n=self.limits.max_force_n)
                 scale = self.limits.max_force_n / norm
@@ -263,6 +266,35 @@ class SafetyLayer:
 
         self._last_out = values
         return dict(values)
+
+    def _check_channel(self, t: float, name: str, limit: Any, raw: Any) -> float:
+        """One channel's command made finite and clamped to its bounds, with its start/end bookkeeping."""
+        if type(raw) is float and raw - raw == 0.0:  # a finite float
+            value = raw
+            self._quiet(t, "non_finite_command", name)
+        elif _finite_number(raw):
+            value = float(raw)
+            self._quiet(t, "non_finite_command", name)
+        else:
+            self._mark(t, "non_finite_command", name, True, value=repr(raw))
+            value = limit.safe
+        if value < limit.low or value > limit.high:
+            clamped = limit.low if value < limit.low else limit.high
+            self._mark(t, "clamped", name, True, value=value, low=limit.low, high=limit.high)
+            value = clamped
+        else:
+            self._quiet(t, "clamped", name)
+        return value
+
+
+_FLOAT_ONLY = frozenset({float})
+
+
+def _all_finite_floats(values: Any) -> bool:
+    """True when every value is a finite Python float, checked in C: the set of their types is {float}
+    and their sum is finite (a NaN or ±inf makes the sum non-finite). False is only "not sure": a sum that
+    overflows, an int, a numpy scalar or a bool (which is not a sensor reading) go to the per-channel check."""
+    return set(map(type, values)) <= _FLOAT_ONLY and math.isfinite(sum(values))
 
 
 def _finite_number(value: Any) -> bool:
