@@ -145,7 +145,9 @@ class SimulatedForceDevice(Device):
                 q = self._quantise(self._pos)
                 self._meas = q
                 self._ring = [q] * self._win
-            self._target = [x, y, z]  # type: ignore[list-item]
+            # Python floats: a participant's numpy scalars would otherwise make every later tick's integration,
+            # observation and controller step numpy-scalar arithmetic (same IEEE doubles, several times slower).
+            self._target = [float(x), float(y), float(z)]  # type: ignore[arg-type]
         d = inputs.get("dir_x")
         if d is not None:
             self._dir = (d, inputs.get("dir_y", 0.0), inputs.get("dir_z", 0.0))

@@ -31,6 +31,8 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import numpy as np
+
 from studyctl.plugins.interfaces import DeviceLimits, Observation
 
 log = logging.getLogger("studyctl.safety")
@@ -222,10 +224,15 @@ class SafetyLayer:
             get = command.get
             for name, safe, low, high in self._bounds:
                 raw = get(name, safe)
-                if type(raw) is float and raw - raw == 0.0 and low <= raw <= high:
-                    values[name] = raw
-                else:
-                    values[name] = self._check_channel(t, name, self._by_name[name], raw)
+                kind = type(raw)
+                if kind is float:
+                    if raw - raw == 0.0 and low <= raw <= high:
+                        values[name] = raw
+                        continue
+                elif kind is _F64 and math.isfinite(raw) and low <= raw <= high:
+                    values[name] = float(raw)  # as _check_channel does for any finite number
+                    continue
+                values[name] = self._check_channel(t, name, self._by_name[name], raw)
         else:
             for name, limit in self._by_name.items():
                 values[name] = self._check_channel(t, name, limit, command.get(name, limit.safe))
@@ -287,14 +294,21 @@ class SafetyLayer:
         return value
 
 
-_FLOAT_ONLY = frozenset({float})
+_F64 = np.float64
+_FLOATS = frozenset({float, np.float64})
 
 
 def _all_finite_floats(values: Any) -> bool:
-    """True when every value is a finite Python float, checked in C: the set of their types is {float}
-    and their sum is finite (a NaN or ±inf makes the sum non-finite). False is only "not sure": a sum that
-    overflows, an int, a numpy scalar or a bool (which is not a sensor reading) go to the per-channel check."""
-    return set(map(type, values)) <= _FLOAT_ONLY and math.isfinite(sum(values))
+    """True when every value is a finite float (Python or numpy float64), checked in C: the set of their types
+    and an exact sum (``math.fsum`` gives NaN or inf for a NaN or ±inf term, raises for inf − inf or an
+    overflowing sum; it never warns like numpy arithmetic). False is only "not sure": an overflow, an int, a
+    bool (which is not a sensor reading) or another type go to the per-channel check."""
+    if not set(map(type, values)) <= _FLOATS:
+        return False
+    try:
+        return math.isfinite(math.fsum(values))
+    except (OverflowError, ValueError):
+        return False
 
 
 def _finite_number(value: Any) -> bool:
