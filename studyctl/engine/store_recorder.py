@@ -24,6 +24,7 @@ import operator
 import os
 import socket
 import time
+from array import array
 from collections.abc import Mapping
 from typing import Any
 
@@ -59,8 +60,11 @@ class _StoreSamples:
         self._writer = None
         self._keys: tuple[str, ...] | None = None
         self._get = None
-        self._t: list[float] = []
-        self._rows: list[tuple[float, ...]] = []
+        # Rows go straight into flat float64 buffers (no per-flush conversion of a list of tuples); a value
+        # array('d') refuses (None, a string) switches to object rows that numpy converts as it always did.
+        self._t = array("d")
+        self._flat: array | None = array("d")
+        self._rows: list[tuple[Any, ...]] = []
         self._last = time.monotonic()
 
     def write(self, t: float, values: Mapping[str, float]) -> None:
@@ -72,8 +76,18 @@ class _StoreSamples:
         except KeyError as exc:
             raise SessionError(f"sample at t={t:g} s lacks channel {exc.args[0]!r} logged so far "
                                f"({', '.join(self._keys)}); a device or controller changed its channels") from None
+        flat = self._flat
+        if flat is not None:
+            n0 = len(flat)
+            try:
+                flat.extend(row)
+            except (TypeError, ValueError, OverflowError):
+                del flat[n0:]  # extend stops part-way
+                self._to_rows()
+                self._rows.append(row)
+        else:
+            self._rows.append(row)
         self._t.append(t)
-        self._rows.append(row)
         if time.monotonic() - self._last >= self.FLUSH_WALL_S:
             self.flush()
 
@@ -84,9 +98,22 @@ class _StoreSamples:
         if self._writer is None:
             # the writer's own flushing is disabled: this class decides when to commit
             self._writer = self._store.sample_writer(self._trial, list(self._keys), flush_interval_s=1e12)
-        self._writer.append_block(np.asarray(self._t, dtype=float), np.asarray(self._rows, dtype=float))
+        t = np.frombuffer(self._t, dtype=float)
+        if self._flat is not None:
+            values = np.frombuffer(self._flat, dtype=float).reshape(len(t), len(self._keys))
+        else:
+            values = np.asarray(self._rows, dtype=float)
+        self._writer.append_block(t, values)  # copies into the writer's buffer
+        del t, values  # release the views before the buffers are replaced
         self._writer.flush()
-        self._t, self._rows = [], []
+        self._t, self._flat, self._rows = array("d"), array("d"), []
+
+    def _to_rows(self) -> None:
+        """Keep this flush's rows as tuples from now on (a value that is not a plain number was logged)."""
+        k = len(self._keys)
+        flat = self._flat.tolist()
+        self._rows = [tuple(flat[i : i + k]) for i in range(0, len(flat), k)]
+        self._flat = None
 
     def close(self) -> None:
         self.flush()

@@ -81,6 +81,7 @@ class SafetyLayer:
         self._rate_limited = any(c.max_rate_per_s is not None for c in limits.outputs)
         # Per-tick constants of the fast path (see filter): the channels with their bounds, and the force
         # channels the device has, in FORCE_CHANNELS order.
+        self._names = frozenset(self._by_name)
         self._bounds = tuple((name, c.safe, c.low, c.high) for name, c in self._by_name.items())
         self._force_present = tuple(c for c in FORCE_CHANNELS if c in self._by_name)
 
@@ -202,16 +203,19 @@ class SafetyLayer:
             self._update_faults(t, causes)
         dt = None if self._last_t is None else t - self._last_t
         self._last_t = t
-        if not isinstance(command, Mapping):
-            self._mark(t, "invalid_command", "*", True, type=type(command).__name__)
-            command = {}
+        if type(command) is dict and not self._active and command.keys() <= self._names:
+            pass  # the usual tick: a dict of known channels and no open start/end pair, nothing to log
         else:
-            self._quiet(t, "invalid_command", "*")
-        unknown = [k for k in command if k not in self._by_name]
-        if unknown:
-            self._mark(t, "unknown_channel", "*", True, channels=sorted(map(str, unknown)))
-        else:
-            self._quiet(t, "unknown_channel", "*")
+            if not isinstance(command, Mapping):
+                self._mark(t, "invalid_command", "*", True, type=type(command).__name__)
+                command = {}
+            else:
+                self._quiet(t, "invalid_command", "*")
+            unknown = [k for k in command if k not in self._by_name]
+            if unknown:
+                self._mark(t, "unknown_channel", "*", True, channels=sorted(map(str, unknown)))
+            else:
+                self._quiet(t, "unknown_channel", "*")
         if self._fault_causes or self._enabled_at is None:
             out = self.safe_command()
             self._last_out = dict(out)
