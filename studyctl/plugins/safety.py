@@ -320,7 +320,7 @@ def _finite_number(value: Any) -> bool:
         return False
     try:
         return math.isfinite(value)
-    except TypeError:
+    except (TypeError, OverflowError):  # OverflowError: an int too large for a float (10**400)
         return False
 
 
