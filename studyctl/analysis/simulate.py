@@ -60,6 +60,80 @@ def check_simulation(protocol: str | Path, participants: int) -> Path:
     return resolve_protocol(protocol)
 
 
+@dataclass(frozen=True)
+class Cohort:
+    """A new study workspace with its enrolled (not yet run) virtual participants."""
+
+    protocol: str
+    study: str
+    workspace: str
+    database: str
+    codes: tuple[str, ...]
+    seed: int
+    db: str | None = None
+
+
+def create_cohort(
+    protocol: str | Path, participants: int, seed: int, out_dir: str | Path, *, db: str | None = None
+) -> Cohort:
+    """Create the workspace and enroll ``participants``, spread over the strata by their target sizes.
+
+    Enrollment stores each participant's schedule (sequence slot, placements) exactly as for people.
+    """
+    from studyctl.protocol.enrollment import enroll, study_protocol
+    from studyctl.protocol.schedule import allocate_strata
+    from studyctl.store.workspace import init_workspace, open_study
+
+    check_simulation(protocol, participants)
+    init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
+    with open_study(db, str(init.root), init.study) as opened:
+        proto = study_protocol(opened.study)
+        several = len(proto.participants.strata) > 1
+        codes = tuple(
+            enroll(opened.store, stratum if several else None, study=opened.study.name).code
+            for stratum, _ in allocate_strata(proto, participants)
+        )
+        name = opened.study.name
+    return Cohort(str(protocol), name, str(init.root), str(init.database), codes, int(seed), db)
+
+
+def run_participant(cohort: Cohort, code: str, *, durable: bool = False, store=None) -> str:  # noqa: ANN001
+    """Run one enrolled virtual participant's whole session through the engine; returns its status.
+
+    Safe to call from several processes at once for different participants of the same SQLite study:
+    each commit is a short transaction and SQLite serialises writers (busy timeout).
+    """
+    from studyctl.engine.api import run_session
+    from studyctl.store.workspace import open_study
+
+    if store is not None:
+        return str(getattr(run_session(store, code, study=cohort.study, virtual=True), "status", ""))
+    with open_study(cohort.db, cohort.workspace, cohort.study) as opened:
+        if not durable:
+            relax_sqlite_durability(opened.store)
+        return str(getattr(run_session(opened.store, code, study=cohort.study, virtual=True), "status", ""))
+
+
+def summarize(cohort: Cohort, *, sessions_completed: int, seconds: float) -> SimulationResult:
+    """Trial counts of a simulated cohort, read back from its database."""
+    from studyctl.store.workspace import open_study
+
+    with open_study(cohort.db, cohort.workspace, cohort.study) as opened:
+        counts = _trial_counts(opened.store, opened.study)
+    return SimulationResult(
+        protocol=cohort.protocol,
+        study=cohort.study,
+        workspace=cohort.workspace,
+        database=cohort.database,
+        participants=len(cohort.codes),
+        sessions_completed=sessions_completed,
+        trials_completed=counts.get("completed", 0),
+        trials_not_completed=sum(v for k, v in counts.items() if k != "completed"),
+        seed=cohort.seed,
+        seconds=seconds,
+    )
+
+
 def simulate_study(
     protocol: str | Path,
     participants: int,
@@ -93,47 +167,20 @@ def simulate_study(
     on_progress
         Called after each participant with (done, total, message).
     """
-    from studyctl.engine.api import run_session
-    from studyctl.protocol.enrollment import enroll, study_protocol
-    from studyctl.protocol.schedule import allocate_strata
-    from studyctl.store.workspace import init_workspace, open_study
+    from studyctl.store.workspace import open_study
 
-    check_simulation(protocol, participants)
     t0 = time.perf_counter()
-    init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
+    cohort = create_cohort(protocol, participants, seed, out_dir, db=db)
     sessions = 0
-    with open_study(db, str(init.root), init.study) as opened:
+    with open_study(db, cohort.workspace, cohort.study) as opened:
         if not durable:
             relax_sqlite_durability(opened.store)
-        proto = study_protocol(opened.study)
-        strata = [stratum for stratum, _ in allocate_strata(proto, participants)]
-        codes = []
-        for stratum in strata:
-            codes.append(
-                enroll(
-                    opened.store, stratum if len(proto.participants.strata) > 1 else None, study=opened.study.name
-                ).code
-            )
-        for i, code in enumerate(codes):
-            result = run_session(opened.store, code, study=opened.study.name, virtual=True)
-            if getattr(result, "status", "") == "completed":
+        for i, code in enumerate(cohort.codes):
+            if run_participant(cohort, code, store=opened.store) == "completed":
                 sessions += 1
             if on_progress is not None:
-                on_progress(i + 1, len(codes), code)
-        counts = _trial_counts(opened.store, opened.study)
-        name = opened.study.name
-    return SimulationResult(
-        protocol=str(protocol),
-        study=name,
-        workspace=str(init.root),
-        database=str(init.database),
-        participants=participants,
-        sessions_completed=sessions,
-        trials_completed=counts.get("completed", 0),
-        trials_not_completed=sum(v for k, v in counts.items() if k != "completed"),
-        seed=int(seed),
-        seconds=time.perf_counter() - t0,
-    )
+                on_progress(i + 1, len(cohort.codes), code)
+    return summarize(cohort, sessions_completed=sessions, seconds=time.perf_counter() - t0)
 
 
 def relax_sqlite_durability(store) -> bool:  # noqa: ANN001

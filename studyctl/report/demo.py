@@ -19,13 +19,14 @@ import shutil
 import time
 import traceback
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
+from studyctl.analysis.simulate import Cohort
 from studyctl.errors import ConfigError, StudyctlError
 
 #: (protocol / plan name, participants in the paper)
@@ -124,65 +125,53 @@ def _prepare_folder(folder: Path) -> None:
     (folder / MARKER).write_text("created by studyctl demo; a later demo run may replace this folder\n")
 
 
-def run_study(name: str, participants: int, seed: int, out_dir: str, queue: Any = None) -> StudyRun:
-    """Simulate, analyse and report one reference study (runs inside a worker process)."""
+def _prepare_study(name: str, participants: int, seed: int, out: Path) -> Cohort:
+    """Fresh folder, workspace and enrolled cohort of one study (main process, fast)."""
+    from studyctl.analysis.simulate import create_cohort
 
-    def emit(stage: str, done: int, total: int, message: str = "") -> None:
-        if queue is not None:
-            queue.put((name, stage, done, total, message))
+    folder = out / name
+    _prepare_folder(folder)
+    return create_cohort(name, participants, seed, folder / "workspace")
+
+
+def _session_task(cohort: Cohort, code: str) -> tuple[str, float]:
+    """One participant's session (runs in a worker process)."""
+    from studyctl.analysis.simulate import run_participant
 
     t0 = time.perf_counter()
-    folder = Path(out_dir) / name
-    run = StudyRun(study=name, participants=participants)
-    try:
-        _prepare_folder(folder)
-        from studyctl.analysis.simulate import simulate_study
-        from studyctl.report.pipeline import build_report
+    status = run_participant(cohort, code)
+    return status, time.perf_counter() - t0
 
-        emit("simulate", 0, participants, "starting")
-        sim = simulate_study(
-            name, participants, seed, folder / "workspace", on_progress=lambda i, n, code: emit("simulate", i, n, code)
-        )
-        emit("analyse", 0, 1, "metrics and tests")
-        rep = build_report(
-            name, folder, workspace=folder / "workspace", on_step=lambda step: emit("analyse", 0, 1, step)
-        )
-        result, files = rep.result, rep.files
-        frame = result.to_frame()
-        sig = frame[(frame["status"] == "ok") & (frame["significant"] == True)]  # noqa: E712
-        headline = tuple(_headline(result))
-        run = StudyRun(
-            study=name,
-            participants=participants,
-            simulate_s=sim.seconds,
-            metrics_s=result.timings.get("metrics_s", 0),
-            analyze_s=rep.timings["analyze_s"],
-            figures_s=files.timings.get("figures_s", 0.0) + rep.timings.get("figure_data_s", 0.0),
-            report_s=rep.timings["report_s"],
-            total_s=time.perf_counter() - t0,
-            trials_completed=sim.trials_completed,
-            trials_not_completed=sim.trials_not_completed,
-            tests=len(frame),
-            significant=len(sig),
-            partial=files.partial,
-            report=str(files.html),
-            problems=files.problems,
-            headline=headline,
-        )
-        emit("done", 1, 1, "report written")
-    except StudyctlError as exc:
-        run = StudyRun(study=name, participants=participants, total_s=time.perf_counter() - t0, error=str(exc))
-        emit("failed", 1, 1, str(exc))
-    except Exception as exc:  # a bug in a plugin or here: keep the traceback in the result, not on screen
-        tb = traceback.format_exc(limit=6)
-        run = StudyRun(
-            study=name,
-            participants=participants,
-            total_s=time.perf_counter() - t0,
-            error=f"{type(exc).__name__}: {exc}\n{tb}",
-        )
-        emit("failed", 1, 1, f"{type(exc).__name__}: {exc}")
-    return run
+
+def _report_task(cohort: Cohort, folder: str) -> dict[str, Any]:
+    """Analysis and report of one study (runs in a worker process)."""
+    from studyctl.report.pipeline import build_report
+
+    rep = build_report(cohort.study, folder, workspace=cohort.workspace)
+    result, files = rep.result, rep.files
+    frame = result.to_frame()
+    sig = frame[(frame["status"] == "ok") & (frame["significant"] == True)]  # noqa: E712
+    return {
+        "metrics_s": result.timings.get("metrics_s", 0.0),
+        "analyze_s": rep.timings["analyze_s"],
+        "figures_s": files.timings.get("figures_s", 0.0) + rep.timings.get("figure_data_s", 0.0),
+        "report_s": rep.timings["report_s"],
+        "trials_completed": int(result.data.info.get("trials_completed", 0)),
+        "trials_not_completed": int(sum((result.data.info.get("trials_other") or {}).values())),
+        "tests": len(frame),
+        "significant": len(sig),
+        "partial": files.partial,
+        "report": str(files.html),
+        "problems": tuple(files.problems),
+        "headline": tuple(_headline(result)),
+    }
+
+
+def _error_text(exc: BaseException) -> str:
+    if isinstance(exc, StudyctlError):
+        return str(exc)
+    # A bug in a plugin or here: keep the traceback in the result (demo.json), not on screen.
+    return f"{type(exc).__name__}: {exc}\n" + "".join(traceback.format_exception(exc, limit=6))
 
 
 def _headline(result: Any) -> list[str]:
@@ -214,6 +203,11 @@ def run_demo(
 ) -> DemoResult:
     """Run the whole demo; see the module docstring.
 
+    Three phases: (1) in this process, every study gets a fresh workspace and its enrolled cohort;
+    (2) a pool of worker processes runs the participants' sessions, longest studies first, so that both
+    cores stay busy until the last session ends (participants of one study write to its SQLite database
+    concurrently, one short transaction at a time); (3) the pool analyses each study and writes its report.
+
     Parameters
     ----------
     out_dir
@@ -223,7 +217,7 @@ def run_demo(
     studies
         (protocol, participants) pairs; default the four reference studies at paper size.
     workers
-        Parallel worker processes; default the number of CPU cores (at most the number of studies).
+        Parallel worker processes; default the number of CPU cores.
     on_event
         Receives progress events ``(study, stage, done, total, message)`` in the calling process.
     """
@@ -231,68 +225,119 @@ def run_demo(
 
     t0 = time.perf_counter()
     out = ensure_writable(out_dir)
-    n_workers = max(1, min(workers or os.cpu_count() or 1, len(studies)))
-    runs: dict[str, StudyRun] = {}
-    # Longest first: the study with the most simulated participant-time starts at once.
-    order = sorted(studies, key=lambda s: -_expected_cost(*s))
+    emit = on_event or (lambda _event: None)
+    n_workers = max(1, workers or os.cpu_count() or 1)
+    runs: dict[str, dict[str, Any]] = {name: {"study": name, "participants": n} for name, n in studies}
+    started = {name: time.perf_counter() for name, _ in studies}
+    cohorts: dict[str, Cohort] = {}
+    for name, n in studies:
+        emit((name, "simulate", 0, n, "enrolling"))
+        try:
+            cohorts[name] = _prepare_study(name, n, seed, out)
+        except Exception as exc:  # noqa: BLE001 - recorded per study; the others go on
+            runs[name]["error"] = _error_text(exc)
+            emit((name, "failed", 1, 1, runs[name]["error"].splitlines()[0]))
+    # Longest first: sessions of the costliest studies start at once, short ones fill the gaps.
+    tasks = [(name, code) for name in sorted(cohorts, key=lambda k: -_COST.get(k, 1.0)) for code in cohorts[name].codes]
+    done = {name: 0 for name in cohorts}
+    sim_s = {name: 0.0 for name in cohorts}
+    completed = {name: 0 for name in cohorts}
+
+    def session_done(name: str, code: str, status: str | None, seconds: float, error: str | None) -> None:
+        done[name] += 1
+        sim_s[name] += seconds
+        if status == "completed":
+            completed[name] += 1
+        if error:  # the study is still analysed from the sessions that ran; the gap is reported
+            runs[name].setdefault("session_errors", []).append(f"session of {code} failed: {error.splitlines()[0]}")
+        emit((name, "simulate", done[name], len(cohorts[name].codes), code))
+
+    def report_done(name: str, info: dict[str, Any] | None, error: str | None) -> None:
+        if info is not None:
+            runs[name].update(info)
+        lost = runs[name].get("session_errors", [])
+        if lost:
+            runs[name]["problems"] = tuple(lost) + tuple(runs[name].get("problems", ()))
+            runs[name]["partial"] = True
+        if error:
+            runs[name]["error"] = error
+        runs[name]["total_s"] = time.perf_counter() - started[name]
+        emit(
+            (
+                name,
+                "failed" if runs[name].get("error") else "done",
+                1,
+                1,
+                (runs[name].get("error") or "report written").splitlines()[0],
+            )
+        )
+
+    reportable = lambda name: "error" not in runs[name]  # noqa: E731
     if n_workers == 1:
-        for name, n in order:
-            runs[name] = run_study(name, n, seed, str(out), _CallbackQueue(on_event))
+        for name, code in tasks:
+            try:
+                status, seconds = _session_task(cohorts[name], code)
+                session_done(name, code, status, seconds, None)
+            except Exception as exc:  # noqa: BLE001
+                session_done(name, code, None, 0.0, _error_text(exc))
+        for name in cohorts:
+            if reportable(name):
+                emit((name, "analyse", 0, 1, "metrics, tests, figures"))
+                try:
+                    report_done(name, _report_task(cohorts[name], str(out / name)), None)
+                except Exception as exc:  # noqa: BLE001
+                    report_done(name, None, _error_text(exc))
+            else:
+                report_done(name, None, None)
     else:
         ctx = mp.get_context("spawn")
-        with ctx.Manager() as manager:
-            queue = manager.Queue()
-            with ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx) as pool:
-                futures = {pool.submit(run_study, name, n, seed, str(out), queue): name for name, n in order}
-                pending = set(futures)
-                while pending:
-                    _drain(queue, on_event)
-                    done = {f for f in pending if f.done()}
-                    for f in done:
-                        runs[futures[f]] = f.result()
-                    pending -= done
-                    if pending:
-                        time.sleep(0.1)
-                _drain(queue, on_event)
-    ordered = tuple(runs[name] for name, _ in studies)
+        with ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx) as pool:
+            futures = {pool.submit(_session_task, cohorts[name], code): (name, code) for name, code in tasks}
+            for future in as_completed(futures):
+                name, code = futures[future]
+                try:
+                    status, seconds = future.result()
+                    session_done(name, code, status, seconds, None)
+                except Exception as exc:  # noqa: BLE001
+                    session_done(name, code, None, 0.0, _error_text(exc))
+            reports = {}
+            for name in sorted(cohorts, key=lambda k: -_COST.get(k, 1.0)):
+                if reportable(name):
+                    emit((name, "analyse", 0, 1, "metrics, tests, figures"))
+                    try:
+                        reports[pool.submit(_report_task, cohorts[name], str(out / name))] = name
+                    except Exception as exc:  # noqa: BLE001 - a broken pool: say so for this study
+                        report_done(name, None, _error_text(exc))
+                else:
+                    report_done(name, None, None)
+            for future in as_completed(reports):
+                name = reports[future]
+                try:
+                    report_done(name, future.result(), None)
+                except Exception as exc:  # noqa: BLE001
+                    report_done(name, None, _error_text(exc))
+    ordered = []
+    for name, _n in studies:
+        info = runs[name]
+        info.setdefault("total_s", time.perf_counter() - started[name])
+        ordered.append(
+            StudyRun(
+                simulate_s=sim_s.get(name, 0.0), **{k: v for k, v in info.items() if k in StudyRun.__dataclass_fields__}
+            )
+        )
     index = _write_index(out, ordered, seed)
     return DemoResult(
-        out_dir=out, index=index, studies=ordered, total_s=time.perf_counter() - t0, workers=n_workers, seed=seed
+        out_dir=out, index=index, studies=tuple(ordered), total_s=time.perf_counter() - t0, workers=n_workers, seed=seed
     )
 
 
-# Rough relative cost per participant (simulated trial time × loop rate), to start the longest study first.
+# Rough relative cost per participant (simulated trial time × loop rate; measured order of the stages).
 _COST = {
+    "pseudo_haptic_palpation": 4 * 100 * 1000 * 2,
     "needle_insertion": 15 * 40 * 1000,
-    "pseudo_haptic_palpation": 4 * 100 * 1000,
-    "data_driven_palpation": 2 * 40 * 1000,
+    "data_driven_palpation": 2 * 60 * 1000,
     "bio_inspired_palpation": 4 * 90 * 50 * 20,
 }
-
-
-def _expected_cost(name: str, participants: int) -> float:
-    return _COST.get(name, 1.0) * participants
-
-
-class _CallbackQueue:
-    """Queue stand-in for the single-process path: delivers events straight to the callback."""
-
-    def __init__(self, callback: Callable[[Event], None] | None) -> None:
-        self.callback = callback
-
-    def put(self, event: Event) -> None:
-        if self.callback is not None:
-            self.callback(event)
-
-
-def _drain(queue: Any, on_event: Callable[[Event], None] | None) -> None:
-    while True:
-        try:
-            event = queue.get_nowait()
-        except Exception:  # queue.Empty from the manager proxy
-            return
-        if on_event is not None:
-            on_event(event)
 
 
 def _write_index(out: Path, runs: Sequence[StudyRun], seed: int) -> Path:
