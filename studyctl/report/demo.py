@@ -5,8 +5,10 @@ virtual participants run their sessions through the real engine (controllers, si
 scenes), the shipped analysis plan is run on the resulting database, and the report is written to
 ``<out>/<study>/``. ``<out>/index.html`` links the four reports.
 
-Studies run in parallel worker processes (one per core by default; each study has its own database), the
-longest first. A study that fails does not stop the others; the failure is reported with its reason.
+Participants' sessions run as tasks of a pool of worker processes (one per core by default), the costliest
+studies first, so every core stays busy until the last session ends; then the pool analyses the studies.
+A study that fails does not stop the others, and a failed session makes its study's report partial; both
+are reported with their reasons.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ from studyctl.report.demo import MARKER, run_demo
 def demo(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo") / "reports"
     events = []
-    result = run_demo(out, seed=11, studies=[("bio_inspired_palpation", 2)], workers=1, on_event=events.append)
+    result = run_demo(out, seed=11, studies=[("bio_inspired_palpation", 2)], workers=2, on_event=events.append)
     return result, events
 
 
