@@ -27,14 +27,24 @@ def register(app: typer.Typer) -> None:
         if as_json:
             typer.echo(json.dumps(frame.to_dict(orient="records")))
         else:
+            console = Console()
+            # A narrow terminal cannot fit the description beside five columns: the failures' reasons
+            # then follow the table, where they stay readable.
+            wide = console.width >= 120
             table = Table(title="studyctl plugins")
             for col in ("kind", "name", "package", "version", "status"):
                 table.add_column(col, no_wrap=True)
-            table.add_column("detail", overflow="fold")
+            if wide:
+                table.add_column("detail", overflow="fold")
             for row in frame.itertuples(index=False):
                 style = None if row.status == "ok" else "red"
-                table.add_row(row.kind, row.name, row.package, row.version, row.status, row.detail, style=style)
-            Console().print(table)
+                cells = [row.kind, row.name, row.package, row.version, row.status]
+                table.add_row(*cells, *([row.detail] if wide else []), style=style)
+            console.print(table)
+            if not wide:
+                for row in frame.itertuples(index=False):
+                    if row.status != "ok":
+                        console.print(f"[red]{row.kind} {row.name}[/red]: {row.detail}", markup=True)
         if strict and listing.broken:
             names = ", ".join(f"{p.kind} {p.name}" for p in listing.broken)
             raise PluginError(f"{len(listing.broken)} plugin(s) failed to load: {names}")
