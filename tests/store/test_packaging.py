@@ -34,6 +34,16 @@ def test_wheel_ships_migrations_and_init_finds_them(tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     for needed in ("env.py", "script.py.mako", "versions/0001_initial_schema.py"):
         assert f"studyctl/_resources/migrations/{needed}" in names
+    # Data that is not a Python package must ship too: the participant view's page, the shipped plans' CSV.
+    for needed in (
+        "studyctl/view/static/index.html",
+        "studyctl/view/static/view.js",
+        "studyctl/view/static/view.css",
+        "studyctl/models/fingertip_roi.csv",
+        "studyctl/_resources/analysis/data/pseudo_haptic_palpation_published.csv",
+        "studyctl/_resources/protocols/needle_insertion.yaml",
+    ):
+        assert needed in names, f"{needed} is missing from the wheel"
     target = tmp_path / "site"
     install = subprocess.run(
         [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target), str(wheel)],
