@@ -89,9 +89,12 @@ def create_cohort(
     with open_study(db, str(init.root), init.study) as opened:
         proto = study_protocol(opened.study)
         several = len(proto.participants.strata) > 1
+        # Virtual participants get numbered codes (a person gets a random one): the session seed derives from
+        # the study seed and the code, so the same seed reproduces the same sessions and the same data.
+        prefix = proto.participants.code_prefix
         codes = tuple(
-            enroll(opened.store, stratum if several else None, study=opened.study.name).code
-            for stratum, _ in allocate_strata(proto, participants)
+            enroll(opened.store, stratum if several else None, study=opened.study.name, code=f"{prefix}-V{i:03d}").code
+            for i, (stratum, _) in enumerate(allocate_strata(proto, participants), start=1)
         )
         name = opened.study.name
     return Cohort(str(protocol), name, str(init.root), str(init.database), codes, int(seed), db)
