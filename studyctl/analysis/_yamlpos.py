@@ -14,6 +14,7 @@ from typing import Any
 import yaml
 
 from studyctl.errors import ProtocolError
+from studyctl.protocol.problems import format_path
 
 Path_ = tuple[str | int, ...]
 
@@ -54,7 +55,7 @@ def _construct(node: yaml.Node, path: Path_, out: Located, problems: list[str]) 
             if key in result:
                 problems.append(
                     f"{out.source}:{key_node.start_mark.line + 1}:{key_node.start_mark.column + 1}: "
-                    f"{_dotted((*path, key))}: duplicate key {key!r} (the first is on line "
+                    f"{dotted((*path, key))}: duplicate key {key!r} (the first is on line "
                     f"{out.positions[(*path, key)][0]}); remove one of them"
                 )
                 continue
@@ -77,16 +78,9 @@ def _scalar(node: yaml.ScalarNode) -> Any:
     return constructor(_RESOLVER_LOADER, node)
 
 
-def _dotted(path: Path_) -> str:
-    text = ""
-    for part in path:
-        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
-    return text or "(top level)"
-
-
 def dotted(path: Path_) -> str:
-    """Render a key path as ``tests[2].posthoc.test``."""
-    return _dotted(path)
+    """Render a key path as ``tests[2].posthoc.test`` (the protocol's rendering; plans say "(top level)")."""
+    return format_path(path) if path else "(top level)"
 
 
 def load_located(path: Path | str, text: str | None = None) -> Located:
