@@ -15,6 +15,7 @@ from pathlib import Path
 import pandas as pd
 
 from studyctl.errors import UsageError
+from studyctl.store.status import study_status
 
 ProgressFn = Callable[[int, int, str], None]  # (participants done, participants total, message)
 
@@ -122,7 +123,7 @@ def summarize(cohort: Cohort, *, sessions_completed: int, seconds: float) -> Sim
     from studyctl.store.workspace import open_study
 
     with open_study(cohort.db, cohort.workspace, cohort.study) as opened:
-        counts = _trial_counts(opened.store, opened.study)
+        counts = study_status(opened.store, opened.study).trials
     return SimulationResult(
         protocol=cohort.protocol,
         study=cohort.study,
@@ -209,18 +210,3 @@ def relax_sqlite_durability(store) -> bool:  # noqa: ANN001
     engine.dispose()
     return True
 
-
-def _trial_counts(store, study) -> dict[str, int]:  # noqa: ANN001
-    from sqlalchemy import func, select
-
-    from studyctl.store.models import Participant, Session, Trial
-
-    with store.reading() as s:
-        rows = s.execute(
-            select(Trial.status, func.count())
-            .join(Session, Session.id == Trial.session_id)
-            .join(Participant, Participant.id == Session.participant_id)
-            .where(Participant.study_id == study.id)
-            .group_by(Trial.status)
-        ).all()
-    return {status: int(n) for status, n in rows}

@@ -20,6 +20,7 @@ import pandas as pd
 from studyctl.errors import SessionInterrupted, StudyctlError
 from studyctl.power.seeds import replicate_seeds
 from studyctl.power.spec import TEST_KINDS, PowerSpec
+from studyctl.store.status import study_status
 
 #: Columns of :meth:`ReplicateResult.to_frame` (one row per hypothesis-test row of the plan's result).
 ROW_COLUMNS = (
@@ -191,7 +192,7 @@ def simulate_replicate(
         table = compute_metrics(spec.plan, store, study)
         if on_metrics is not None:
             on_metrics(table)
-        trials = _trial_counts(store, study)
+        trials = study_status(store, study).trials
         frame = run_plan(spec.plan, table).to_frame()
     finally:
         store.close()
@@ -209,18 +210,3 @@ def simulate_replicate(
         worker=f"{socket.gethostname()}:{os.getpid()}",
     )
 
-
-def _trial_counts(store: Any, study: Any) -> dict[str, int]:
-    from sqlalchemy import func, select
-
-    from studyctl.store.models import Participant, Session, Trial
-
-    with store.reading() as s:
-        rows = s.execute(
-            select(Trial.status, func.count())
-            .join(Session, Session.id == Trial.session_id)
-            .join(Participant, Participant.id == Session.participant_id)
-            .where(Participant.study_id == study.id)
-            .group_by(Trial.status)
-        ).all()
-    return {str(status): int(n) for status, n in rows}
