@@ -72,20 +72,30 @@ class Cohort:
     codes: tuple[str, ...]
     seed: int
     db: str | None = None
+    sim_rate_hz: float | None = None  # loop-rate cap of the sessions (see run_session); None: protocol rates
 
 
 def create_cohort(
-    protocol: str | Path, participants: int, seed: int, out_dir: str | Path, *, db: str | None = None
+    protocol: str | Path,
+    participants: int,
+    seed: int,
+    out_dir: str | Path,
+    *,
+    db: str | None = None,
+    sim_rate_hz: float | None = None,
 ) -> Cohort:
     """Create the workspace and enroll ``participants``, spread over the strata by their target sizes.
 
     Enrollment stores each participant's schedule (sequence slot, placements) exactly as for people.
+    ``sim_rate_hz`` caps the loop rate of the cohort's sessions (:func:`studyctl.engine.api.run_session`).
     """
     from studyctl.protocol.enrollment import enroll, study_protocol
     from studyctl.protocol.schedule import allocate_strata
     from studyctl.store.workspace import init_workspace, open_study
 
     check_simulation(protocol, participants)
+    if sim_rate_hz is not None and not (0 < sim_rate_hz < float("inf")):
+        raise UsageError(f"--sim-rate-hz must be a positive number of Hz, got {sim_rate_hz}")
     init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
     with open_study(db, str(init.root), init.study) as opened:
         proto = study_protocol(opened.study)
@@ -98,7 +108,7 @@ def create_cohort(
             for i, (stratum, _) in enumerate(allocate_strata(proto, participants), start=1)
         )
         name = opened.study.name
-    return Cohort(str(protocol), name, str(init.root), str(init.database), codes, int(seed), db)
+    return Cohort(str(protocol), name, str(init.root), str(init.database), codes, int(seed), db, sim_rate_hz)
 
 
 def run_participant(cohort: Cohort, code: str, *, durable: bool = False, store=None) -> str:  # noqa: ANN001
@@ -110,12 +120,16 @@ def run_participant(cohort: Cohort, code: str, *, durable: bool = False, store=N
     from studyctl.engine.api import run_session
     from studyctl.store.workspace import open_study
 
+    def run(target) -> str:  # noqa: ANN001
+        result = run_session(target, code, study=cohort.study, virtual=True, sim_rate_hz=cohort.sim_rate_hz)
+        return str(getattr(result, "status", ""))
+
     if store is not None:
-        return str(getattr(run_session(store, code, study=cohort.study, virtual=True), "status", ""))
+        return run(store)
     with open_study(cohort.db, cohort.workspace, cohort.study) as opened:
         if not durable:
             relax_sqlite_durability(opened.store)
-        return str(getattr(run_session(opened.store, code, study=cohort.study, virtual=True), "status", ""))
+        return run(opened.store)
 
 
 def summarize(cohort: Cohort, *, sessions_completed: int, seconds: float) -> SimulationResult:
@@ -146,6 +160,7 @@ def simulate_study(
     *,
     db: str | None = None,
     durable: bool = False,
+    sim_rate_hz: float | None = None,
     on_progress: ProgressFn | None = None,
 ) -> SimulationResult:
     """Create a study workspace in ``out_dir`` and run ``participants`` virtual participants through it.
@@ -168,13 +183,16 @@ def simulate_study(
         process and never corrupted, but the last commits may be lost on power loss, which costs nothing
         here because the study is regenerated from its seed. On this project's 2-core VM the fsyncs
         otherwise took about two thirds of the wall time of a seed 000 simulation.
+    sim_rate_hz
+        Run the feedback loop of rate-adjustable controllers at most this fast (None: the protocol's rates,
+        1 kHz for the tissue controllers); ``studyctl bench simrate`` measures what it changes.
     on_progress
         Called after each participant with (done, total, message).
     """
     from studyctl.store.workspace import open_study
 
     t0 = time.perf_counter()
-    cohort = create_cohort(protocol, participants, seed, out_dir, db=db)
+    cohort = create_cohort(protocol, participants, seed, out_dir, db=db, sim_rate_hz=sim_rate_hz)
     sessions = 0
     with open_study(db, cohort.workspace, cohort.study) as opened:
         if not durable:

@@ -134,6 +134,12 @@ def register_sim(app: typer.Typer) -> None:
         durable: bool = typer.Option(
             False, "--durable", help="fsync every commit, as for real sessions (slower; simulations are re-creatable)."
         ),
+        sim_rate_hz: float = typer.Option(
+            None,
+            "--sim-rate-hz",
+            help="Run rate-adjustable feedback loops (the 1 kHz tissue controllers) at most this fast: faster "
+            "simulation, outcomes as measured by `studyctl bench simrate` (default: the protocol's rates).",
+        ),
     ) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -158,6 +164,7 @@ def register_sim(app: typer.Typer) -> None:
                 folder,
                 db=db,
                 durable=durable,
+                sim_rate_hz=sim_rate_hz,
                 on_progress=lambda i, n, code: progress.update(task, completed=i, code=code),
             )
         typer.echo(
@@ -177,6 +184,15 @@ def register_sim(app: typer.Typer) -> None:
         seed: int = typer.Option(2024, "--seed", "-s", help="Master seed of all four studies."),
         workers: int = typer.Option(None, "--workers", help="Parallel worker processes (default: CPU cores)."),
         as_json: bool = typer.Option(False, "--json", help="Print the per-study summary as JSON."),
+        sim_rate_hz: float = typer.Option(
+            250.0,  # studyctl.report.demo.DEMO_SIM_RATE_HZ (not imported here: the CLI starts without pandas)
+            "--sim-rate-hz",
+            help="Loop rate of the simulated 1 kHz tissue controllers (physics stays at the device's rate); "
+            "`studyctl bench simrate` shows what it changes.",
+        ),
+        full_rate: bool = typer.Option(
+            False, "--full-rate", help="Run every feedback loop at its protocol's rate (slower)."
+        ),
     ) -> None:
         """Simulate the four reference studies (paper-sized), analyse them and write their reports."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -208,13 +224,17 @@ def register_sim(app: typer.Typer) -> None:
                         stage=stage if stage != "failed" else f"FAILED: {message[:60]}",
                     )
 
-            result = run_demo(out, seed=seed, workers=workers, on_event=on_event)
+            result = run_demo(
+                out, seed=seed, workers=workers, sim_rate_hz=None if full_rate else sim_rate_hz, on_event=on_event
+            )
         if as_json:
             typer.echo(result.to_frame().to_json(orient="records"))
         else:
             console = _console()
             table = Table(
-                title=f"studyctl demo (seed {result.seed}, {result.workers} workers, {result.total_s:.1f} s)",
+                title=f"studyctl demo (seed {result.seed}, {result.workers} workers, "
+                + (f"tissue loops at {result.sim_rate_hz:g} Hz, " if result.sim_rate_hz else "protocol loop rates, ")
+                + f"{result.total_s:.1f} s)",
                 title_justify="left",
             )
             for col in ("study", "participants", "trials", "tests", "significant", "time", "status"):

@@ -64,6 +64,9 @@ def _tissue_scene(owner: str, scene: Scene | None) -> Any:
 
 class _TissueController(Controller):
     rate_hz = 1000.0
+    # The renderer is stateless between ticks apart from contact bookkeeping, and the pseudo-haptic cursor
+    # integrates with the measured time step, so a simulated session may run these below 1 kHz.
+    rate_adjustable = True
     outputs: ClassVar[tuple[str, ...]] = ("fx_n", "fy_n", "fz_n")
     PARAMS: ClassVar[tuple[Param, ...]] = RENDER_PARAMS
 

@@ -10,6 +10,8 @@ device. ``hand = "none"`` puts the handle exactly where the inputs say (kinemati
 The reported position is quantised to the encoder resolution and the velocity is a finite difference over
 ``velocity_window_s`` (the Force Dimension SDK's default estimator window is 20 ms), so the controller sees
 realistic velocity noise. The force written in one tick acts during the next (zero-order hold).
+When the control loop runs slower than ``rate_hz`` (a simulated session at a reduced loop rate), the
+handle's dynamics and the encoder still run at ``rate_hz``, the last force held between loop ticks.
 
 A reading that is not finite or jumps further than ``max_jump_mm`` in one tick puts the device in its
 safe state: zero force from then on (latched), the reason in :attr:`fault` and in every observation's
@@ -155,6 +157,13 @@ class SimulatedForceDevice(Device):
         if b is not None:
             self._button = b
 
+    def _push_encoder(self, q: tuple[float, float, float]) -> None:
+        """Record an encoder sample taken between two reads (the newest read's sample goes in by ``read``)."""
+        i = self._ring_i
+        self._ring[i] = q
+        i += 1
+        self._ring_i = 0 if i == len(self._ring) else i
+
     def _quantise(self, p: list[float]) -> tuple[float, float, float]:
         """Encoder reading of a position (mm)."""
         r = self._res
@@ -192,8 +201,14 @@ class SimulatedForceDevice(Device):
             if n == 1:
                 self._integrate(self._dt)
             else:
-                for _ in range(min(max(n, 0), 50)):
+                # A loop slower than the device (a simulated session at a reduced loop rate, or a stall): the
+                # physics still advances in device ticks under the last commanded force, and the encoder is
+                # sampled every device tick, so the velocity estimate keeps its window in time.
+                n = min(max(n, 0), 50)
+                for k in range(n):
                     self._integrate(self._dt)
+                    if k < n - 1 and self._ring:
+                        self._push_encoder(self._quantise(self._pos))
         self._t_last = t
         # encoder quantisation: adding and removing 1.5·2**52 rounds to the nearest integer without a call
         pos, r, ir = self._pos, self._res, self._inv_res

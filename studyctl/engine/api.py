@@ -157,6 +157,7 @@ def run_session(
     speed: float | None = None,
     log: Callable[[str], None] | None = None,
     frontend: Frontend | None = None,
+    sim_rate_hz: float | None = None,
 ) -> SessionResult:
     """Run an enrolled participant's whole session, from instructions to the end-of-study questionnaire.
 
@@ -191,6 +192,12 @@ def run_session(
     speed
         Virtual or scripted runs only: hold the simulated clock to at most this many times real time
         (to watch a run); results are identical to an unpaced run.
+    sim_rate_hz
+        Virtual sessions only: run the feedback loop of conditions whose controller allows it
+        (``Controller.rate_adjustable``) at most this fast, instead of the controller's rate (1 kHz for the
+        tissue controllers). The simulated device still integrates its physics at its own rate; what this
+        changes in the outcomes is measured by ``studyctl bench simrate``. The rates go into the stored plan
+        (a resume keeps them) and every trial records the rate it ran at. None: the protocol's rates.
 
     Returns
     -------
@@ -228,11 +235,33 @@ def run_session(
         raise SessionError(f"participant {participant_code} has no stored schedule; enroll with `studyctl enroll`")
     protocol = study_protocol(target)
     plan = plan_for_participant(protocol, Schedule.from_json(person.schedule))
+    if sim_rate_hz is not None:
+        if not virtual:
+            raise SessionError("a reduced simulation loop rate is for virtual participants only; a person's "
+                               "session runs at the protocol's rates")
+        plan = plan.with_condition_rates(simulation_rates(plan, factory or EntryPointFactory(), sim_rate_hz))
     seed = session_seed(int(target.seed), participant_code) if seed is None else int(seed)
     return _launch(plan, seed, virtual,
                    lambda: StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site),
                    participant=participant, ui=ui, clock=clock, script=script, factory=factory, progress=progress,
                    speed=speed, log=log, frontend=frontend)
+
+
+def simulation_rates(plan: SessionPlan, factory: PluginFactory, sim_rate_hz: float) -> dict[str, float]:
+    """Loop rate per condition for a simulated session capped at ``sim_rate_hz``: the conditions whose
+    controller is ``rate_adjustable`` and faster than the cap (manual conditions and fixed-rate controllers
+    keep their rates)."""
+    if not (sim_rate_hz > 0 and sim_rate_hz < float("inf")):
+        raise SessionError(f"the simulation loop rate must be a positive number of Hz, got {sim_rate_hz}")
+    rates = {}
+    for cid, cond in plan.conditions.items():
+        if cond.manual or not cond.controller:
+            continue
+        cls = factory.load("controller", cond.controller)
+        rate = float(cond.rate_hz or getattr(cls, "rate_hz", 50.0) or 50.0)
+        if getattr(cls, "rate_adjustable", False) and rate > sim_rate_hz:
+            rates[cid] = float(sim_rate_hz)
+    return rates
 
 
 def session_is_virtual(store: StudyStore, session_id: int) -> bool:

@@ -235,6 +235,17 @@ class SessionPlan:
     def trials(self) -> list[Step]:
         return [s for s in self.steps if s.kind == "trial"]
 
+    def with_condition_rates(self, rates: Mapping[str, float]) -> SessionPlan:
+        """This plan with the loop rate of the named conditions fixed (a simulated session at a reduced rate);
+        being part of the stored plan, the rates also hold when the session is resumed."""
+        unknown = sorted(set(rates) - set(self.conditions))
+        if unknown:
+            raise SessionError(f"loop rates for unknown conditions: {', '.join(unknown)}")
+        conditions = {
+            k: replace(c, rate_hz=float(rates[k])) if k in rates else c for k, c in self.conditions.items()
+        }
+        return replace(self, conditions=conditions)
+
     def with_replacement(self, position: int) -> tuple[SessionPlan, Step]:
         """A plan with a replacement for trial ``position`` appended after the last trial of its block."""
         original = self.step(position)

@@ -22,7 +22,8 @@ their params in the constructor and raise :class:`studyctl.errors.ModelParameter
 Additions after the first version (all optional, with defaults, so older plugins keep working):
 ``Observation.sample_t`` and ``Observation.faults`` (sensor age and device-detected problems, read by
 the safety layer's watchdog), ``Scene.public()`` (what a participant may know, e.g. the grid),
-``Controller.outputs``, and default constructors for ``Device`` and ``Participant``.
+``Controller.outputs``, ``Controller.rate_adjustable``, and default constructors for ``Device`` and
+``Participant``.
 """
 
 from __future__ import annotations
@@ -151,6 +152,11 @@ class Controller(ABC):
     name: ClassVar[str]
     rate_hz: float = 50.0
     outputs: ClassVar[tuple[str, ...]] = ()  # channels this controller commands (informational)
+    #: True when the controller's models integrate with the measured time step between observations, so a
+    #: simulated session may run its loop below ``rate_hz`` (``run_session(sim_rate_hz=…)``; the simulated
+    #: device still integrates its physics at its own rate). False: the loop always runs at ``rate_hz``
+    #: (e.g. a model whose time step or passivity bounds are tied to its rate).
+    rate_adjustable: ClassVar[bool] = False
 
     def __init__(self, params: Mapping[str, Any], scene: Scene | None = None) -> None:
         self.params = dict(params)

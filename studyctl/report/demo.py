@@ -39,6 +39,9 @@ REFERENCE_STUDIES: tuple[tuple[str, int], ...] = (
     ("pseudo_haptic_palpation", 20),
 )
 DEFAULT_SEED = 2024
+#: Loop-rate cap of the demo's simulated sessions (controllers that allow it; the 1 kHz tissue controllers).
+#: ``studyctl bench simrate`` measures what it changes against the protocols' 1 kHz; ``--full-rate`` lifts it.
+DEMO_SIM_RATE_HZ = 250.0
 MARKER = ".studyctl-demo"  # written into folders the demo created, so a re-run may replace them
 
 Event = tuple[str, str, int, int, str]  # (study, stage, done, total, message)
@@ -100,6 +103,7 @@ class DemoResult:
     workers: int
     seed: int
     notes: tuple[str, ...] = field(default_factory=tuple)
+    sim_rate_hz: float | None = None
 
     @property
     def ok(self) -> bool:
@@ -127,13 +131,13 @@ def _prepare_folder(folder: Path) -> None:
     (folder / MARKER).write_text("created by studyctl demo; a later demo run may replace this folder\n")
 
 
-def _prepare_study(name: str, participants: int, seed: int, out: Path) -> Cohort:
+def _prepare_study(name: str, participants: int, seed: int, out: Path, sim_rate_hz: float | None) -> Cohort:
     """Fresh folder, workspace and enrolled cohort of one study (main process, fast)."""
     from studyctl.analysis.simulate import create_cohort
 
     folder = out / name
     _prepare_folder(folder)
-    return create_cohort(name, participants, seed, folder / "workspace")
+    return create_cohort(name, participants, seed, folder / "workspace", sim_rate_hz=sim_rate_hz)
 
 
 def _session_task(cohort: Cohort, code: str) -> tuple[str, float]:
@@ -201,6 +205,7 @@ def run_demo(
     seed: int = DEFAULT_SEED,
     studies: Sequence[tuple[str, int]] = REFERENCE_STUDIES,
     workers: int | None = None,
+    sim_rate_hz: float | None = DEMO_SIM_RATE_HZ,
     on_event: Callable[[Event], None] | None = None,
 ) -> DemoResult:
     """Run the whole demo; see the module docstring.
@@ -220,6 +225,9 @@ def run_demo(
         (protocol, participants) pairs; default the four reference studies at paper size.
     workers
         Parallel worker processes; default the number of CPU cores.
+    sim_rate_hz
+        Loop-rate cap of the simulated sessions for controllers that allow it (see
+        :func:`studyctl.engine.api.run_session`); None runs every condition at its protocol's rate.
     on_event
         Receives progress events ``(study, stage, done, total, message)`` in the calling process.
     """
@@ -235,7 +243,7 @@ def run_demo(
     for name, n in studies:
         emit((name, "simulate", 0, n, "enrolling"))
         try:
-            cohorts[name] = _prepare_study(name, n, seed, out)
+            cohorts[name] = _prepare_study(name, n, seed, out, sim_rate_hz)
         except Exception as exc:  # noqa: BLE001 - recorded per study; the others go on
             runs[name]["error"] = _error_text(exc)
             emit((name, "failed", 1, 1, runs[name]["error"].splitlines()[0]))
@@ -327,9 +335,15 @@ def run_demo(
                 simulate_s=sim_s.get(name, 0.0), **{k: v for k, v in info.items() if k in StudyRun.__dataclass_fields__}
             )
         )
-    index = _write_index(out, ordered, seed)
+    index = _write_index(out, ordered, seed, sim_rate_hz)
     return DemoResult(
-        out_dir=out, index=index, studies=tuple(ordered), total_s=time.perf_counter() - t0, workers=n_workers, seed=seed
+        out_dir=out,
+        index=index,
+        studies=tuple(ordered),
+        total_s=time.perf_counter() - t0,
+        workers=n_workers,
+        seed=seed,
+        sim_rate_hz=sim_rate_hz,
     )
 
 
@@ -342,7 +356,7 @@ _COST = {
 }
 
 
-def _write_index(out: Path, runs: Sequence[StudyRun], seed: int) -> Path:
+def _write_index(out: Path, runs: Sequence[StudyRun], seed: int, sim_rate_hz: float | None) -> Path:
     e = html.escape
     rows = []
     for r in runs:
@@ -359,7 +373,15 @@ def _write_index(out: Path, runs: Sequence[StudyRun], seed: int) -> Path:
         "td,th{border:1px solid #ccc;padding:4px 8px}</style></head><body>"
         "<h1>studyctl demo: the four reference studies</h1>"
         f"<p>Seeded virtual participants (seed {seed}) ran each protocol through the session engine; every number "
-        "in the reports was computed from the study databases in the <code>workspace/</code> folders.</p>"
+        "in the reports was computed from the study databases in the <code>workspace/</code> folders. "
+        + (
+            f"Feedback loops of the 1 kHz tissue controllers ran at {sim_rate_hz:g} Hz (the simulated device "
+            "still at its own rate; <code>studyctl bench simrate</code> shows what that changes, "
+            "<code>studyctl demo --full-rate</code> runs the protocols' rates)."
+            if sim_rate_hz
+            else "Every feedback loop ran at its protocol's rate."
+        )
+        + "</p>"
         "<table><tr><th>study</th><th>participants</th><th>completed trials</th><th>tests</th>"
         "<th>significant</th><th>time</th><th>status</th><th></th></tr>" + "".join(rows) + "</table></body></html>\n"
     )

@@ -55,3 +55,20 @@ def test_demo_output_must_be_writable(tmp_path):
     blocker.write_text("x")
     with pytest.raises(ConfigError, match="cannot write the report to"):
         run_demo(blocker / "reports", studies=[("bio_inspired_palpation", 1)], workers=1)
+
+
+def test_the_cli_default_loop_rate_is_the_library_default():
+    """The CLI keeps its own literal (it starts without importing pandas); both must say the same."""
+    import inspect
+
+    from studyctl.cli.analysis import register_sim
+    from studyctl.report.demo import DEMO_SIM_RATE_HZ
+
+    assert f"{DEMO_SIM_RATE_HZ!r},  # studyctl.report.demo.DEMO_SIM_RATE_HZ" in inspect.getsource(register_sim)
+    assert inspect.signature(run_demo).parameters["sim_rate_hz"].default == DEMO_SIM_RATE_HZ
+
+
+def test_the_index_says_at_which_loop_rate_the_sessions_ran(demo):
+    result, _ = demo
+    assert result.sim_rate_hz == 250.0
+    assert "ran at 250 Hz" in result.index.read_text()

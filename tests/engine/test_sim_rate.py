@@ -1,0 +1,87 @@
+"""Simulated sessions at a reduced loop rate: which conditions it touches, what the device keeps, what is stored."""
+
+from __future__ import annotations
+
+import pytest
+
+from studyctl.analysis.simulate import create_cohort, run_participant
+from studyctl.devices.force3d import SimulatedForceDevice
+from studyctl.engine.api import simulation_rates
+from studyctl.engine.factory import EntryPointFactory
+from studyctl.engine.plan import ConditionSpec, SessionPlan, Step
+from studyctl.errors import SessionError, UsageError
+
+
+def _plan() -> SessionPlan:
+    conditions = {
+        "manual": ConditionSpec("manual", manual=True),
+        "ff": ConditionSpec("ff", controller="stiffness_map_ff"),
+        "needle": ConditionSpec("needle", controller="needle_hybrid"),
+        "linear": ConditionSpec("linear", controller="linear"),
+    }
+    steps = tuple(Step(i, "trial", condition=c) for i, c in enumerate(conditions, start=1))
+    return SessionPlan(steps=steps, conditions=conditions)
+
+
+def test_only_rate_adjustable_controllers_faster_than_the_cap_are_slowed():
+    plan = _plan()
+    rates = simulation_rates(plan, EntryPointFactory(), 250.0)
+    # the tissue controller (1 kHz, integrates with the measured step) is capped; the needle model's time step
+    # is tied to its rate, the linear controller already runs at 50 Hz, a manual condition runs no controller
+    assert rates == {"ff": 250.0}
+    capped = plan.with_condition_rates(rates)
+    assert capped.conditions["ff"].rate_hz == 250.0
+    assert capped.conditions["needle"].rate_hz is None
+    assert SessionPlan.from_json(capped.to_json()).conditions["ff"].rate_hz == 250.0  # stored, so a resume keeps it
+    assert simulation_rates(plan, EntryPointFactory(), 5000.0) == {}
+
+
+@pytest.mark.parametrize("bad", [0.0, -10.0, float("inf"), float("nan")])
+def test_a_bad_rate_is_refused(bad):
+    with pytest.raises(SessionError, match="positive number of Hz"):
+        simulation_rates(_plan(), EntryPointFactory(), bad)
+
+
+def test_rates_for_unknown_conditions_are_refused():
+    with pytest.raises(SessionError, match="unknown conditions: nope"):
+        _plan().with_condition_rates({"nope": 100.0})
+
+
+def _device() -> SimulatedForceDevice:
+    dev = SimulatedForceDevice(params={"hand": "none", "resolution_mm": 1e-6})
+    dev.open()
+    return dev
+
+
+def test_a_slower_loop_keeps_the_device_velocity_window_in_time():
+    """The handle moves at a constant 50 mm/s; read every tick at 1 kHz or every 4th, the device must report
+    the same velocity (its encoder and velocity window keep running at the device's own rate)."""
+    speeds = {}
+    for every in (1, 4):
+        dev = _device()
+        for k in range(0, 201, every):
+            t = k / 1000.0
+            dev.apply_input({"x_mm": 50.0 * t, "y_mm": 0.0, "z_mm": 0.0})
+            obs = dev.read(t)
+        speeds[every] = obs.values["vx_mm_s"]
+    assert speeds[1] == pytest.approx(50.0, rel=1e-3)
+    assert speeds[4] == pytest.approx(speeds[1], rel=1e-3)
+
+
+def test_a_cohort_at_a_reduced_rate_runs_and_records_it(tmp_path):
+    cohort = create_cohort("data_driven_palpation", 1, 3, tmp_path / "ws", sim_rate_hz=250.0)
+    assert run_participant(cohort, cohort.codes[0]) == "completed"
+    import sqlite3
+
+    con = sqlite3.connect(cohort.database)
+    rows = con.execute("select condition, json_extract(outcome, '$.rate_hz') from trial").fetchall()
+    con.close()
+    rates = dict(rows)
+    assert rates["haptic"] == 250.0  # the 1 kHz stiffness-map controller, capped
+    assert rates["manual"] == 50.0  # untouched
+
+
+def test_a_bad_cohort_rate_is_a_usage_error(tmp_path):
+    with pytest.raises(UsageError, match="--sim-rate-hz"):
+        create_cohort("data_driven_palpation", 1, 3, tmp_path / "ws", sim_rate_hz=0.0)
+    assert not (tmp_path / "ws").exists()  # nothing written
