@@ -6,7 +6,8 @@ scenes), the shipped analysis plan is run on the resulting database, and the rep
 ``<out>/<study>/``. ``<out>/index.html`` links the four reports.
 
 Participants' sessions run as tasks of a pool of worker processes (one per core by default), the costliest
-studies first, so every core stays busy until the last session ends; then the pool analyses the studies.
+studies first, so every core stays busy until the last session ends; a study is analysed by the pool as soon as
+its last session ends.
 A study that fails does not stop the others, and a failed session makes its study's report partial; both
 are reported with their reasons.
 """
@@ -213,7 +214,8 @@ def run_demo(
     Three phases: (1) in this process, every study gets a fresh workspace and its enrolled cohort;
     (2) a pool of worker processes runs the participants' sessions, longest studies first, so that both
     cores stay busy until the last session ends (participants of one study write to its SQLite database
-    concurrently, one short transaction at a time); (3) the pool analyses each study and writes its report.
+    concurrently, one short transaction at a time); (3) the pool analyses each study and writes its report,
+    starting as soon as the study's last session has ended (alongside other studies' sessions).
 
     Parameters
     ----------
@@ -302,6 +304,19 @@ def run_demo(
     else:
         ctx = mp.get_context("spawn")
         with ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx) as pool:
+            reports = {}
+
+            def submit_report(name: str) -> None:
+                # As soon as a study's last session ends: its analysis overlaps the other studies' sessions.
+                if not reportable(name):
+                    report_done(name, None, None)
+                    return
+                emit((name, "analyse", 0, 1, "metrics, tests, figures"))
+                try:
+                    reports[pool.submit(_report_task, cohorts[name], str(out / name))] = name
+                except Exception as exc:  # noqa: BLE001 - a broken pool: say so for this study
+                    report_done(name, None, _error_text(exc))
+
             futures = {pool.submit(_session_task, cohorts[name], code): (name, code) for name, code in tasks}
             for future in as_completed(futures):
                 name, code = futures[future]
@@ -310,16 +325,8 @@ def run_demo(
                     session_done(name, code, status, seconds, None)
                 except Exception as exc:  # noqa: BLE001
                     session_done(name, code, None, 0.0, _error_text(exc))
-            reports = {}
-            for name in sorted(cohorts, key=lambda k: -_COST.get(k, 1.0)):
-                if reportable(name):
-                    emit((name, "analyse", 0, 1, "metrics, tests, figures"))
-                    try:
-                        reports[pool.submit(_report_task, cohorts[name], str(out / name))] = name
-                    except Exception as exc:  # noqa: BLE001 - a broken pool: say so for this study
-                        report_done(name, None, _error_text(exc))
-                else:
-                    report_done(name, None, None)
+                if done[name] == len(cohorts[name].codes):
+                    submit_report(name)
             for future in as_completed(reports):
                 name = reports[future]
                 try:
