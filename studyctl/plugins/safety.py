@@ -84,6 +84,8 @@ class SafetyLayer:
         self._names = frozenset(self._by_name)
         self._bounds = tuple((name, c.safe, c.low, c.high) for name, c in self._by_name.items())
         self._force_present = tuple(c for c in FORCE_CHANNELS if c in self._by_name)
+        # The force bound, read every tick (limits is frozen).
+        self._max_force_n = limits.max_force_n
 
     # -- state -------------------------------------------------------------------------------------
     def enable(self, t: float) -> None:
@@ -196,14 +198,28 @@ class SafetyLayer:
 
         Never raises for bad commands or sensor data: it returns the safe state and logs why.
         """
-        if self._enabled_at is None and self.auto_enable and self._last_t is None:
+        last_t = self._last_t
+        if last_t is None and self._enabled_at is None and self.auto_enable:
             self.enable(t)
-        causes = self._check_watchdog(t, obs)
-        if causes or self._fault_causes:
-            self._update_faults(t, causes)
-        dt = None if self._last_t is None else t - self._last_t
+        # Watchdog: the usual tick has no cause, so its conditions are tested inline here and
+        # _check_watchdog (which builds the causes and their details) runs only when one may hold.
+        period = self.period_s
+        if (
+            (period is not None and last_t is not None and t - last_t > self.deadline_factor * period)
+            or (
+                obs is not None
+                and (obs.sample_t is not None or obs.faults or not _all_finite_floats(obs.values.values()))
+            )
+        ):
+            causes = self._check_watchdog(t, obs)
+            if causes or self._fault_causes:
+                self._update_faults(t, causes)
+        elif self._fault_causes:
+            self._update_faults(t, {})
+        dt = None if last_t is None else t - last_t
         self._last_t = t
-        if type(command) is dict and not self._active and command.keys() <= self._names:
+        active = self._active
+        if type(command) is dict and not active and command.keys() <= self._names:
             pass  # the usual tick: a dict of known channels and no open start/end pair, nothing to log
         else:
             if not isinstance(command, Mapping):
@@ -222,7 +238,7 @@ class SafetyLayer:
             return out
 
         values: dict[str, float] = {}
-        if not self._active:
+        if not active:
             # Fast path: no start/end pair is open, so every _quiet below would be a no-op. A channel whose
             # command is a finite float inside its bounds passes unchanged; any other takes the full checks.
             get = command.get
@@ -241,15 +257,22 @@ class SafetyLayer:
             for name, limit in self._by_name.items():
                 values[name] = self._check_channel(t, name, limit, command.get(name, limit.safe))
 
-        if self.limits.max_force_n is not None:
+        max_force = self._max_force_n
+        if max_force is not None:
             present = self._force_present
-            norm = math.sqrt(sum([values[c] ** 2 for c in present]))
-            if norm > self.limits.max_force_n:
-                self._mark(t, "force_norm", "force", True, norm_n=norm, max_n=self.limits.max_force_n)
-                scale = self.limits.max_force_n / norm
+            if len(present) == 3:
+                # the three force channels: the same left-to-right sum of squares as sum() below, without
+                # building a list every tick
+                a, b, c = present
+                norm = math.sqrt(values[a] ** 2 + values[b] ** 2 + values[c] ** 2)
+            else:
+                norm = math.sqrt(sum([values[c] ** 2 for c in present]))
+            if norm > max_force:
+                self._mark(t, "force_norm", "force", True, norm_n=norm, max_n=max_force)
+                scale = max_force / norm
                 for c in present:
                     values[c] *= scale
-            else:
+            elif active:  # _active is only ever mutated in place, so this is the same dict
                 self._quiet(t, "force_norm", "force")
 
         if self._ramping:
@@ -307,7 +330,7 @@ def _all_finite_floats(values: Any) -> bool:
     and an exact sum (``math.fsum`` gives NaN or inf for a NaN or ±inf term, raises for inf − inf or an
     overflowing sum; it never warns like numpy arithmetic). False is only "not sure": an overflow, an int, a
     bool (which is not a sensor reading) or another type go to the per-channel check."""
-    if not set(map(type, values)) <= _FLOATS:
+    if not _FLOATS.issuperset(map(type, values)):  # no set built: each type is looked up as it comes
         return False
     try:
         return math.isfinite(math.fsum(values))
