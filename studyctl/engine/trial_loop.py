@@ -101,6 +101,7 @@ def run_trial(
     now = clock.now
     sleep_until = clock.sleep_until
     act = participant.act
+    apply_input = device.apply_input
     read = device.read
     write = device.write
     feedback = device.feedback
@@ -121,9 +122,10 @@ def run_trial(
                     ended_by = reason
                     break
             action = act(t, percept)
-            if action.inputs:
-                device.apply_input(action.inputs)
-                last_inputs = action.inputs
+            inputs = action.inputs
+            if inputs:
+                apply_input(inputs)
+                last_inputs = inputs
             try:
                 obs = read(t)
             except DeviceError as exc:
@@ -146,12 +148,13 @@ def run_trial(
                 ended_by = "fault"
                 break
             percept = dict(feedback())
+            values = obs.values
             finished = False
-            for request in action.requests:
+            for request in action.requests:  # usually none
                 if request.kind == "scan":
                     if on_request:
                         scans += 1
-                        pose = {**last_inputs, **obs.values, **diagnostics}
+                        pose = {**last_inputs, **values, **diagnostics}
                         frame = view(pose) if view is not None else None
                         percept["scan"] = frame
                         emit(t, "scan", {"count": scans, "pose": pose})
@@ -162,9 +165,9 @@ def run_trial(
                 elif request.kind == "finish":
                     finished = True
             if realtime:
-                percept["view"] = view({**last_inputs, **obs.values, **diagnostics})
+                percept["view"] = view({**last_inputs, **values, **diagnostics})
             if on_sample is not None:
-                on_sample(t, {**obs.values, **written, **diagnostics})
+                on_sample(t, {**values, **written, **diagnostics})
             ticks += 1
             if finished:
                 ended_by = "finish"
