@@ -176,26 +176,38 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
     if interpolation in ("linear", "powerlaw"):
         power = interpolation == "powerlaw"
 
+        nx2, ny2 = nx - 2, ny - 2
+
         def lookup(x: float, y: float, d: float) -> tuple[float, float]:
             if d <= 0.0:
                 return 0.0, 0.0
-            uv = xy(x, y)
-            if uv is None:
-                return 0.0, 0.0
-            u, v = uv
+            # xy() and depth_bracket() inline: this runs every tick in contact
+            u = (x - x0) * idx
+            v = (y - y0) * idy
+            if u < 0.0 or v < 0.0 or u > umax or v > vmax:
+                if not clamp:
+                    return 0.0, 0.0
+                u = min(max(u, 0.0), umax)
+                v = min(max(v, 0.0), vmax)
             i = int(u)
-            if i > nx - 2:
-                i = nx - 2
+            if i > nx2:
+                i = nx2
             j = int(v)
-            if j > ny - 2:
-                j = ny - 2
+            if j > ny2:
+                j = ny2
             tu = u - i
             tv = v - j
             w00 = (1.0 - tu) * (1.0 - tv)
             w10 = tu * (1.0 - tv)
             w01 = (1.0 - tu) * tv
             w11 = tu * tv
-            k, t, ramp = depth_bracket(d)
+            if d <= d0:
+                k, t, ramp = 0, 0.0, d / d0
+            elif d >= dlast:
+                k, t, ramp = (nd - 2, 1.0, 1.0) if nd > 1 else (0, 0.0, 1.0)
+            else:
+                k = bisect.bisect_right(depths, d) - 1
+                t, ramp = (d - depths[k]) / (depths[k + 1] - depths[k]), 1.0
             b = k * sxy + i * ny + j
             n_a = fn[b] * w00 + fn[b + ny] * w10 + fn[b + 1] * w01 + fn[b + ny + 1] * w11
             h_a = fh[b] * w00 + fh[b + ny] * w10 + fh[b + 1] * w01 + fh[b + ny + 1] * w11
@@ -377,6 +389,12 @@ class ForceRenderer:
         self._ox, self._oy, self._oz = (float(v) for v in self.placement.offset_mm)
         self._fmax = float(self.params.max_force_n)
         self._sign = {"oppose": -1.0, "along": 1.0, "off": 0.0}[self.params.horizontal]
+        # Parameters read every tick (params is frozen): plain attributes, the squared motion threshold once.
+        lim = self.params.min_motion_mm
+        self._min_motion2 = lim * lim
+        self._deadband = self.params.retract_deadband_mm
+        self._release = self.params.release_on_retract
+        self._indentation = self.mesh.indentation
         self.reset()
 
     def reset(self) -> None:
@@ -409,12 +427,11 @@ class ForceRenderer:
         else:
             mx, my = lx - anchor[0], ly - anchor[1]
             m2 = mx * mx + my * my
-            lim = self.params.min_motion_mm
-            if m2 > lim * lim and m2 > 0.0:
+            if m2 > self._min_motion2 and m2 > 0.0:
                 inv = 1.0 / math.sqrt(m2)
                 self._dir = (mx * inv, my * inv)
                 self._anchor = (lx, ly)
-        hit = self.mesh.indentation(lx, ly, lz)
+        hit = self._indentation(lx, ly, lz)
         if hit is None:
             self._depth_ref = 0.0
             self._retracting = False
@@ -431,11 +448,11 @@ class ForceRenderer:
         if depth > self._depth_ref:
             self._depth_ref = depth
             self._retracting = False
-        elif depth < self._depth_ref - self.params.retract_deadband_mm:
+        elif depth < self._depth_ref - self._deadband:
             self._depth_ref = depth
             self._retracting = True
         retracting = self._retracting
-        if retracting and self.params.release_on_retract:
+        if retracting and self._release:
             fn = 0.0
         hx, hy = self._dir
         sh = self._sign * fh

@@ -155,15 +155,20 @@ def _surface_sampler(surface: Mapping[str, Any]):
     x0, dx, y0, dy = float(xs[0]), float(xs[1] - xs[0]), float(ys[0]), float(ys[1] - ys[0])
     rows = h.tolist()
     nx, ny = xs.size, ys.size
+    nx1, ny1, nx2, ny2 = nx - 1, ny - 1, nx - 2, ny - 2  # ints, as the bounds were computed per call
 
     def height(x: float, y: float) -> float:
         """Bilinear height of the visible surface; NaN off the tissue."""
         u = (x - x0) / dx
         v = (y - y0) / dy
-        if u < 0 or v < 0 or u > nx - 1 or v > ny - 1:
+        if u < 0 or v < 0 or u > nx1 or v > ny1:
             return math.nan
-        i = min(int(u), nx - 2)
-        j = min(int(v), ny - 2)
+        i = int(u)
+        if i > nx2:
+            i = nx2
+        j = int(v)
+        if j > ny2:
+            j = ny2
         tu, tv = u - i, v - j
         return (
             rows[i][j] * (1 - tu) * (1 - tv)
@@ -263,7 +268,9 @@ class VirtualTissuePalpator(Participant):
         dt = max(t - self._t_prev, 0.0)
         self._t_prev = t
         self._ticks += 1
-        view = percept.get("view") if isinstance(percept.get("view"), Mapping) else None
+        view = percept.get("view")
+        if type(view) is not dict and not isinstance(view, Mapping):  # a scene's view is a dict: skip the ABC check
+            view = None
         if self._height is None:
             surface = (view or {}).get("surface") or self.info.public.get("surface")
             if surface:
@@ -282,7 +289,8 @@ class VirtualTissuePalpator(Participant):
         if self._height is None:
             return Action(inputs=self._inputs())
         cursor = view.get("cursor_mm") if view is not None else None
-        cursor = tuple(float(v) for v in cursor) if cursor is not None else None
+        if cursor is not None:
+            cursor = tuple(map(float, cursor))
         ctrl = cursor if cursor is not None else (handle if handle is not None else tuple(self._hand))
         if percept.get("direct_touch"):
             self._direct = True
@@ -307,7 +315,9 @@ class VirtualTissuePalpator(Participant):
             return Action(inputs=self._inputs(), requests=(Request("finish"),))
         self._advance(ctrl, cursor, handle, force)
         self._move_hand(ctrl, dt)
-        return Action(inputs=self._inputs())
+        h = self._hand
+        # positional: a frozen dataclass built from keywords costs twice as much, once per tick
+        return Action({"x_mm": h[0], "y_mm": h[1], "z_mm": h[2]})
 
     def _inputs(self) -> dict[str, float]:
         h = self._hand
@@ -369,11 +379,13 @@ class VirtualTissuePalpator(Participant):
         if self._replan:
             self._plan_move(ctrl)
             self._replan = False
-        near = math.dist(ctrl, self._target) <= p["tolerance_mm"]
+        # Each condition is evaluated only in the phase that uses it: they read the state, never change it.
+        phase = self._phase
         timed_out = self._phase_t >= p["phase_timeout_s"]
-        settled = self._goal_reached() and self._phase_t >= self._settle_at
-        if self._phase == "travel":
-            if self._goal_reached() and self._settle_at == math.inf:
+        if phase == "travel":
+            reached = self._goal_reached()
+            settled = reached and self._phase_t >= self._settle_at  # the settle time before it is set below
+            if reached and self._settle_at == math.inf:
                 self._settle_at = self._phase_t + p["settle_s"]
             if settled or timed_out:
                 depth = p["press_depth_mm"] + p["depth_noise_mm"] * float(self.rng.normal())
@@ -381,23 +393,24 @@ class VirtualTissuePalpator(Participant):
                 self._goal, self._settle_at = None, math.inf
                 self._phase, self._phase_t = "press", 0.0
                 press.update(track=[], peak_force=0.0)
-        elif self._phase == "press":
+        elif phase == "press":
             if cursor is not None and handle is not None and ctrl[2] <= press["h"]:
                 track = press["track"]
                 if not track or cursor[2] < track[-1][0]:
                     track.append((cursor[2], handle[2]))  # the cursor's descent and the hand's, in contact
+            near = math.dist(ctrl, self._target) <= p["tolerance_mm"]
             if near or timed_out or force >= p["max_press_force_n"]:
                 self._phase, self._phase_t = "dwell", 0.0
                 press["bx"], press["by"], press["bz"] = ctrl[0], ctrl[1], ctrl[2]
                 self._target = ctrl  # hold still where the press ended
-        elif self._phase == "dwell":
+        elif phase == "dwell":
             press["peak_force"] = max(press["peak_force"], force)
             if self._phase_t >= p["dwell_s"]:
                 self._record(press)
                 self._target = (ctrl[0], ctrl[1], press["h"] + p["hover_mm"])
                 self._phase, self._phase_t = "lift", 0.0
                 self._replan = True
-        elif self._phase == "lift":
+        elif phase == "lift":
             if self._goal_reached() or timed_out:
                 self._goal, self._settle_at = None, math.inf
                 self._next_press()

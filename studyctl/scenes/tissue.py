@@ -307,9 +307,11 @@ class StiffnessTissueScene(Scene):
         ``center_mm`` of the placement) and, in contact, ``deformation``: a
         :class:`~studyctl.models.pseudo_haptics.PendingDeformation` whose ``compute()`` gives the displaced
         display nodes ``(i, j, dz_mm)`` (``to_dict()`` for JSON). Nothing is computed until drawn."""
-        cx = inputs.get("cursor_x_mm", inputs.get("x_mm"))
-        cy = inputs.get("cursor_y_mm", inputs.get("y_mm"))
-        cz = inputs.get("cursor_z_mm", inputs.get("z_mm"))
+        # The avatar when a controller publishes one, else the handle (without the fallback's three lookups
+        # every tick that get(key, default) would pay).
+        cx = inputs["cursor_x_mm"] if "cursor_x_mm" in inputs else inputs.get("x_mm")
+        cy = inputs["cursor_y_mm"] if "cursor_y_mm" in inputs else inputs.get("y_mm")
+        cz = inputs["cursor_z_mm"] if "cursor_z_mm" in inputs else inputs.get("z_mm")
         if cx is None or cy is None or cz is None:
             return {"surface": self._surface_world, "cursor_mm": None}
         depth = float(inputs.get("tissue_depth_mm", 0.0))
