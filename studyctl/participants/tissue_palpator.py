@@ -57,6 +57,7 @@ Parameters (``params=``): see :data:`PARAMS`.
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
@@ -211,7 +212,11 @@ class VirtualTissuePalpator(Participant):
         self._settle_at = math.inf
         self._replan = False
         self._press: dict[str, Any] = {}
-        self._air_moves: list[tuple[float, float]] = []
+        # Cursor and hand travel of each tick in the air, as flat float64 buffers: every follow-up decision takes
+        # their median ratio, and converting a list of a few hundred thousand tuples each time was a second
+        # per participant.
+        self._air_dc = array("d")
+        self._air_dh = array("d")
         self._last_cursor: tuple[float, float, float] | None = None
         self._last_handle: tuple[float, float, float] | None = None
         self._reports: list[tuple[float, float]] = []
@@ -369,7 +374,8 @@ class VirtualTissuePalpator(Participant):
                 dc = math.dist(cursor, self._last_cursor)
                 dh = math.dist(handle, self._last_handle)
                 if dh > 1e-3:
-                    self._air_moves.append((dc, dh))
+                    self._air_dc.append(dc)
+                    self._air_dh.append(dh)
         self._last_cursor = cursor
         self._last_handle = handle
 
@@ -463,8 +469,10 @@ class VirtualTissuePalpator(Participant):
             cues.append((force, "force"))
         ratio = np.array([r["ratio"] for r in rows])
         if np.isfinite(ratio[survey]).sum() >= 5:
-            moves = np.array(self._air_moves) if self._air_moves else np.ones((1, 2))
-            r0 = float(np.median(moves[:, 0] / moves[:, 1]))
+            if self._air_dc:
+                r0 = float(np.median(np.frombuffer(self._air_dc) / np.frombuffer(self._air_dh)))
+            else:
+                r0 = 1.0  # no move in the air seen: the cursor follows the hand one to one
             visual_force = r0 * ratio - 1.0
             if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
                 cues.append((visual_force, "cursor"))
