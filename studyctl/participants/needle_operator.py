@@ -214,15 +214,17 @@ class VirtualNeedleOperator(Participant):
     # ------------------------------------------------------------------ helpers
     def _make_action(self, cmd: tuple[float, float, float], requests: tuple[Request, ...]) -> Action:
         a = self._axis
+        # Plain Python floats (the same doubles): numpy scalars here would make the device's pen axis, and from
+        # it every tick of the controller's force law, numpy-scalar arithmetic, several times slower.
         return Action(
             {
-                "x_mm": cmd[0],
-                "y_mm": cmd[1],
-                "z_mm": cmd[2],
-                "dir_x": a[0],
-                "dir_y": a[1],
-                "dir_z": a[2],
-                "button": self._button,
+                "x_mm": float(cmd[0]),
+                "y_mm": float(cmd[1]),
+                "z_mm": float(cmd[2]),
+                "dir_x": float(a[0]),
+                "dir_y": float(a[1]),
+                "dir_z": float(a[2]),
+                "button": float(self._button),
             },
             requests,
         )
