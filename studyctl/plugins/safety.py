@@ -84,8 +84,9 @@ class SafetyLayer:
         self._names = frozenset(self._by_name)
         self._bounds = tuple((name, c.safe, c.low, c.high) for name, c in self._by_name.items())
         self._force_present = tuple(c for c in FORCE_CHANNELS if c in self._by_name)
-        # The force bound, read every tick (limits is frozen).
+        # The force bound and sensor age limit, read every tick (limits is frozen).
         self._max_force_n = limits.max_force_n
+        self._stale_s = limits.sensor_stale_s
 
     # -- state -------------------------------------------------------------------------------------
     def enable(self, t: float) -> None:
@@ -208,7 +209,11 @@ class SafetyLayer:
             (period is not None and last_t is not None and t - last_t > self.deadline_factor * period)
             or (
                 obs is not None
-                and (obs.sample_t is not None or obs.faults or not _all_finite_floats(obs.values.values()))
+                and (
+                    (obs.sample_t is not None and t - obs.sample_t > self._stale_s)
+                    or obs.faults
+                    or not _all_finite_floats(obs.values.values())
+                )
             )
         ):
             causes = self._check_watchdog(t, obs)
