@@ -7,7 +7,9 @@ with the study's shipped plan, and its metric values are compared, trial by tria
 
 * ``cpu_s_per_participant``: CPU seconds of one participant's whole session (this process, sequential);
 * ``time_rel_err``: mean |Δ| / 1 kHz value of the duration metric (completion / detection time);
-* ``found_agree``: share of per-nodule found/missed outcomes identical to the 1 kHz run;
+* ``time_rel_bias``: the same difference with its sign (a systematic shift shows here);
+* ``found_agree``: share of per-nodule found/missed outcomes identical to the 1 kHz run, and the discordant
+  ones: ``found_gained`` (found only at the reduced rate) and ``found_lost`` (found only at 1 kHz);
 * ``se_diff_pp``: pooled sensitivity (nodules found over nodules, all conditions) difference in percentage
   points, beside the 1 kHz run's Wilson 95 % half-width (``se_ci_half_pp``): the sampling uncertainty the
   study itself reports.
@@ -30,7 +32,7 @@ from studyctl.bench import BenchResult
 
 RATES_HZ = (1000.0, 500.0, 250.0, 125.0)
 STUDIES = {  # protocol: (participants, quick participants, duration metric)
-    "pseudo_haptic_palpation": (4, 2, "detection_time"),
+    "pseudo_haptic_palpation": (8, 2, "detection_time"),
     "data_driven_palpation": (6, 0, "completion_time"),
 }
 SEED = 2024
@@ -58,15 +60,20 @@ def _compare(ref: pd.DataFrame, other: pd.DataFrame, duration: str) -> dict[str,
     merged = ref.merge(other, on=key, suffixes=("_ref", "_x"), how="outer")
     dur = merged[merged["metric"] == duration]
     dur = dur[dur["value_ref"] > 0]
-    rel = (dur["value_x"] - dur["value_ref"]).abs() / dur["value_ref"]
+    signed = (dur["value_x"] - dur["value_ref"]) / dur["value_ref"]
+    rel = signed.abs()
     found = merged[(merged["metric"] == "sensitivity") & merged["level"].notna()]
     agree = float((found["value_ref"] == found["value_x"]).mean()) if len(found) else math.nan
     se_ref = found["value_ref"].sum() / found["denominator_ref"].sum()
     se_x = found["value_x"].sum() / found["denominator_x"].sum()
     return {
         "time_rel_err": float(rel.mean()),
+        "time_rel_bias": float(signed.mean()),
         "time_rel_err_max": float(rel.max()),
         "found_agree": agree,
+        # discordant nodules: found only at this rate / only at 1 kHz (a bias shows as an imbalance)
+        "found_gained": int((found["value_x"] > found["value_ref"]).sum()),
+        "found_lost": int((found["value_x"] < found["value_ref"]).sum()),
         "se_ref": float(se_ref),
         "se_diff_pp": float(100.0 * (se_x - se_ref)),
     }
@@ -98,7 +105,8 @@ def run(quick: bool = False) -> BenchResult:
                     ref, ref_cpu = frame, cpu
                     pooled = frame[(frame["metric"] == "sensitivity") & frame["level"].notna()]
                     half = _wilson_half_pp(pooled["value"].sum(), pooled["denominator"].sum())
-                    row.update(speedup=1.0, time_rel_err=0.0, found_agree=1.0, se_diff_pp=0.0, se_ci_half_pp=half)
+                    row.update(speedup=1.0, time_rel_err=0.0, time_rel_bias=0.0, found_agree=1.0, found_gained=0,
+                               found_lost=0, se_diff_pp=0.0, se_ci_half_pp=half)
                 else:
                     row.update(speedup=ref_cpu / cpu, **_compare(ref, frame, duration))
                     row.pop("time_rel_err_max", None)
