@@ -52,12 +52,15 @@ class SimulationResult:
         return pd.DataFrame([asdict(self)], columns=list(self.COLUMNS))
 
 
-def check_simulation(protocol: str | Path, participants: int) -> Path:
-    """The protocol file a simulation would use; raises for an unknown protocol or a bad participant count."""
+def check_simulation(protocol: str | Path, participants: int, sim_rate_hz: float | None = None) -> Path:
+    """The protocol file a simulation would use; raises for an unknown protocol, a bad participant count or a
+    bad loop-rate cap."""
     from studyctl.protocol import resolve_protocol
 
     if participants < 1:
         raise UsageError(f"--participants must be at least 1, got {participants}")
+    if sim_rate_hz is not None and not (0 < sim_rate_hz < float("inf")):
+        raise UsageError(f"--sim-rate-hz must be a positive number of Hz, got {sim_rate_hz}")
     return resolve_protocol(protocol)
 
 
@@ -93,9 +96,7 @@ def create_cohort(
     from studyctl.protocol.schedule import allocate_strata
     from studyctl.store.workspace import init_workspace, open_study
 
-    check_simulation(protocol, participants)
-    if sim_rate_hz is not None and not (0 < sim_rate_hz < float("inf")):
-        raise UsageError(f"--sim-rate-hz must be a positive number of Hz, got {sim_rate_hz}")
+    check_simulation(protocol, participants, sim_rate_hz)
     init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
     with open_study(db, str(init.root), init.study) as opened:
         proto = study_protocol(opened.study)

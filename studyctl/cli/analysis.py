@@ -146,7 +146,7 @@ def register_sim(app: typer.Typer) -> None:
 
         from studyctl.analysis.simulate import check_simulation, simulate_study
 
-        check_simulation(protocol, participants)
+        check_simulation(protocol, participants, sim_rate_hz)
         folder = out or Path(f"{Path(protocol).stem}-sim")
         with Progress(
             TextColumn("{task.description}"),
