@@ -30,7 +30,7 @@ from studyctl.engine.seeding import answer_rng, session_seed
 from studyctl.engine.session import SessionResult, SessionRunner
 from studyctl.engine.store_recorder import StoreRecorder
 from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
-from studyctl.errors import NotFoundError, SessionError
+from studyctl.errors import NotFoundError, SessionError, UsageError
 from studyctl.plugins.interfaces import Participant
 from studyctl.protocol.enrollment import study_protocol
 from studyctl.protocol.schedule import Schedule
@@ -338,6 +338,6 @@ def resume_session(
 def _paced(speed: float | None) -> Clock | None:
     if speed is None:
         return None
-    if not speed > 0:
-        raise SessionError(f"--speed must be > 0 (times real time), got {speed}")
+    if not (0 < speed < float("inf")):
+        raise UsageError(f"--speed must be a positive number (times real time, e.g. 1 or 10), got {speed}")
     return PacedClock(speed)

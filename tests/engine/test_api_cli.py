@@ -109,6 +109,11 @@ def test_bad_input_gets_one_clear_line(ws, tmp_path, capsys):
         assert o.store.list_sessions(o.store.get_participant(o.study.id, "PTY-AAAAA").id) == []
     assert main(["resume", "99", "--workspace", str(ws)]) == 1
     assert capsys.readouterr().err.startswith("Error: no session with id 99")
+    for speed in ("0", "-2", "nan"):  # a bad option value is a usage error (exit 2), and nothing is written
+        assert main(["run", "--participant", "PTY-BBBBB", "--virtual", "--speed", speed, "--workspace", str(ws)]) == 2
+        assert "--speed must be a positive number" in capsys.readouterr().err
+    with open_study(workspace=ws) as o:
+        assert o.store.list_sessions(o.store.get_participant(o.study.id, "PTY-BBBBB").id) == []
     bad = tmp_path / "bad.yaml"
     bad.write_text("likert: {easy: [3]}\nanswers: 1\n")
     assert main(["run", "--participant", "PTY-AAAAA", "--input", str(bad), "--workspace", str(ws)]) == 2
