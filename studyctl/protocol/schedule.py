@@ -548,12 +548,13 @@ def schedule_balance(protocol: Protocol, schedules: Iterable[Schedule]) -> cbal.
 def schedule_rows(schedules: Sequence[Schedule]) -> pd.DataFrame:
     """Rows participant, stratum, slot, trial, position, block, condition, repetition, placement, orientation_deg.
 
-    ``participant`` is the 1-based order of the schedule in ``schedules``.
+    ``participant`` is the 1-based order of the schedule in ``schedules``; ``slot`` is 1-based too, the number
+    ``studyctl enroll`` prints (the stored :attr:`Schedule.slot` counts from 0).
     """
     rows = []
     for number, schedule in enumerate(schedules, start=1):
         for e in schedule.entries:
-            rows.append((number, schedule.stratum, schedule.slot, e.trial, e.position, e.block, e.condition,
+            rows.append((number, schedule.stratum, schedule.slot + 1, e.trial, e.position, e.block, e.condition,
                          e.repetition, format_placement(e.placement), e.orientation_deg))
     return pd.DataFrame(rows, columns=["participant", "stratum", "slot", "trial", "position", "block", "condition",
                                        "repetition", "placement", "orientation_deg"])

@@ -177,6 +177,9 @@ def test_allocate_strata_by_target(mini):
     assert list(rows.columns) == ["participant", "stratum", "slot", "trial", "position", "block", "condition",
                                   "repetition", "placement", "orientation_deg"]
     assert rows["participant"].tolist() == [1] * 4 + [2] * 4 + [3] * 4
+    # 1-based within each stratum, as `studyctl enroll` prints it
+    assert rows.groupby("participant").first()[["stratum", "slot"]].values.tolist() == [
+        ["novice", 1], ["novice", 2], ["expert", 1]]
 
 
 @pytest.mark.parametrize("name", ["bio_inspired_palpation", "needle_insertion", "data_driven_palpation",
