@@ -39,10 +39,8 @@ Shape (keys marked * are required)::
 
 from __future__ import annotations
 
-import difflib
 import types
 import typing
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -52,6 +50,7 @@ from studyctl.analysis import catalog
 from studyctl.analysis._yamlpos import Located, dotted, load_located
 from studyctl.analysis.metric_defs import BUILTIN, KINDS
 from studyctl.errors import ProtocolError
+from studyctl.suggest import did_you_mean
 
 FIGURE_KINDS = (
     "box",  # box plots of a metric by condition (and group), significance marks from a test
@@ -276,12 +275,6 @@ def _public_fields(model: type[BaseModel]) -> list[str]:
     return [name for name, f in model.model_fields.items() if not f.exclude]
 
 
-def suggest(value: str, allowed: Iterable[str]) -> str:
-    """``"; did you mean 'x'?"`` for the nearest allowed name, or an empty string."""
-    match = difflib.get_close_matches(str(value), list(allowed), n=1, cutoff=0.6)
-    return f"; did you mean {match[0]!r}?" if match else ""
-
-
 def _unknown_keys(data: Any, model: type[BaseModel], path: tuple, doc: Located, problems: list[str]) -> None:
     if not isinstance(data, dict):
         return
@@ -289,7 +282,7 @@ def _unknown_keys(data: Any, model: type[BaseModel], path: tuple, doc: Located, 
     for key, value in data.items():
         if key not in model.model_fields or model.model_fields[key].exclude:
             problems.append(
-                f"{doc.where((*path, key))}: {dotted((*path, key))}: unknown key {key!r}{suggest(key, allowed)}"
+                f"{doc.where((*path, key))}: {dotted((*path, key))}: unknown key {key!r}{did_you_mean(key, allowed)}"
                 f" (allowed here: {', '.join(allowed)})"
             )
             continue
@@ -326,7 +319,7 @@ def _pydantic_problems(exc: ValidationError, doc: Located) -> list[str]:
         if err["type"] == "literal_error" and isinstance(found, str):
             expected = err.get("ctx", {}).get("expected", "")
             options = [o.strip(" '") for o in expected.replace(" or ", ",").split(",") if o.strip()]
-            msg = f"{msg}{suggest(found, options)}"
+            msg = f"{msg}{did_you_mean(found, options)}"
         if isinstance(msg, str) and msg.startswith("Value error, "):
             msg = msg[len("Value error, ") :]
         shown = found if not isinstance(found, dict | list) else type(found).__name__
@@ -372,7 +365,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
         name = spec.metric or mid
         if not csv_source and name not in BUILTIN:
             key = ("metrics", mid, "metric") if spec.metric else ("metrics", mid)
-            bad(key, f"unknown metric {name!r}{suggest(name, BUILTIN)} (built-in metrics: {', '.join(BUILTIN)})")
+            bad(key, f"unknown metric {name!r}{did_you_mean(name, BUILTIN)} (built-in metrics: {', '.join(BUILTIN)})")
             continue
         if spec.kind is not None and spec.kind not in KINDS:
             bad(("metrics", mid, "kind"), f"unknown kind {spec.kind!r}")
@@ -383,7 +376,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
                     allowed = ", ".join(builtin.params) or "none"
                     bad(
                         ("metrics", mid, "params", p),
-                        f"{name} has no parameter {p!r}{suggest(p, builtin.params)} (its parameters: {allowed})",
+                        f"{name} has no parameter {p!r}{did_you_mean(p, builtin.params)} (its parameters: {allowed})",
                     )
 
     problems.extend(_check_against_protocol(plan, doc))
@@ -399,7 +392,8 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
             known = sorted(set(catalog.TESTS) | set(catalog.ALIASES))
             bad(
                 ("tests", i, "test"),
-                f"unknown test {t.test!r}{suggest(t.test, known)} (known tests: {', '.join(sorted(catalog.TESTS))})",
+                f"unknown test {t.test!r}{did_you_mean(t.test, known)}"
+                f" (known tests: {', '.join(sorted(catalog.TESTS))})",
             )
             continue
         if not t.metrics:
@@ -409,7 +403,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
             if m not in plan.metrics:
                 bad(
                     ("tests", i, "metrics", j),
-                    f"unknown metric {m!r}{suggest(m, metric_ids)} (this plan's metrics: {', '.join(metric_ids)})",
+                    f"unknown metric {m!r}{did_you_mean(m, metric_ids)} (this plan's metrics: {', '.join(metric_ids)})",
                 )
                 continue
             levels_of_metrics.add(plan.metric_level(m))
@@ -422,7 +416,10 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
         for key, factor in [("compare", t.compare)] + [("by", b) for b in t.by]:
             path = ("tests", i, key) if key == "compare" else ("tests", i, "by", t.by.index(factor))
             if factor not in factors:
-                bad(path, f"unknown factor {factor!r}{suggest(factor, factors)} (factors here: {', '.join(factors)})")
+                bad(
+                    path,
+                    f"unknown factor {factor!r}{did_you_mean(factor, factors)} (factors here: {', '.join(factors)})",
+                )
             elif factor not in FIXED_FACTORS and len(levels_of_metrics) > 1:
                 bad(path, f"factor {factor!r} is not a level of every metric in this test; split the test")
         if t.compare in t.by:
@@ -439,7 +436,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
             if known_levels is not None and lv not in known_levels:
                 bad(
                     ("tests", i, "levels", j),
-                    f"unknown {t.compare} {lv!r}{suggest(lv, known_levels)} (allowed: {', '.join(known_levels)})",
+                    f"unknown {t.compare} {lv!r}{did_you_mean(lv, known_levels)} (allowed: {', '.join(known_levels)})",
                 )
         if t.levels is not None and len(t.levels) < spec.min_levels:
             bad(("tests", i, "levels"), f"{name} needs at least {spec.min_levels} levels, found {len(t.levels)}")
@@ -451,7 +448,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
                     bad(("tests", i, "pairs", j), f"a pair names two different levels, found {pair!r}")
                 for lv in pair:
                     if known_levels is not None and lv not in known_levels:
-                        bad(("tests", i, "pairs", j), f"unknown {t.compare} {lv!r}{suggest(lv, known_levels)}")
+                        bad(("tests", i, "pairs", j), f"unknown {t.compare} {lv!r}{did_you_mean(lv, known_levels)}")
         if name == "percent_change":
             if t.reference is None:
                 bad(("tests", i), "percent_change needs a 'reference' level (e.g. the baseline condition)")
@@ -459,7 +456,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
                 bad(
                     ("tests", i, "reference"),
                     f"unknown {t.compare} {t.reference!r}"
-                    f"{suggest(t.reference, known_levels)} (allowed: {', '.join(known_levels)})",
+                    f"{did_you_mean(t.reference, known_levels)} (allowed: {', '.join(known_levels)})",
                 )
         elif t.reference is not None:
             bad(("tests", i, "reference"), f"'reference' is only used by percent_change, not {name}")
@@ -468,7 +465,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
                 allowed = ", ".join(sorted(spec.options)) or "none"
                 bad(
                     ("tests", i, "options", key),
-                    f"{name} has no option {key!r}{suggest(key, spec.options)} (its options: {allowed})",
+                    f"{name} has no option {key!r}{did_you_mean(key, spec.options)} (its options: {allowed})",
                 )
                 continue
             values = catalog.OPTION_VALUES.get(key)
@@ -476,7 +473,7 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
                 bad(
                     ("tests", i, "options", key),
                     f"{key} must be one of {', '.join(map(str, values))}, "
-                    f"found {value!r}{suggest(str(value), map(str, values))}",
+                    f"found {value!r}{did_you_mean(str(value), map(str, values))}",
                 )
             if key == "confidence" and not (isinstance(value, float | int) and 0 < value < 1):
                 bad(("tests", i, "options", key), f"confidence must be in (0, 1), found {value!r}")
@@ -487,36 +484,38 @@ def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
                 bad(
                     ("tests", i, "posthoc", "test"),
                     f"unknown post-hoc {t.posthoc.test!r} for {name}"
-                    f"{suggest(t.posthoc.test, spec.posthoc)} (allowed: {', '.join(sorted(spec.posthoc))})",
+                    f"{did_you_mean(t.posthoc.test, spec.posthoc)} (allowed: {', '.join(sorted(spec.posthoc))})",
                 )
         for j, es in enumerate(t.effect_size or []):
             if es not in spec.effect_sizes:
                 bad(
                     ("tests", i, "effect_size", j),
                     f"{name} reports no effect size {es!r}"
-                    f"{suggest(es, spec.effect_sizes)} (available: {', '.join(spec.effect_sizes) or 'none'})",
+                    f"{did_you_mean(es, spec.effect_sizes)} (available: {', '.join(spec.effect_sizes) or 'none'})",
                 )
 
     for i, f in enumerate(plan.figures):
         if f.kind not in FIGURE_KINDS:
             bad(
                 ("figures", i, "kind"),
-                f"unknown figure kind {f.kind!r}{suggest(f.kind, FIGURE_KINDS)} (kinds: {', '.join(FIGURE_KINDS)})",
+                f"unknown figure kind {f.kind!r}{did_you_mean(f.kind, FIGURE_KINDS)}"
+                f" (kinds: {', '.join(FIGURE_KINDS)})",
             )
         for j, m in enumerate(f.metrics):
             if m not in plan.metrics:
-                bad(("figures", i, "metrics", j), f"unknown metric {m!r}{suggest(m, metric_ids)}")
+                bad(("figures", i, "metrics", j), f"unknown metric {m!r}{did_you_mean(m, metric_ids)}")
         if f.marks is not None and f.marks not in test_ids:
             bad(
                 ("figures", i, "marks"),
-                f"unknown test id {f.marks!r}{suggest(f.marks, test_ids)} (this plan's tests: {', '.join(test_ids)})",
+                f"unknown test id {f.marks!r}{did_you_mean(f.marks, test_ids)}"
+                f" (this plan's tests: {', '.join(test_ids)})",
             )
         factors = list(FIXED_FACTORS) + sorted({plan.metric_level(m) for m in f.metrics if m in plan.metrics} - {None})
         for j, b in enumerate(f.by):
             if b not in factors:
                 bad(
                     ("figures", i, "by", j),
-                    f"unknown factor {b!r}{suggest(b, factors)} (factors: {', '.join(factors)})",
+                    f"unknown factor {b!r}{did_you_mean(b, factors)} (factors: {', '.join(factors)})",
                 )
         if f.kind in ("box", "proportion", "percent_change", "likert") and not f.metrics:
             bad(("figures", i, "metrics"), f"a {f.kind} figure needs at least one metric")
@@ -549,14 +548,14 @@ def _check_against_protocol(plan: AnalysisPlan, doc: Located) -> list[str]:
         if c not in known:
             problems.append(
                 f"{doc.where(('conditions', i))}: conditions[{i}]: protocol {plan.study!r} has no "
-                f"condition {c!r}{suggest(c, known)} (its conditions: {', '.join(known)})"
+                f"condition {c!r}{did_you_mean(c, known)} (its conditions: {', '.join(known)})"
             )
     strata = list(protocol.stratum_ids)
     for i, g in enumerate(plan.group_ids):
         if g not in strata:
             problems.append(
                 f"{doc.where(('groups', i))}: groups[{i}]: protocol {plan.study!r} has no group "
-                f"(stratum) {g!r}{suggest(g, strata)} (its strata: {', '.join(strata)})"
+                f"(stratum) {g!r}{did_you_mean(g, strata)} (its strata: {', '.join(strata)})"
             )
     return problems
 

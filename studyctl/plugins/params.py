@@ -8,13 +8,13 @@ which paper, code or measurement gave its default, or that the value was chosen 
 
 from __future__ import annotations
 
-import difflib
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from studyctl.errors import ModelParameterError
+from studyctl.suggest import did_you_mean
 
 
 @dataclass(frozen=True)
@@ -99,10 +99,9 @@ def validate_params(owner: str, params: Mapping[str, Any] | None, spec: Sequence
     out = {p.name: p.default for p in spec}
     for key, value in dict(params or {}).items():
         if key not in by_name:
-            near = difflib.get_close_matches(str(key), list(by_name), n=1)
-            hint = f"; did you mean {near[0]!r}?" if near else ""
             raise ModelParameterError(
-                f"{owner}: unknown parameter {key!r}{hint} Known parameters: {', '.join(sorted(by_name)) or 'none'}"
+                f"{owner}: unknown parameter {key!r}{did_you_mean(key, by_name)}"
+                f" Known parameters: {', '.join(sorted(by_name)) or 'none'}"
             )
         out[key] = _coerce(owner, by_name[key], value)
     return out

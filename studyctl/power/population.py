@@ -46,6 +46,7 @@ import pandas as pd
 
 from studyctl.errors import ModelParameterError, NotFoundError, ProtocolError, UsageError
 from studyctl.plugins.interfaces import Action, Participant, TrialInfo
+from studyctl.suggest import nearest
 
 _SECTIONS = ("baseline", "condition_effects", "group_effects", "between_sd")
 
@@ -352,12 +353,10 @@ def population_model(population: Population, protocol: Any, factory: Any | None 
                     f"population: parameter {p!r} of {ref.plugin} is not a real number; knobs shift "
                     f"real-valued parameters only ({', '.join(sorted(space))})"
                 )
-            import difflib
-
-            near = difflib.get_close_matches(p, list(space), n=1)
+            near = nearest(p, space)
             raise UsageError(
                 f"population: {ref.plugin} has no parameter {p!r}"
-                + (f" (did you mean {near[0]!r}?)" if near else "")
+                + (f" (did you mean {near!r}?)" if near else "")
                 + f"; its real-valued parameters: {', '.join(sorted(space))}"
             )
     model = PopulationModel(

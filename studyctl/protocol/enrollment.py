@@ -22,10 +22,10 @@ from sqlalchemy import select
 
 from studyctl.errors import IntegrityError, NotFoundError, UsageError
 from studyctl.protocol.loader import load_protocol_text
-from studyctl.protocol.problems import nearest
 from studyctl.protocol.schedule import SCHEDULE_ALGORITHM_VERSION, Planner, Schedule
 from studyctl.protocol.schema import Protocol
 from studyctl.store.identity import CODE_ALPHABET, random_code
+from studyctl.suggest import nearest
 
 CODE_LENGTH = 5
 _CODE_TRIES = 100
@@ -79,7 +79,7 @@ def choose_stratum(protocol: Protocol, group: str | None) -> str:
             return strata[0]
         raise UsageError(f"this study has groups {', '.join(strata)}; say which with --group")
     if group not in strata:
-        hint = nearest(group, strata)
+        hint = nearest(group, strata, ignore_case=True)
         raise UsageError(f"unknown group {group!r}; this study has {', '.join(strata)}"
                          + (f" (did you mean {hint!r}?)" if hint else ""))
     return group

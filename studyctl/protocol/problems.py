@@ -9,7 +9,6 @@ that a coordinator can fix the file without reading studyctl's source::
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -34,14 +33,6 @@ def format_path(path: Sequence[PathKey]) -> str:
         else:
             out += f".{key}" if out else str(key)
     return out or "<root>"
-
-
-def nearest(word: str, choices: Iterable[str]) -> str | None:
-    """The valid choice nearest to a misspelt ``word``, or None when nothing is close."""
-    pool = [str(c) for c in choices]
-    lowered = {c.lower(): c for c in pool}
-    hit = difflib.get_close_matches(str(word).lower(), list(lowered), n=1, cutoff=0.6)
-    return lowered[hit[0]] if hit else None
 
 
 def show(value: object) -> str:

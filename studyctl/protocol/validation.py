@@ -14,9 +14,10 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from studyctl.protocol.problems import KeyPath, Problem, nearest, one_of, show
+from studyctl.protocol.problems import KeyPath, Problem, one_of, show
 from studyctl.protocol.schema import ID_PATTERN, Protocol
 from studyctl.protocol.yamlmarks import MarkedData
+from studyctl.suggest import nearest
 
 _TYPE_WORDS = {
     "int_type": "an integer",
@@ -149,7 +150,7 @@ def problems_from_validation(exc: ValidationError, marked: MarkedData, filename:
                     "unknown key",
                     show(key),
                     one_of(choices),
-                    nearest(str(key), choices),
+                    nearest(str(key), choices, ignore_case=True),
                 )
             )
             continue
@@ -163,7 +164,7 @@ def problems_from_validation(exc: ValidationError, marked: MarkedData, filename:
         mark = marked.value_mark(path)
         if kind == "literal_error":
             choices = _allowed_literals(path) or re.findall(r"'([^']*)'", str(ctx.get("expected", "")))
-            suggestion = nearest(str(value), choices) if isinstance(value, str) else None
+            suggestion = nearest(str(value), choices, ignore_case=True) if isinstance(value, str) else None
             problems.append(Problem(filename, mark, path, "value not allowed", show(value), one_of(choices),
                                     suggestion))
         elif kind in _TYPE_WORDS:

@@ -1,0 +1,43 @@
+"""The "did you mean …?" hint for a misspelt name: one matcher for protocols, plans, plugins and CLI.
+
+``difflib`` closeness with its usual cutoff (0.6), the single best match only. Protocol files match
+case-insensitively (``studdy`` and ``Study`` both find ``study``); the other callers have always matched
+case-sensitively, and their messages are kept as they were.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+
+
+def nearest(word: object, choices: Iterable[object], *, ignore_case: bool = False) -> str | None:
+    """The valid choice nearest to a misspelt ``word``, or None when nothing is close.
+
+    Parameters
+    ----------
+    word
+        What the user wrote (compared as text).
+    choices
+        The valid names (compared as text).
+    ignore_case
+        Compare lower-cased; the choice is returned as written.
+
+    Returns
+    -------
+    str or None
+        The closest choice (difflib ratio ≥ 0.6), or None.
+    """
+    pool = [str(c) for c in choices]
+    if not ignore_case:
+        hit = difflib.get_close_matches(str(word), pool, n=1, cutoff=0.6)
+        return hit[0] if hit else None
+    lowered = {c.lower(): c for c in pool}
+    hit = difflib.get_close_matches(str(word).lower(), list(lowered), n=1, cutoff=0.6)
+    return lowered[hit[0]] if hit else None
+
+
+def did_you_mean(word: object, choices: Iterable[object], *, ignore_case: bool = False) -> str:
+    """``"; did you mean 'x'?"`` for the nearest choice (see :func:`nearest`), or an empty string."""
+    hit = nearest(word, choices, ignore_case=ignore_case)
+    return f"; did you mean {hit!r}?" if hit is not None else ""
