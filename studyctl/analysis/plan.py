@@ -47,9 +47,11 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from studyctl.analysis import catalog
-from studyctl.analysis._yamlpos import Located, dotted, load_located
 from studyctl.analysis.metric_defs import BUILTIN, KINDS
 from studyctl.errors import ProtocolError
+from studyctl.protocol import yamlmarks
+from studyctl.protocol.problems import Problem, format_path
+from studyctl.protocol.yamlmarks import MarkedData
 from studyctl.suggest import did_you_mean
 
 FIGURE_KINDS = (
@@ -275,7 +277,7 @@ def _public_fields(model: type[BaseModel]) -> list[str]:
     return [name for name, f in model.model_fields.items() if not f.exclude]
 
 
-def _unknown_keys(data: Any, model: type[BaseModel], path: tuple, doc: Located, problems: list[str]) -> None:
+def _unknown_keys(data: Any, model: type[BaseModel], path: tuple, doc: MarkedData, problems: list[str]) -> None:
     if not isinstance(data, dict):
         return
     allowed = _public_fields(model)
@@ -299,7 +301,7 @@ def _unknown_keys(data: Any, model: type[BaseModel], path: tuple, doc: Located, 
                         _unknown_keys(item, sub, (*path, key, k), doc, problems)
 
 
-def _pydantic_problems(exc: ValidationError, doc: Located) -> list[str]:
+def _pydantic_problems(exc: ValidationError, doc: MarkedData) -> list[str]:
     problems = []
     seen: set[tuple] = set()
     for err in exc.errors():
@@ -331,7 +333,7 @@ def _pydantic_problems(exc: ValidationError, doc: Located) -> list[str]:
 # Cross-reference checks
 
 
-def _check_names(plan: AnalysisPlan, doc: Located) -> list[str]:
+def _check_names(plan: AnalysisPlan, doc: MarkedData) -> list[str]:
     problems: list[str] = []
 
     def bad(path: tuple, text: str) -> None:
@@ -537,7 +539,7 @@ def shipped_protocol(name: str):  # -> Protocol | None
         return None
 
 
-def _check_against_protocol(plan: AnalysisPlan, doc: Located) -> list[str]:
+def _check_against_protocol(plan: AnalysisPlan, doc: MarkedData) -> list[str]:
     """Conditions and groups must exist in the study's protocol (when it is a shipped one)."""
     protocol = shipped_protocol(plan.study)
     if protocol is None:
@@ -570,7 +572,7 @@ def _line_key(text: str, source: str) -> tuple[int, int]:
         return 10**9, 0
 
 
-def parse_plan(doc: Located) -> AnalysisPlan:
+def parse_plan(doc: MarkedData) -> AnalysisPlan:
     """Validate a located YAML document as an analysis plan; raise with every problem found."""
     if not isinstance(doc.data, dict):
         raise ProtocolError(f"{doc.source}:1:1: an analysis plan is a YAML mapping, found {type(doc.data).__name__}")
@@ -633,7 +635,57 @@ def load_plan(path_or_name: str | Path) -> AnalysisPlan:
     from studyctl.resources import find_shipped
 
     path = find_shipped("analysis", path_or_name)
-    return parse_plan(load_located(path))
+    return parse_plan(load_plan_yaml(path))
+
+
+def dotted(path: tuple) -> str:
+    """Render a key path as ``tests[2].posthoc.test`` (the protocol's rendering; plans say "(top level)")."""
+    return format_path(path) if path else "(top level)"
+
+
+def load_plan_yaml(path: Path | str) -> MarkedData:
+    """Parse a plan file keeping positions; keys are read as text, merge keys refused.
+
+    Raises
+    ------
+    ProtocolError
+        On an unreadable or empty file, a syntax error (with line and column), or duplicate, merge or
+        non-name keys.
+    """
+    source = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ProtocolError(f"{source}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProtocolError(f"{source}: cannot read the file ({exc})") from None
+    doc = yamlmarks.load_marked(text, source, merge_keys=False, text_keys=True)
+    syntax = [p for p in doc.problems if p.kind == yamlmarks.SYNTAX]
+    if syntax:
+        p = syntax[0]
+        detail = p.what if p.what.startswith("YAML syntax error") else f"YAML syntax error: {p.found}"
+        raise ProtocolError(f"{source}:{p.mark.line}:{p.mark.column}: {detail}")
+    if doc.data is None and not doc.values:
+        raise ProtocolError(f"{source}: the file is empty; an analysis plan is a YAML mapping")
+    if doc.problems:
+        problems = [_yaml_problem(p, doc) for p in doc.problems]
+        raise ProtocolError(f"{source}: {len(problems)} problem(s):\n  " + "\n  ".join(problems), problems)
+    return doc
+
+
+def _yaml_problem(p: Problem, doc: MarkedData) -> str:
+    """A loading problem in the plan's wording."""
+    where = f"{p.file}:{p.mark.line}:{p.mark.column}"
+    if p.kind == yamlmarks.DUPLICATE_KEY:
+        return (
+            f"{where}: {dotted(p.path)}: duplicate key {p.path[-1]!r} (the first is on line "
+            f"{doc.keys[p.path].line}); remove one of them"
+        )
+    if p.kind == yamlmarks.MERGE_KEY:
+        return f"{p.file}:{p.mark.line}: YAML merge keys (<<) are not supported"
+    if p.kind == yamlmarks.BAD_KEY:
+        return f"{where}: mapping keys must be plain names, found {p.found}"
+    return f"{where}: {dotted(p.path)}: {p.what}: found {p.found}, allowed {p.allowed}"
 
 
 def check_plan(path_or_name: str | Path) -> list[str]:

@@ -72,6 +72,9 @@ class Problem:
     found: str
     allowed: str
     suggestion: str | None = None
+    #: What kind of YAML-level problem (``yamlmarks.SYNTAX`` …), for callers that word their own message;
+    #: empty for problems found after loading.
+    kind: str = ""
 
     def __str__(self) -> str:
         text = (

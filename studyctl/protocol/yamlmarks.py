@@ -3,6 +3,9 @@
 PyYAML's composer gives nodes with start marks; we build the data ourselves from those nodes so each
 key path (``("conditions", 2, "params")``) maps to where its key and its value start. Duplicate keys,
 which PyYAML silently lets the last one win, are reported as problems instead.
+
+Protocol files and analysis plans both load through :func:`load_marked`; plans are stricter (no merge
+keys, keys read as text) and word the problems themselves, using :attr:`Problem.kind`.
 """
 
 from __future__ import annotations
@@ -21,6 +24,13 @@ except AttributeError:  # pragma: no cover - libyaml missing
 
 _MERGE_TAG = "tag:yaml.org,2002:merge"
 
+# Problem kinds (Problem.kind) of the problems found while loading.
+SYNTAX = "syntax"
+DUPLICATE_KEY = "duplicate_key"
+MERGE_KEY = "merge_key"
+BAD_KEY = "bad_key"
+BAD_VALUE = "bad_value"
+
 
 @dataclass
 class MarkedData:
@@ -30,6 +40,12 @@ class MarkedData:
     keys: dict[KeyPath, Mark] = field(default_factory=dict)
     values: dict[KeyPath, Mark] = field(default_factory=dict)
     problems: list[Problem] = field(default_factory=list)
+    source: str = ""
+
+    def where(self, path: KeyPath) -> str:
+        """``file:line:col`` of :meth:`key_mark` (the file is the name given to :func:`load_marked`)."""
+        mark = self.key_mark(path)
+        return f"{self.source}:{mark.line}:{mark.column}"
 
     def key_mark(self, path: KeyPath) -> Mark:
         """Where the key of ``path`` is written (for a list item: where the item starts)."""
@@ -57,9 +73,11 @@ def _mark(node: yaml.Node) -> Mark:
 
 
 class _Builder:
-    def __init__(self, filename: str) -> None:
+    def __init__(self, filename: str, merge_keys: bool, text_keys: bool) -> None:
         self.filename = filename
-        self.out = MarkedData(data=None)
+        self.merge_keys = merge_keys
+        self.text_keys = text_keys
+        self.out = MarkedData(data=None, source=filename)
         self._constructor = yaml.constructor.SafeConstructor()
 
     def build(self, node: yaml.Node, path: KeyPath) -> Any:
@@ -75,7 +93,9 @@ class _Builder:
         try:
             return self._constructor.construct_object(node, deep=True)
         except yaml.YAMLError as exc:
-            self._problem(node, path, "value cannot be read", show(node.value), f"a valid YAML scalar ({exc})")
+            self._problem(
+                node, path, "value cannot be read", show(node.value), f"a valid YAML scalar ({exc})", BAD_VALUE
+            )
             return None
 
     def _mapping(self, node: yaml.MappingNode, path: KeyPath) -> dict[Any, Any]:
@@ -83,18 +103,28 @@ class _Builder:
         explicit: set[Any] = set()
         merged: list[yaml.MappingNode] = []
         for key_node, value_node in node.value:
+            if key_node.tag == _MERGE_TAG and not self.merge_keys:
+                self._problem(key_node, path, "merge keys are not allowed here", "'<<'", "plain keys", MERGE_KEY)
+                continue
             if key_node.tag == _MERGE_TAG:
                 sources = value_node.value if isinstance(value_node, yaml.SequenceNode) else [value_node]
                 for source in sources:
                     if isinstance(source, yaml.MappingNode):
                         merged.append(source)
                     else:
-                        self._problem(source, path, "merge key '<<' needs a mapping", show(source.value), "a mapping")
+                        self._problem(
+                            source, path, "merge key '<<' needs a mapping", show(source.value), "a mapping", MERGE_KEY
+                        )
                 continue
             if not isinstance(key_node, yaml.ScalarNode):
-                self._problem(key_node, path, "key must be a plain value", "a mapping or list", "a string")
+                self._problem(key_node, path, "key must be a plain value", "a mapping or list", "a string", BAD_KEY)
                 continue
             key = self._constructor.construct_object(key_node, deep=True)
+            if self.text_keys:
+                if key is None or not isinstance(key, str | int | float | bool):
+                    self._problem(key_node, path, "key must be a plain value", show(key), "a string", BAD_KEY)
+                    continue
+                key = str(key)
             if key in explicit:
                 first = self.out.keys[(*path, key)]
                 self._problem(
@@ -103,6 +133,7 @@ class _Builder:
                     f"duplicate key (first written at line {first.line})",
                     show(key),
                     "each key once per mapping",
+                    DUPLICATE_KEY,
                 )
                 continue
             explicit.add(key)
@@ -119,8 +150,8 @@ class _Builder:
                 result[key] = self.build(value_node, (*path, key))
         return result
 
-    def _problem(self, node: yaml.Node, path: KeyPath, what: str, found: str, allowed: str) -> None:
-        self.out.problems.append(Problem(self.filename, _mark(node), tuple(path), what, found, allowed))
+    def _problem(self, node: yaml.Node, path: KeyPath, what: str, found: str, allowed: str, kind: str) -> None:
+        self.out.problems.append(Problem(self.filename, _mark(node), tuple(path), what, found, allowed, kind=kind))
 
 
 def _text_at(text: str, mark: yaml.Mark | None) -> str:
@@ -136,11 +167,21 @@ def _text_at(text: str, mark: yaml.Mark | None) -> str:
     return repr(rest if len(rest) <= 30 else rest[:27] + "...")
 
 
-def load_marked(text: str, filename: str) -> MarkedData:
+def load_marked(text: str, filename: str, *, merge_keys: bool = True, text_keys: bool = False) -> MarkedData:
     """Parse YAML ``text`` into data plus the position of every key path.
 
     Syntax errors do not raise: they come back as problems (with ``data`` None), so a caller can
     report them alongside everything else.
+
+    Parameters
+    ----------
+    text, filename
+        The YAML and the name its problems and :meth:`MarkedData.where` give.
+    merge_keys
+        Expand ``<<`` merge keys (explicit keys win); when False each one is a ``MERGE_KEY`` problem.
+    text_keys
+        Turn scalar keys into text (``1:`` is the key ``'1'``); a null or other non-name key is a
+        ``BAD_KEY`` problem. When False, keys are kept as YAML typed them.
     """
     try:
         root = yaml.compose(text, Loader=_Loader)
@@ -150,12 +191,13 @@ def load_marked(text: str, filename: str) -> MarkedData:
         what = f"YAML syntax error: {exc.problem or 'invalid text'}"
         if exc.context:
             what += f" ({exc.context})"
-        problem = Problem(filename, where, (), what, _text_at(text, mark), "valid YAML")
-        return MarkedData(data=None, problems=[problem])
+        problem = Problem(filename, where, (), what, _text_at(text, mark), "valid YAML", kind=SYNTAX)
+        return MarkedData(data=None, problems=[problem], source=filename)
     except yaml.YAMLError as exc:  # pragma: no cover - reader errors without marks
-        return MarkedData(data=None, problems=[Problem(filename, Mark(1, 1), (), "YAML error", str(exc), "valid YAML")])
+        problem = Problem(filename, Mark(1, 1), (), "YAML error", str(exc), "valid YAML", kind=SYNTAX)
+        return MarkedData(data=None, problems=[problem], source=filename)
     if root is None:
-        return MarkedData(data=None)
-    builder = _Builder(filename)
+        return MarkedData(data=None, source=filename)
+    builder = _Builder(filename, merge_keys, text_keys)
     builder.out.data = builder.build(root, ())
     return builder.out
