@@ -18,7 +18,7 @@ import pandas as pd
 
 from studyctl import stats
 from studyctl.analysis import catalog
-from studyctl.analysis.plan import AnalysisPlan, PlanTest
+from studyctl.analysis.plan import AnalysisPlan, PlanTest, Posthoc
 from studyctl.analysis.results import AnalysisResult, TestRow
 from studyctl.analysis.shape import Prepared, factor_column, ordered_levels, prepare, unit_values
 from studyctl.analysis.table import MetricTable
@@ -109,6 +109,28 @@ class _EntryRunner:
             alpha=self.alpha,
             **kw,
         )
+
+    def result_row(self, metric: str, split: str, res: Any, warns: list[str], *, p: float, **kw: Any) -> TestRow:
+        """A computed row: significant when ``p`` < alpha (unless given), our warnings then the result's."""
+        kw.setdefault("significant", bool(p < self.alpha))
+        return self.row(metric, split, p=p, warnings="; ".join(warns + _result_warnings(res)), **kw)
+
+    def not_computed(self, metric: str, split: str, warns: list[str], why: str, base: dict) -> list[TestRow]:
+        """The single not-computed row of an omnibus test, saying why after the data warnings."""
+        return [self.row(metric, split, status="not_computed", warnings="; ".join([*warns, why]), **base)]
+
+    def with_posthoc(self, row: TestRow, posthoc: Callable[[Posthoc], list[TestRow]]) -> list[TestRow]:
+        """The omnibus row and the rows of the entry's post-hoc test, if any.
+
+        With ``when: significant`` and an omnibus p not below alpha, only the row, noting why the post-hoc
+        test did not run.
+        """
+        ph = self.entry.posthoc
+        if ph is None:
+            return [row]
+        if ph.when == "significant" and not (row.p < self.alpha):
+            return [self._posthoc_skipped(row, ph.test)]
+        return [row, *posthoc(ph)]
 
     def levels_for(self, factor: str, values: pd.Series, metric: str) -> list[str]:
         if factor == self.entry.compare and self.entry.levels:
@@ -319,9 +341,11 @@ class _EntryRunner:
         try:
             if self.name == "kruskal_wallis":
                 res = stats.kruskal_wallis(*samples)
-                row = self.row(
+                row = self.result_row(
                     metric,
                     split,
+                    res,
+                    warns,
                     statistic_name="H",
                     statistic=_f(res.statistic),
                     df=_f(_get(res, "df")),
@@ -329,16 +353,16 @@ class _EntryRunner:
                     method="Kruskal-Wallis, chi-squared approximation, tie-corrected",
                     effect_size_name="epsilon_squared",
                     effect_size=_f(_get(res, "epsilon_squared", "effect_size")),
-                    significant=bool(_f(res.pvalue) < self.alpha),
-                    warnings="; ".join(warns + _result_warnings(res)),
                     **base,
                 )
             elif self.name == "anova_oneway":
                 res = stats.anova_oneway(*samples)
                 es_name = (self.entry.effect_size or ["eta_squared"])[0]
-                row = self.row(
+                row = self.result_row(
                     metric,
                     split,
+                    res,
+                    warns,
                     statistic_name="F",
                     statistic=_f(res.statistic),
                     df=_f(_get(res, "df_between")),
@@ -346,8 +370,6 @@ class _EntryRunner:
                     method=f"one-way ANOVA F({_f(_get(res, 'df_between')):g}, {_f(_get(res, 'df_within')):g})",
                     effect_size_name=es_name,
                     effect_size=_f(_get(res, es_name, "eta_squared")),
-                    significant=bool(_f(res.pvalue) < self.alpha),
-                    warnings="; ".join(warns + _result_warnings(res)),
                     **base,
                 )
             elif self.name in ("tukey_hsd", "dunn"):
@@ -366,49 +388,35 @@ class _EntryRunner:
             else:
                 raise StatsInputError(f"{self.name} is not a between-subject omnibus test")
         except StudyctlError as exc:
-            return [self.row(metric, split, status="not_computed", warnings="; ".join([*warns, str(exc)]), **base)]
-        out = [row]
-        ph = self.entry.posthoc
-        if ph is not None:
-            if ph.when == "significant" and not (row.p < self.alpha):
-                out[0] = self._posthoc_skipped(row, ph.test)
-            elif ph.test == "rank_sum":
-                out.extend(self._pairs_posthoc(metric, split, sub, col, levels, "rank_sum", ph.p_adjust))
-            else:
-                test = "dunn" if ph.test in ("dunn", "multcompare") else ph.test
-                variant = "multcompare" if ph.test == "multcompare" else (ph.variant or "dunn")
-                out.extend(
-                    self.pairwise(
-                        metric,
-                        split,
-                        samples,
-                        levels,
-                        test,
-                        row,
-                        kind="posthoc",
-                        p_adjust_method=ph.p_adjust,
-                        variant=variant,
-                    )
-                )
-        return out
+            return self.not_computed(metric, split, warns, str(exc), base)
+
+        def posthoc(ph: Posthoc) -> list[TestRow]:
+            if ph.test == "rank_sum":
+                return self._pairs_posthoc(metric, split, sub, col, levels, "rank_sum", ph.p_adjust)
+            test = "dunn" if ph.test in ("dunn", "multcompare") else ph.test
+            variant = "multcompare" if ph.test == "multcompare" else (ph.variant or "dunn")
+            return self.pairwise(
+                metric, split, samples, levels, test, row, kind="posthoc", p_adjust_method=ph.p_adjust, variant=variant
+            )
+
+        return self.with_posthoc(row, posthoc)
 
     def _rank_row(
         self, metric: str, split: str, res: Any, stat_name: str, es_name: str, warns: list[str], common: dict
     ) -> TestRow:
         """The row of a rank-sum or signed-rank result."""
-        p = _f(res.pvalue)
-        return self.row(
+        return self.result_row(
             metric,
             split,
+            res,
+            warns,
             statistic_name=stat_name,
             statistic=_f(res.statistic),
             z=_f(_get(res, "z")),
-            p=p,
+            p=_f(res.pvalue),
             method=str(_get(res, "method", default="")),
             effect_size_name=es_name,
             effect_size=_f(_get(res, "effect_size")),
-            significant=bool(p < self.alpha),
-            warnings="; ".join(warns + _result_warnings(res)),
             **common,
         )
 
@@ -534,26 +542,19 @@ class _EntryRunner:
         n = matrix.shape[0]
         base = {"groups": ", ".join(levels), "n": n, "n_per_group": f"{n} complete blocks × {len(levels)}"}
         if n < 2:
-            return [
-                self.row(
-                    metric,
-                    split,
-                    status="not_computed",
-                    warnings="; ".join(
-                        [*warns, f"needs at least 2 participants with values in every level, found {n}"]
-                    ),
-                    **base,
-                )
-            ]
+            why = f"needs at least 2 participants with values in every level, found {n}"
+            return self.not_computed(metric, split, warns, why, base)
         try:
             if self.name == "friedman":
                 res = stats.friedman(*[matrix[:, j] for j in range(matrix.shape[1])])
                 chi2 = _f(res.statistic)
                 k = len(levels)
                 kendall = _f(_get(res, "kendall_w", "effect_size", default=chi2 / (n * (k - 1))))
-                row = self.row(
+                row = self.result_row(
                     metric,
                     split,
+                    res,
+                    warns,
                     statistic_name="chi2 (Friedman)",
                     statistic=chi2,
                     df=_f(_get(res, "df")),
@@ -561,16 +562,16 @@ class _EntryRunner:
                     method=str(_get(res, "method", default="Friedman, chi-squared approximation, tie-corrected")),
                     effect_size_name="kendall_w",
                     effect_size=kendall,
-                    significant=bool(_f(res.pvalue) < self.alpha),
-                    warnings="; ".join(warns + _result_warnings(res)),
                     **base,
                 )
             elif self.name == "rm_anova":
                 res = stats.rm_anova(*[matrix[:, j] for j in range(matrix.shape[1])])
                 eps, p_gg = _f(_get(res, "epsilon_gg")), _f(_get(res, "pvalue_gg"))
-                row = self.row(
+                row = self.result_row(
                     metric,
                     split,
+                    res,
+                    warns,
                     statistic_name="F",
                     statistic=_f(res.statistic),
                     df=_f(_get(res, "df_effect")),
@@ -581,21 +582,15 @@ class _EntryRunner:
                     effect_size_name="partial_eta_squared",
                     effect_size=_f(_get(res, "partial_eta_squared")),
                     significant=bool(p_gg < self.alpha) if np.isfinite(p_gg) else None,
-                    warnings="; ".join(warns + _result_warnings(res)),
                     **base,
                 )
             else:
                 raise StatsInputError(f"{self.name} is not a within-subject omnibus test")
         except StudyctlError as exc:
-            return [self.row(metric, split, status="not_computed", warnings="; ".join([*warns, str(exc)]), **base)]
-        out = [row]
-        ph = self.entry.posthoc
-        if ph is not None:
-            if ph.when == "significant" and not (row.p < self.alpha):
-                out[0] = self._posthoc_skipped(row, ph.test)
-            else:
-                out.extend(self._pairs_posthoc(metric, split, sub, col, levels, "signed_rank", ph.p_adjust))
-        return out
+            return self.not_computed(metric, split, warns, str(exc), base)
+        return self.with_posthoc(
+            row, lambda ph: self._pairs_posthoc(metric, split, sub, col, levels, "signed_rank", ph.p_adjust)
+        )
 
     def run_proportion(self, metric: str, split: str, sub: pd.DataFrame, col: str, levels: list[str]) -> list[TestRow]:
         conf = float(self.entry.options.get("confidence", 0.95))
