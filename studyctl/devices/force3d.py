@@ -157,12 +157,43 @@ class SimulatedForceDevice(Device):
         if b is not None:
             self._button = b
 
-    def _push_encoder(self, q: tuple[float, float, float]) -> None:
-        """Record an encoder sample taken between two reads (the newest read's sample goes in by ``read``)."""
-        i = self._ring_i
-        self._ring[i] = q
-        i += 1
-        self._ring_i = 0 if i == len(self._ring) else i
+    def _substeps(self, n: int) -> None:
+        """``n`` device ticks under the held force, the encoder sampled after each but the last (``read`` takes
+        that one): :meth:`_integrate` unrolled, because a reduced-rate loop spends most of a read here."""
+        if self._target is None or self._kinematic or not self._ring:
+            r, ir = self._res, self._inv_res
+            for step in range(n):
+                self._integrate(self._dt)
+                if step < n - 1 and self._ring:
+                    q = tuple(((v * ir + _ROUND) - _ROUND) * r for v in self._pos)
+                    self._ring[self._ring_i] = q
+                    self._ring_i = (self._ring_i + 1) % len(self._ring)
+            return
+        dt = self._dt
+        g = dt * 1000.0 / self._m
+        k = self._kh * 1e-3
+        den = 1.0 + dt * self._bh / self._m
+        pos, vel = self._pos, self._vel
+        p0, p1, p2 = pos
+        v0, v1, v2 = vel
+        f0, f1, f2 = self._force
+        t0, t1, t2 = self._target
+        ring, i, size = self._ring, self._ring_i, len(self._ring)
+        r, ir = self._res, self._inv_res
+        for step in range(n):
+            v0 = (v0 + g * (k * (t0 - p0) + f0)) / den
+            v1 = (v1 + g * (k * (t1 - p1) + f1)) / den
+            v2 = (v2 + g * (k * (t2 - p2) + f2)) / den
+            p0 += dt * v0
+            p1 += dt * v1
+            p2 += dt * v2
+            if step < n - 1:  # the same rounding as read's
+                ring[i] = (((p0 * ir + _ROUND) - _ROUND) * r, ((p1 * ir + _ROUND) - _ROUND) * r,
+                           ((p2 * ir + _ROUND) - _ROUND) * r)
+                i = 0 if i + 1 == size else i + 1
+        pos[0], pos[1], pos[2] = p0, p1, p2
+        vel[0], vel[1], vel[2] = v0, v1, v2
+        self._ring_i = i
 
     def _quantise(self, p: list[float]) -> tuple[float, float, float]:
         """Encoder reading of a position (mm)."""
@@ -204,11 +235,7 @@ class SimulatedForceDevice(Device):
                 # A loop slower than the device (a simulated session at a reduced loop rate, or a stall): the
                 # physics still advances in device ticks under the last commanded force, and the encoder is
                 # sampled every device tick, so the velocity estimate keeps its window in time.
-                n = min(max(n, 0), 50)
-                for k in range(n):
-                    self._integrate(self._dt)
-                    if k < n - 1 and self._ring:
-                        self._push_encoder(self._quantise(self._pos))
+                self._substeps(min(max(n, 0), 50))
         self._t_last = t
         # encoder quantisation: adding and removing 1.5·2**52 rounds to the nearest integer without a call
         pos, r, ir = self._pos, self._res, self._inv_res

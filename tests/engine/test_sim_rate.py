@@ -85,3 +85,20 @@ def test_a_bad_cohort_rate_is_a_usage_error(tmp_path):
     with pytest.raises(UsageError, match="--sim-rate-hz"):
         create_cohort("data_driven_palpation", 1, 3, tmp_path / "ws", sim_rate_hz=0.0)
     assert not (tmp_path / "ws").exists()  # nothing written
+
+
+def test_the_unrolled_substeps_are_the_device_integration():
+    """``_substeps(n)`` must advance the spring-held handle bit for bit as ``n`` calls of ``_integrate``."""
+    devices = []
+    for _ in range(2):
+        dev = SimulatedForceDevice()
+        dev.open()
+        dev.apply_input({"x_mm": 1.0, "y_mm": 2.0, "z_mm": 3.0})
+        dev.read(0.0)
+        dev.apply_input({"x_mm": 4.0, "y_mm": -2.0, "z_mm": 0.5})
+        dev.write({"fx_n": 0.3, "fy_n": -0.2, "fz_n": 1.1})
+        devices.append(dev)
+    devices[0]._substeps(7)
+    for _ in range(7):
+        devices[1]._integrate(devices[1]._dt)
+    assert devices[0]._pos == devices[1]._pos and devices[0]._vel == devices[1]._vel
