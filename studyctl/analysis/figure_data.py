@@ -14,7 +14,7 @@ Each collector returns a :class:`~studyctl.analysis.results.FigureData`; when so
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -109,60 +109,76 @@ def _first_trials(store: Any, study: Any, conditions: Sequence[str]) -> dict[str
     return out
 
 
+def _per_condition(
+    plan: AnalysisPlan,
+    store: Any,
+    study: Any,
+    conds: Sequence[str],
+    panel: Callable[[str, int], pd.DataFrame | str],
+    meta: dict[str, Any],
+) -> FigureData:
+    """One panel per condition, from its first completed trial.
+
+    ``panel(condition, trial_id)`` returns the panel's frame, or the text of why it cannot be drawn (the
+    figure's ``problem`` lists those after the condition). Panels are labelled with the plan's condition
+    labels; ``meta`` is added after ``panels``.
+    """
+    trials = _first_trials(store, study, conds)
+    labels = {c.id: c.display for c in plan.condition_levels}
+    frames, panels, problems = [], [], []
+    for cond in conds:
+        if cond not in trials:
+            problems.append(f"{cond}: no completed trial")
+            continue
+        frame = panel(cond, trials[cond])
+        if isinstance(frame, str):
+            problems.append(f"{cond}: {frame}")
+            continue
+        frame.insert(0, "panel", labels.get(cond, cond))
+        frames.append(frame)
+        panels.append(labels.get(cond, cond))
+    if not frames:
+        return FigureData(pd.DataFrame(), problem="; ".join(problems) or "no samples")
+    frame = pd.concat(frames, ignore_index=True)
+    return FigureData(frame, meta={"panels": panels, **meta}, problem="; ".join(problems))
+
+
 def force_trace(plan: AnalysisPlan, store: Any, study: Any, spec: FigureEntry) -> FigureData:
     """Force and commands ±``window_s`` around the first tumour contact of one trial per condition.
 
     Tumour contact is what the contact metrics use (:func:`studyctl.analysis.metrics.tumour_contact_mask`):
     the probe over a tumour with the force above the threshold; those spans are shaded.
     """
-    from studyctl.analysis.metrics import rebuild_truth, tumour_contact_mask
-    from studyctl.engine.plan import SessionPlan
-    from studyctl.store.models import Event, Session, Trial
+    from studyctl.analysis.metrics import tumour_contact_mask
 
     threshold = float(spec.options.get("threshold_n", _contact_threshold(plan)))
     window = float(spec.options.get("window_s", 3.0))
-    conds = list(spec.options.get("conditions") or plan.condition_ids)
-    trials = _first_trials(store, study, conds)
-    frames, panels, problems = [], [], []
-    labels = {c.id: c.display for c in plan.condition_levels}
-    for cond in conds:
-        if cond not in trials:
-            problems.append(f"{cond}: no completed trial")
-            continue
-        samples = store.read_samples(trials[cond])
+
+    def panel(cond: str, tid: int) -> pd.DataFrame | str:
+        samples = store.read_samples(tid)
         try:
-            truth = _trial_truth(store, trials[cond], Event, Session, Trial, SessionPlan, rebuild_truth)
-            contact = tumour_contact_mask(samples, truth, threshold)
+            contact = tumour_contact_mask(samples, _trial_truth(store, tid), threshold)
         except StudyctlError as exc:
-            problems.append(f"{cond}: trial {trials[cond]}: {exc}")
-            continue
+            return f"trial {tid}: {exc}"
         t = samples["t"].to_numpy(dtype=float)
         f = samples[FORCE].to_numpy(dtype=float)
         if not contact.any():
-            problems.append(f"{cond}: trial {trials[cond]} never pressed on a tumour above {threshold:g} N")
-            continue
+            return f"trial {tid} never pressed on a tumour above {threshold:g} N"
         centre = t[np.flatnonzero(contact)[0]]
         sel = (t >= centre - window) & (t <= centre + window)
-        frame = pd.DataFrame(
-            {"panel": labels.get(cond, cond), "x": t[sel] - centre, FORCE: f[sel], "contact": contact[sel]}
-        )
+        frame = pd.DataFrame({"x": t[sel] - centre, FORCE: f[sel], "contact": contact[sel]})
         for name, _ in COMMANDS:
             frame[name] = samples[name].to_numpy(dtype=float)[sel] if name in samples else np.nan
-        frames.append(frame)
-        panels.append(labels.get(cond, cond))
-    if not frames:
-        return FigureData(pd.DataFrame(), problem="; ".join(problems) or "no samples")
-    return FigureData(
-        pd.concat(frames, ignore_index=True),
-        meta={
-            "panels": panels,
-            "x_label": "time from the first tumour contact (s)",
-            "shade": "contact",
-            "threshold": threshold,
-            "channels": [(FORCE, "sensor force (N)", "left"), *[(c, lbl, "right") for c, lbl in COMMANDS]],
-        },
-        problem="; ".join(problems),
-    )
+        return frame
+
+    conds = list(spec.options.get("conditions") or plan.condition_ids)
+    meta = {
+        "x_label": "time from the first tumour contact (s)",
+        "shade": "contact",
+        "threshold": threshold,
+        "channels": [(FORCE, "sensor force (N)", "left"), *[(c, lbl, "right") for c, lbl in COMMANDS]],
+    }
+    return _per_condition(plan, store, study, conds, panel, meta)
 
 
 def _contact_threshold(plan: AnalysisPlan) -> float:
@@ -175,29 +191,16 @@ def _contact_threshold(plan: AnalysisPlan) -> float:
 
 def needle_force_profile(plan: AnalysisPlan, store: Any, study: Any, spec: FigureEntry) -> FigureData:
     """Axial force against depth along the planned path, one stored trial per condition."""
-    from studyctl.analysis.metrics import rebuild_truth
-    from studyctl.engine.plan import SessionPlan
-    from studyctl.store.models import Event, Session, Trial
 
-    conds = list(spec.options.get("conditions") or plan.condition_ids[:2])
-    trials = _first_trials(store, study, conds)
-    frames, panels, problems = [], [], []
-    labels = {c.id: c.display for c in plan.condition_levels}
-    for cond in conds:
-        if cond not in trials:
-            problems.append(f"{cond}: no completed trial")
-            continue
-        tid = trials[cond]
+    def panel(cond: str, tid: int) -> pd.DataFrame | str:
         samples = store.read_samples(tid)
         need = ("x_mm", "y_mm", "z_mm", "fx_n", "fy_n", "fz_n")
         if samples.empty or any(c not in samples for c in need):
-            problems.append(f"{cond}: trial {tid} lacks samples of {', '.join(c for c in need if c not in samples)}")
-            continue
+            return f"trial {tid} lacks samples of {', '.join(c for c in need if c not in samples)}"
         try:
-            truth = _trial_truth(store, tid, Event, Session, Trial, SessionPlan, rebuild_truth)
+            truth = _trial_truth(store, tid)
         except StudyctlError as exc:
-            problems.append(f"{cond}: {exc}")
-            continue
+            return str(exc)
         a = np.asarray(truth["incision_mm"], dtype=float)
         b = np.asarray(truth["tumour_center_mm"], dtype=float)
         u = (b - a) / np.linalg.norm(b - a)
@@ -213,23 +216,20 @@ def needle_force_profile(plan: AnalysisPlan, store: Any, study: Any, spec: Figur
         # The device pushes back against insertion: report the resisting force as positive.
         axial = -np.einsum("ij,ij->i", force, axis)
         keep = depth >= -2.0
-        frames.append(pd.DataFrame({"panel": labels.get(cond, cond), "x": depth[keep], "f_axial_n": axial[keep]}))
-        panels.append(labels.get(cond, cond))
-    if not frames:
-        return FigureData(pd.DataFrame(), problem="; ".join(problems) or "no samples")
-    return FigureData(
-        pd.concat(frames, ignore_index=True),
-        meta={
-            "panels": panels,
-            "x_label": "depth along the planned path (mm)",
-            "channels": [("f_axial_n", "axial force (N)", "left")],
-        },
-        problem="; ".join(problems),
-    )
+        return pd.DataFrame({"x": depth[keep], "f_axial_n": axial[keep]})
+
+    conds = list(spec.options.get("conditions") or plan.condition_ids[:2])
+    meta = {"x_label": "depth along the planned path (mm)", "channels": [("f_axial_n", "axial force (N)", "left")]}
+    return _per_condition(plan, store, study, conds, panel, meta)
 
 
-def _trial_truth(store, tid, Event, Session, Trial, SessionPlan, rebuild_truth) -> Mapping[str, Any]:  # noqa: ANN001, N803
+def _trial_truth(store: Any, tid: int) -> Mapping[str, Any]:
+    """The scene truth of a stored trial: its logged truth event, else rebuilt from the session plan."""
     from sqlalchemy import select
+
+    from studyctl.analysis.metrics import rebuild_truth
+    from studyctl.engine.plan import SessionPlan
+    from studyctl.store.models import Event, Session, Trial
 
     with store.reading() as s:
         tr = s.get(Trial, tid)
