@@ -636,6 +636,10 @@ class SessionRunner:
         if plan.scene:
             placement = step.data.get("placement") or {}
             scene = build_scene(self.factory, plan.scene, plan.scene_spec, placement, needs, streams.scene)
+            if tid is not None:
+                # The hidden truth the metrics score this trial against (tumour sites, nodule centres), stored
+                # with the trial so that analysis reads it instead of rebuilding the scene with later code.
+                self.rec.event("scene_truth", scene.truth(), t=0.0, trial_id=tid, commit=False)
         if scene is not None and callable(getattr(scene, "public", None)):
             # what a participant may know about the scene (grid, visible surface), never its hidden truth
             info = replace(info, public={**dict(scene.public() or {}), **dict(info.public)})
