@@ -1,8 +1,7 @@
 """The "did you mean …?" hint for a misspelt name: one matcher for protocols, plans, plugins and CLI.
 
-``difflib`` closeness with its usual cutoff (0.6), the single best match only. Protocol files match
-case-insensitively (``studdy`` and ``Study`` both find ``study``); the other callers have always matched
-case-sensitively, and their messages are kept as they were.
+``difflib`` closeness with its usual cutoff (0.6), the single best match only, compared case-insensitively
+(``studdy`` and ``Study`` both find ``study``; ``bl`` in an analysis plan finds the condition ``BL``).
 """
 
 from __future__ import annotations
@@ -11,7 +10,7 @@ import difflib
 from collections.abc import Iterable
 
 
-def nearest(word: object, choices: Iterable[object], *, ignore_case: bool = False) -> str | None:
+def nearest(word: object, choices: Iterable[object], *, ignore_case: bool = True) -> str | None:
     """The valid choice nearest to a misspelt ``word``, or None when nothing is close.
 
     Parameters
@@ -21,7 +20,7 @@ def nearest(word: object, choices: Iterable[object], *, ignore_case: bool = Fals
     choices
         The valid names (compared as text).
     ignore_case
-        Compare lower-cased; the choice is returned as written.
+        Compare lower-cased (default); the choice is returned as written. False: exact case only.
 
     Returns
     -------
@@ -37,7 +36,7 @@ def nearest(word: object, choices: Iterable[object], *, ignore_case: bool = Fals
     return lowered[hit[0]] if hit else None
 
 
-def did_you_mean(word: object, choices: Iterable[object], *, ignore_case: bool = False) -> str:
+def did_you_mean(word: object, choices: Iterable[object], *, ignore_case: bool = True) -> str:
     """``"; did you mean 'x'?"`` for the nearest choice (see :func:`nearest`), or an empty string."""
     hit = nearest(word, choices, ignore_case=ignore_case)
     return f"; did you mean {hit!r}?" if hit is not None else ""

@@ -89,14 +89,14 @@ class _Checker:
         if not isinstance(value, str) or value in valid:
             return True
         self.add(path, f"undefined {kind}", show(value), f"{one_of(valid)} (the {kind} ids defined in this file)",
-                 nearest(value, valid, ignore_case=True))
+                 nearest(value, valid))
         return False
 
     def plugin(self, path: KeyPath, kind: str) -> None:
         name = _get(self.d, *path)
         names = plugin_names(kind)
         if isinstance(name, str) and names and name not in names:
-            self.add(path, f"unknown {kind} plugin", show(name), one_of(names), nearest(name, names, ignore_case=True))
+            self.add(path, f"unknown {kind} plugin", show(name), one_of(names), nearest(name, names))
 
     # -- sections -----------------------------------------------------------------------------------
     def run(self) -> list[Problem]:

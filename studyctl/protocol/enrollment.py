@@ -79,7 +79,7 @@ def choose_stratum(protocol: Protocol, group: str | None) -> str:
             return strata[0]
         raise UsageError(f"this study has groups {', '.join(strata)}; say which with --group")
     if group not in strata:
-        hint = nearest(group, strata, ignore_case=True)
+        hint = nearest(group, strata)
         raise UsageError(f"unknown group {group!r}; this study has {', '.join(strata)}"
                          + (f" (did you mean {hint!r}?)" if hint else ""))
     return group

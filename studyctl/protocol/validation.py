@@ -150,7 +150,7 @@ def problems_from_validation(exc: ValidationError, marked: MarkedData, filename:
                     "unknown key",
                     show(key),
                     one_of(choices),
-                    nearest(str(key), choices, ignore_case=True),
+                    nearest(str(key), choices),
                 )
             )
             continue
@@ -164,7 +164,7 @@ def problems_from_validation(exc: ValidationError, marked: MarkedData, filename:
         mark = marked.value_mark(path)
         if kind == "literal_error":
             choices = _allowed_literals(path) or re.findall(r"'([^']*)'", str(ctx.get("expected", "")))
-            suggestion = nearest(str(value), choices, ignore_case=True) if isinstance(value, str) else None
+            suggestion = nearest(str(value), choices) if isinstance(value, str) else None
             problems.append(Problem(filename, mark, path, "value not allowed", show(value), one_of(choices),
                                     suggestion))
         elif kind in _TYPE_WORDS:

@@ -95,6 +95,9 @@ def test_unknown_metric_test_and_condition_named_with_suggestions(tmp_path):
 def test_test_referencing_undeclared_metric(tmp_path):
     (msg,) = problems_of(tmp_path, MINIMAL.replace("metrics: [time]", "metrics: [tiem]"))
     assert "tests[0].metrics[0]: unknown metric 'tiem'; did you mean 'time'?" in msg
+    # suggestions ignore case, as in protocol files
+    (msg,) = problems_of(tmp_path, MINIMAL.replace("metrics: [time]", "metrics: [TIME]"))
+    assert "tests[0].metrics[0]: unknown metric 'TIME'; did you mean 'time'?" in msg
 
 
 def test_wrong_types_and_values(tmp_path):
