@@ -461,7 +461,7 @@ class SessionRunner:
 
         try:
             if cond.manual and not self.virtual:
-                outcome = self._manual(step, info, trial_clock, tid)
+                outcome = self._manual(step, info, streams, trial_clock, tid)
             elif cond.manual:
                 outcome = self._simulated_manual(step, cond, info, streams, tid, should_stop, trial_clock)
             else:
@@ -581,9 +581,19 @@ class SessionRunner:
                                 reason=flag["invalid"] or "")
         self.ui.trial_end(step, {**summary, "status": status})
 
-    def _manual(self, step: Step, info: TrialInfo, clock: Clock, tid: int) -> TrialOutcome:
+    def _manual(self, step: Step, info: TrialInfo, streams: TrialStreams, clock: Clock, tid: int) -> TrialOutcome:
+        if self.plan.scene:  # the phantom as placed for this trial: what its outcome is scored against
+            placement = step.data.get("placement") or {}
+            scene = build_scene(self.factory, self.plan.scene, self.plan.scene_spec, placement, frozenset(),
+                                streams.scene)
+            self._record_truth(scene, tid)
         res = self.ui.manual_outcome(step, self.plan.report, clock)
         return self._manual_outcome(res, info, tid, "coordinator")
+
+    def _record_truth(self, scene: Any, tid: int) -> None:
+        """Store the hidden truth the metrics score this trial against (tumour sites, nodule centres) with the
+        trial, so that analysis reads it instead of rebuilding the scene with later code."""
+        self.rec.event("scene_truth", scene.truth(), t=0.0, trial_id=tid, commit=False)
 
     def _manual_outcome(
         self, res: ManualOutcome, info: TrialInfo, tid: int, entered_by: str, ended_by: str | None = None,
@@ -637,9 +647,7 @@ class SessionRunner:
             placement = step.data.get("placement") or {}
             scene = build_scene(self.factory, plan.scene, plan.scene_spec, placement, needs, streams.scene)
             if tid is not None:
-                # The hidden truth the metrics score this trial against (tumour sites, nodule centres), stored
-                # with the trial so that analysis reads it instead of rebuilding the scene with later code.
-                self.rec.event("scene_truth", scene.truth(), t=0.0, trial_id=tid, commit=False)
+                self._record_truth(scene, tid)
         if scene is not None and callable(getattr(scene, "public", None)):
             # what a participant may know about the scene (grid, visible surface), never its hidden truth
             info = replace(info, public={**dict(scene.public() or {}), **dict(info.public)})

@@ -187,8 +187,11 @@ def test_virtual_seed003_session_records_the_manual_trial_like_a_persons(tmp_pat
         assert v.status == p.status == "completed"
         assert set(v.outcome) == set(p.outcome)  # the same outcome record
         assert v.outcome["ticks"] == p.outcome["ticks"] == 0 and v.outcome["scans"] == 0
-        assert sorted(v_events.kind) == sorted(p_events.kind) == ["manual_outcome"]  # no loop bookkeeping
-        v_entry, p_entry = v_events.payload.iloc[0], p_events.payload.iloc[0]
+        # no loop bookkeeping: the entry, and the phantom's truth the entry is scored against
+        assert sorted(v_events.kind) == sorted(p_events.kind) == ["manual_outcome", "scene_truth"]
+        v_truth, p_truth = (ev[ev.kind == "scene_truth"].payload.iloc[0] for ev in (v_events, p_events))
+        assert set(v_truth) == set(p_truth) == {"nodules", "orientation_deg"} and len(p_truth["nodules"]) == 3
+        v_entry, p_entry = (ev[ev.kind == "manual_outcome"].payload.iloc[0] for ev in (v_events, p_events))
         assert set(v_entry) == set(p_entry)
         assert p_entry["entered_by"] == "coordinator" and v_entry["entered_by"] == "simulated"
         assert "direct_touch" in v_entry["note"]
