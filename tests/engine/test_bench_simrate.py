@@ -1,0 +1,36 @@
+"""The loop-rate benchmark runs end to end (quick) and compares like with like."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+
+from studyctl.bench.simrate import _compare
+from studyctl.cli.app import main
+
+
+def _frame(found: list[float], times: list[float]) -> pd.DataFrame:
+    rows = [{"participant": "P1", "condition": c, "metric": "completion_time", "level": None, "value": t,
+             "denominator": None} for c, t in zip(("a", "b"), times, strict=True)]
+    rows += [{"participant": "P1", "condition": "a", "metric": "sensitivity", "level": lvl, "value": v,
+              "denominator": 1.0} for lvl, v in zip("ABC", found, strict=True)]
+    return pd.DataFrame(rows)
+
+
+def test_compare_counts_gains_losses_and_duration_bias():
+    ref = _frame([1.0, 0.0, 1.0], [100.0, 50.0])
+    other = _frame([1.0, 1.0, 0.0], [110.0, 50.0])
+    got = _compare(ref, other, "completion_time")
+    assert got["found_gained"] == 1 and got["found_lost"] == 1 and got["found_agree"] == 1 / 3
+    assert got["time_rel_err"] == 0.05 and got["time_rel_bias"] == 0.05  # (+10 % and 0 %) / 2
+    assert got["se_diff_pp"] == 0.0
+
+
+def test_quick_run_prints_speed_and_error(capsys):
+    assert main(["bench", "simrate", "--quick", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    fig = out["figures"]
+    assert fig["speedup_250_data_driven_palpation"] > 1.0
+    assert 0.0 <= fig["found_agree_250_data_driven_palpation"] <= 1.0
+    assert [r["rate_hz"] for r in out["tables"]["rates"]] == [1000.0, 250.0]
