@@ -20,8 +20,9 @@ Perception per press (noise multiplicative, drawn from the trial's rng):
 * force cue (FF, PHF+FF): the largest force felt at the bottom over the indentation seen there, the way
   people judge stiffness (force per displacement; ``force_weber``, ``depth_weber``);
 * cursor cue (PHF, PHF+FF): hand travel over cursor travel during the last ``ratio_window_mm`` of the
-  cursor's descent into the tissue, ``q ≈ 1/R_n = (f_n + 1)/R₀``, read as a force ``R₀·q − 1`` with ``R₀``
-  taken from how the cursor follows the hand in the air (``visual_weber``).
+  cursor's descent into the tissue (summed over the ticks in which the cursor descends),
+  ``q ≈ 1/R_n = (f_n + 1)/R₀``, read as a force ``R₀·q − 1`` with ``R₀`` taken from how the cursor follows the
+  hand in the air (``visual_weber``).
 
 A cue is used only if it is perceivable: the force cue if forces were felt at all, the cursor cue if the
 cursor visibly lagged the hand (median ``R₀·q − 1`` above 0.05 N). Each press's contrast is its cue over the
@@ -398,12 +399,20 @@ class VirtualTissuePalpator(Participant):
                 self._target = (press["x"], press["y"], press["h"] - max(depth, 0.2))
                 self._goal, self._settle_at = None, math.inf
                 self._phase, self._phase_t = "press", 0.0
-                press.update(track=[], peak_force=0.0)
+                press.update(track=[], last=None, peak_force=0.0)
         elif phase == "press":
-            if cursor is not None and handle is not None and ctrl[2] <= press["h"]:
-                track = press["track"]
-                if not track or cursor[2] < track[-1][0]:
-                    track.append((cursor[2], handle[2]))  # the cursor's descent and the hand's, in contact
+            if cursor is not None and handle is not None:
+                last = press["last"]
+                press["last"] = (cursor[2], handle[2])
+                if last is not None and cursor[2] < last[0] and last[0] <= press["h"]:
+                    # Hand and cursor travel summed over the ticks in which the cursor descends in contact, so
+                    # the cue is read while pressing only. Pairing new depth minima instead counted the hand's
+                    # travel over rebounds too: up at R₀, back down at R₀/(f+1), each loop adds hand travel that
+                    # depends on the hand's wobble, not on the tissue, so q overshot 1/R_n (spring-held hand
+                    # without force feedback: 1.59 over the background for 1.54 by its descending ticks).
+                    track = press["track"]
+                    c_sum, h_sum = track[-1] if track else (0.0, 0.0)
+                    track.append((c_sum + last[0] - cursor[2], h_sum + last[1] - handle[2]))
             near = math.dist(ctrl, self._target) <= p["tolerance_mm"]
             if near or timed_out or force >= p["max_press_force_n"]:
                 self._phase, self._phase_t = "dwell", 0.0
@@ -439,14 +448,14 @@ class VirtualTissuePalpator(Participant):
                 skin = press["peak_force"] / depth * (1.0 + cut * float(rng.normal()))
                 w_kin, w_cut = 1.0 / kin**2, 1.0 / cut**2
                 row["force"] = (w_kin * row["force"] + w_cut * skin) / (w_kin + w_cut)
-        track = press["track"]
-        if len(track) >= 2 and track[0][0] - track[-1][0] > 0.5:
+        track = press["track"]  # cumulative (cursor descent, hand descent) over the descending ticks
+        if len(track) >= 2 and track[-1][0] > 0.5:
             bc, bh = track[-1]
             # the last ratio_window_mm of the cursor's descent (or all of it when it was shorter)
-            k = next((i for i in range(len(track) - 1, -1, -1) if track[i][0] - bc >= p["ratio_window_mm"]), 0)
-            oc, oh = track[k]
-            if oc - bc > 0.2:
-                row["ratio"] = (oh - bh) / (oc - bc) * (1.0 + p["visual_weber"] * float(rng.normal()))
+            k = next((i for i in range(len(track) - 1, -1, -1) if bc - track[i][0] >= p["ratio_window_mm"]), -1)
+            oc, oh = track[k] if k >= 0 else (0.0, 0.0)
+            if bc - oc > 0.2:
+                row["ratio"] = (bh - oh) / (bc - oc) * (1.0 + p["visual_weber"] * float(rng.normal()))
         self._presses.append(row)
 
     # ------------------------------------------------------------------ the decision
