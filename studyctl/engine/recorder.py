@@ -29,6 +29,10 @@ class TrialRecord:
     condition: str | None = None
 
 
+#: Event holding a virtual participant's memory (``Participant.memory``) at the end of a trial.
+MEMORY_EVENT = "participant_memory"
+
+
 @dataclass
 class SessionState:
     """What is durably recorded about a session: enough to resume it."""
@@ -45,6 +49,7 @@ class SessionState:
     resumes: int = 0
     last_t: float = 0.0  # latest session-clock time recorded (a resumed clock continues from here)
     virtual: bool = True  # run by a virtual participant (a resume keeps the mode)
+    memory: dict[str, Any] | None = None  # the participant's memory stored with its last finished trial
 
     def attempts(self, position: int) -> list[TrialRecord]:
         """Started attempts at the trial step ``position`` (planned rows are not attempts)."""
@@ -162,6 +167,8 @@ class MemoryRecorder:
     def event(self, kind, payload=None, *, t=None, position=None, trial_id=None, commit=True, durable=None) -> None:
         if t is not None and trial_id is None:
             self._state.last_t = max(self._state.last_t, float(t))
+        if kind == MEMORY_EVENT:
+            self._state.memory = dict((payload or {}).get("memory") or {})
         self.events.append(
             {"kind": kind, "payload": dict(payload or {}), "t": t, "position": position, "trial_id": trial_id,
              "wall": time.time()}

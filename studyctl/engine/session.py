@@ -35,7 +35,7 @@ from studyctl.engine.factory import (
     controller_needs,
 )
 from studyctl.engine.plan import ConditionSpec, InvalidAnswer, SessionPlan, Step
-from studyctl.engine.recorder import Recorder, SessionState
+from studyctl.engine.recorder import MEMORY_EVENT, Recorder, SessionState
 from studyctl.engine.seeding import TrialStreams, person_rng, trial_streams
 from studyctl.engine.trial_loop import TrialOutcome, run_trial
 from studyctl.engine.ui import Control, ManualOutcome, SessionUI
@@ -148,6 +148,9 @@ class SessionRunner:
         begin_session = getattr(self.participant, "begin_session", None)
         if callable(begin_session):  # per-person traits from the session seed: the same after a resume
             begin_session(person_rng(self._seed))
+        recall = getattr(self.participant, "recall", None)
+        if state.memory is not None and callable(recall):  # what it had learnt by its last finished trial
+            recall(state.memory)
         self._offset = state.last_t
         self._clock0 = self.clock.now()
         resuming = bool(state.started)
@@ -555,6 +558,7 @@ class SessionRunner:
             error = next((e.get("error") or e.get("rule") for e in reversed(outcome.events)
                           if e.get("kind") == "device_fault"), "the safety layer held the device in its safe state")
             reason = f"device fault: {error}"
+            self._remember(tid, outcome.duration_s)
             self.rec.trial_finished(tid, "aborted", summary, reports, position=step.position, t=self.now(),
                                     reason=reason, complete_step=False)
             self.rec.set_status("interrupted", reason)
@@ -567,6 +571,7 @@ class SessionRunner:
         stop: Control | None = flag["stop"]
         if stop is not None:
             reason = f"{'paused' if stop.kind == 'pause' else 'aborted'} by the coordinator: {stop.reason}"
+            self._remember(tid, outcome.duration_s)
             self.rec.trial_finished(tid, "aborted", summary, reports, position=step.position, t=self.now(),
                                     reason=reason, complete_step=False)
             self.rec.audit("trial_aborted", {"trial_id": tid, "reason": reason})
@@ -577,9 +582,18 @@ class SessionRunner:
                 self.rec.set_status("running", "continued after pause")
             return
         status = "invalid" if flag["invalid"] else "completed"
+        self._remember(tid, outcome.duration_s)
         self.rec.trial_finished(tid, status, summary, reports, position=step.position, t=self.now(),
                                 reason=flag["invalid"] or "")
         self.ui.trial_end(step, {**summary, "status": status})
+
+    def _remember(self, tid: int, t: float) -> None:
+        """Store the participant's memory at the end (trial time ``t``) of the trial it ends, committed with the
+        trial's record."""
+        memory = getattr(self.participant, "memory", None)
+        mem = memory() if callable(memory) else None
+        if mem:
+            self.rec.event(MEMORY_EVENT, {"memory": dict(mem)}, t=t, trial_id=tid, commit=False)
 
     def _manual(self, step: Step, info: TrialInfo, streams: TrialStreams, clock: Clock, tid: int) -> TrialOutcome:
         if self.plan.scene:  # the phantom as placed for this trial: what its outcome is scored against

@@ -32,7 +32,7 @@ import numpy as np
 from sqlalchemy import select
 
 from studyctl.engine.plan import SessionPlan
-from studyctl.engine.recorder import SessionState, TrialRecord
+from studyctl.engine.recorder import MEMORY_EVENT, SessionState, TrialRecord
 from studyctl.errors import NotFoundError, SessionError
 from studyctl.store import StudyStore
 from studyctl.store.models import Event, Participant, QuestionnaireResponse, Trial, utcnow
@@ -207,6 +207,7 @@ class StoreRecorder:
         completed: set[int] = set()
         started: set[int] = set()
         last_t = 0.0
+        memory = None
         for kind, payload, t_mono, trial_id in events:
             if kind in PLAN_EVENTS:
                 plan_json = (payload or {}).get("plan")
@@ -216,6 +217,8 @@ class StoreRecorder:
                 started.add(int(payload["position"]))
             elif kind == "step_done":
                 completed.add(int(payload["position"]))
+            elif kind == MEMORY_EVENT:
+                memory = dict((payload or {}).get("memory") or {})
             if trial_id is None and t_mono is not None:
                 last_t = max(last_t, float(t_mono))
         if plan_json is None:
@@ -233,7 +236,7 @@ class StoreRecorder:
             plan=plan, completed=completed, started=started, trials=trials,
             answers={(int(c.split(":", 1)[1]), item): int(code) for c, item, code in answers
                      if c and c.startswith("step:")},
-            resumes=int(sess.resume_count or 0), last_t=last_t, virtual=virtual,
+            resumes=int(sess.resume_count or 0), last_t=last_t, virtual=virtual, memory=memory,
         )
         return cls(store, state, participant.id)
 

@@ -156,6 +156,17 @@ class VirtualNeedleOperator(Participant):
         """The engine hands over the session's person stream at every (re)start: the same traits after a resume."""
         self.traits = self._draw_traits(rng)
 
+    def memory(self) -> dict[str, Any]:
+        """What it has learnt to trust per scenario, and its own trial record, stored by the engine with each
+        finished trial: a session resumed in a new process goes on as the uninterrupted one would."""
+        return {"trust_cue": dict(self.trust_cue), "trust_guide": dict(self.trust_guide),
+                "history": [dict(r) for r in self.history]}
+
+    def recall(self, memory: Mapping[str, Any]) -> None:
+        self.trust_cue = {str(k): bool(v) for k, v in (memory.get("trust_cue") or {}).items()}
+        self.trust_guide = {str(k): bool(v) for k, v in (memory.get("trust_guide") or {}).items()}
+        self.history = [dict(r) for r in (memory.get("history") or [])]
+
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
         if self.traits is None:  # run outside a session (a bare trial loop): the first trial's stream
             self.traits = self._draw_traits(rng)

@@ -22,8 +22,8 @@ their params in the constructor and raise :class:`studyctl.errors.ModelParameter
 Additions after the first version (all optional, with defaults, so older plugins keep working):
 ``Observation.sample_t`` and ``Observation.faults`` (sensor age and device-detected problems, read by
 the safety layer's watchdog), ``Scene.public()`` (what a participant may know, e.g. the grid),
-``Controller.outputs``, ``Controller.rate_adjustable``, and default constructors for ``Device`` and
-``Participant``.
+``Controller.outputs``, ``Controller.rate_adjustable``, ``Participant.memory``/``recall``, and default
+constructors for ``Device`` and ``Participant``.
 """
 
 from __future__ import annotations
@@ -234,3 +234,13 @@ class Participant(ABC):
     def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:
         """Answer a questionnaire item (Likert code in the item's scale)."""
         raise NotImplementedError(f"{type(self).__name__} cannot answer questionnaires")
+
+    def memory(self) -> Mapping[str, Any]:
+        """What a virtual participant has learnt so far in the session and carries into later trials (JSON
+        values). The engine stores it with every finished trial and hands the last one to :meth:`recall` when
+        the session is resumed in a new process, so a resumed session behaves as an uninterrupted one.
+        Empty (the default): nothing is carried."""
+        return {}
+
+    def recall(self, memory: Mapping[str, Any]) -> None:  # noqa: B027 - optional hook, nothing to restore by default
+        """Restore what :meth:`memory` returned (called on resume, after ``begin_session``)."""
