@@ -12,7 +12,7 @@
     return id;
   })();
 
-  let role = "read_only";
+  let role = "connecting"; // until the server's hello says control or read_only: nothing can be pressed
   let screen = { screen: "waiting", version: 0 };
   let ended = false;
   // Clock: server perf_counter seconds = page seconds + offset (best of recent round trips).
@@ -499,5 +499,6 @@
   setInterval(flushAcks, 250);
   setInterval(() => { if (!ended) sync(1); }, 5000);
   window.studyctlView = { clientId, state: () => ({ role, screen, offset, lastFrame, syncs: syncs.slice() }) };
+  setRole(role);
   connect();
 })();
