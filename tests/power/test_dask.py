@@ -73,8 +73,10 @@ def test_existing_scheduler_gives_the_serial_results(mini_spec, serial_run, sche
     run = run_power(mini_spec, tmp_path, scheduler=scheduler_address, workers=2, figure=False)
     assert run.backend.startswith(f"Dask scheduler {scheduler_address}, 2 worker(s)")
     pd.testing.assert_frame_equal(run.to_frame(), serial_run.to_frame())
+    # Every replicate ran in a worker process of the cluster, none here. Whether both workers got some is
+    # Dask's scheduling (a busy machine may let one worker take all of a few short tasks), so not asserted.
     workers = set(run.replicates["worker"])
-    assert len(workers) == 2 and not any(w.endswith(f":{os.getpid()}") for w in workers)
+    assert 1 <= len(workers) <= 2 and not any(w.endswith(f":{os.getpid()}") for w in workers)
 
 
 def test_cli_on_the_default_local_cluster(mini_spec, serial_run, tmp_path, capsys, monkeypatch):
