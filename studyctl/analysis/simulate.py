@@ -59,8 +59,10 @@ def check_simulation(protocol: str | Path, participants: int, sim_rate_hz: float
 
     if participants < 1:
         raise UsageError(f"--participants must be at least 1, got {participants}")
-    if sim_rate_hz is not None and not (0 < sim_rate_hz < float("inf")):
-        raise UsageError(f"--sim-rate-hz must be a positive number of Hz, got {sim_rate_hz}")
+    if sim_rate_hz is not None:
+        from studyctl.engine.api import check_sim_rate
+
+        check_sim_rate(sim_rate_hz)
     return resolve_protocol(protocol)
 
 

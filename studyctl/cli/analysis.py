@@ -197,8 +197,11 @@ def register_sim(app: typer.Typer) -> None:
         """Simulate the four reference studies (paper-sized), analyse them and write their reports."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+        from studyctl.engine.api import check_sim_rate
         from studyctl.report.demo import REFERENCE_STUDIES, run_demo
 
+        if not full_rate:
+            check_sim_rate(sim_rate_hz)  # before any progress bar
         err = _console(err=True)
         with Progress(
             TextColumn("{task.description:<26}"),

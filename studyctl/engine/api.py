@@ -247,12 +247,18 @@ def run_session(
                    speed=speed, log=log, frontend=frontend)
 
 
+def check_sim_rate(sim_rate_hz: float) -> float:
+    """``sim_rate_hz`` if it is a usable simulation loop rate (a positive, finite number of Hz)."""
+    if not (0 < sim_rate_hz < float("inf")):
+        raise UsageError(f"--sim-rate-hz (the simulation loop rate) must be a positive number of Hz, got {sim_rate_hz}")
+    return float(sim_rate_hz)
+
+
 def simulation_rates(plan: SessionPlan, factory: PluginFactory, sim_rate_hz: float) -> dict[str, float]:
     """Loop rate per condition for a simulated session capped at ``sim_rate_hz``: the conditions whose
     controller is ``rate_adjustable`` and faster than the cap (manual conditions and fixed-rate controllers
     keep their rates)."""
-    if not (sim_rate_hz > 0 and sim_rate_hz < float("inf")):
-        raise SessionError(f"the simulation loop rate must be a positive number of Hz, got {sim_rate_hz}")
+    check_sim_rate(sim_rate_hz)
     rates = {}
     for cid, cond in plan.conditions.items():
         if cond.manual or not cond.controller:

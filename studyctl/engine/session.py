@@ -554,11 +554,11 @@ class SessionRunner:
             "step": step.position,
             "rate_hz": rate,
         }
+        self._remember(tid, outcome.duration_s)  # committed with the trial's record below, whatever its status
         if outcome.ended_by == "fault":
             error = next((e.get("error") or e.get("rule") for e in reversed(outcome.events)
                           if e.get("kind") == "device_fault"), "the safety layer held the device in its safe state")
             reason = f"device fault: {error}"
-            self._remember(tid, outcome.duration_s)
             self.rec.trial_finished(tid, "aborted", summary, reports, position=step.position, t=self.now(),
                                     reason=reason, complete_step=False)
             self.rec.set_status("interrupted", reason)
@@ -571,7 +571,6 @@ class SessionRunner:
         stop: Control | None = flag["stop"]
         if stop is not None:
             reason = f"{'paused' if stop.kind == 'pause' else 'aborted'} by the coordinator: {stop.reason}"
-            self._remember(tid, outcome.duration_s)
             self.rec.trial_finished(tid, "aborted", summary, reports, position=step.position, t=self.now(),
                                     reason=reason, complete_step=False)
             self.rec.audit("trial_aborted", {"trial_id": tid, "reason": reason})
@@ -582,7 +581,6 @@ class SessionRunner:
                 self.rec.set_status("running", "continued after pause")
             return
         status = "invalid" if flag["invalid"] else "completed"
-        self._remember(tid, outcome.duration_s)
         self.rec.trial_finished(tid, status, summary, reports, position=step.position, t=self.now(),
                                 reason=flag["invalid"] or "")
         self.ui.trial_end(step, {**summary, "status": status})

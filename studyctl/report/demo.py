@@ -30,7 +30,7 @@ from typing import Any
 import pandas as pd
 
 from studyctl.analysis.simulate import Cohort
-from studyctl.errors import ConfigError, StudyctlError, UsageError
+from studyctl.errors import ConfigError, StudyctlError
 
 #: (protocol / plan name, participants in the paper)
 REFERENCE_STUDIES: tuple[tuple[str, int], ...] = (
@@ -236,8 +236,10 @@ def run_demo(
     from studyctl.report.build import ensure_writable
 
     t0 = time.perf_counter()
-    if sim_rate_hz is not None and not (0 < sim_rate_hz < float("inf")):
-        raise UsageError(f"--sim-rate-hz must be a positive number of Hz, got {sim_rate_hz}")
+    if sim_rate_hz is not None:
+        from studyctl.engine.api import check_sim_rate
+
+        check_sim_rate(sim_rate_hz)
     out = ensure_writable(out_dir)
     emit = on_event or (lambda _event: None)
     n_workers = max(1, workers or os.cpu_count() or 1)

@@ -50,6 +50,14 @@ def test_report_csv_plan(capsys, tmp_path):
             ["simulate", "bio_inspired_palpation", "--participants", "0", "--seed", "1"],
             "Error: --participants must be at least 1, got 0",
         ),
+        (
+            ["simulate", "data_driven_palpation", "-n", "1", "-s", "1", "-o", "/tmp/never-made", "--sim-rate-hz", "0"],
+            "Error: --sim-rate-hz (the simulation loop rate) must be a positive number of Hz, got 0.0",
+        ),
+        (
+            ["demo", "--out", "/tmp/never-made", "--sim-rate-hz", "-5"],
+            "Error: --sim-rate-hz (the simulation loop rate) must be a positive number of Hz, got -5.0",
+        ),
     ],
 )
 def test_bad_input_is_one_line(capsys, args, message):

@@ -38,7 +38,7 @@ def test_only_rate_adjustable_controllers_faster_than_the_cap_are_slowed():
 
 @pytest.mark.parametrize("bad", [0.0, -10.0, float("inf"), float("nan")])
 def test_a_bad_rate_is_refused(bad):
-    with pytest.raises(SessionError, match="positive number of Hz"):
+    with pytest.raises(UsageError, match="simulation loop rate.* must be a positive number of Hz"):
         simulation_rates(_plan(), EntryPointFactory(), bad)
 
 
@@ -82,7 +82,7 @@ def test_a_cohort_at_a_reduced_rate_runs_and_records_it(tmp_path):
 
 
 def test_a_bad_cohort_rate_is_a_usage_error(tmp_path):
-    with pytest.raises(UsageError, match="--sim-rate-hz"):
+    with pytest.raises(UsageError, match="--sim-rate-hz .* must be a positive number of Hz, got 0.0"):
         create_cohort("data_driven_palpation", 1, 3, tmp_path / "ws", sim_rate_hz=0.0)
     assert not (tmp_path / "ws").exists()  # nothing written
 
