@@ -27,7 +27,7 @@ from studyctl.engine.plan import SessionPlan, Step
 from studyctl.engine.planning import plan_for_participant
 from studyctl.engine.preflight import preflight
 from studyctl.engine.seeding import answer_rng, session_seed
-from studyctl.engine.session import SessionResult, SessionRunner
+from studyctl.engine.session import SessionResult, SessionRunner, condition_rate
 from studyctl.engine.store_recorder import StoreRecorder
 from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
 from studyctl.errors import NotFoundError, SessionError, UsageError
@@ -263,9 +263,8 @@ def simulation_rates(plan: SessionPlan, factory: PluginFactory, sim_rate_hz: flo
     for cid, cond in plan.conditions.items():
         if cond.manual or not cond.controller:
             continue
-        cls = factory.load("controller", cond.controller)
-        rate = float(cond.rate_hz or getattr(cls, "rate_hz", 50.0) or 50.0)
-        if getattr(cls, "rate_adjustable", False) and rate > sim_rate_hz:
+        adjustable = getattr(factory.load("controller", cond.controller), "rate_adjustable", False)
+        if adjustable and condition_rate(cond, factory) > sim_rate_hz:
             rates[cid] = float(sim_rate_hz)
     return rates
 

@@ -73,6 +73,15 @@ class SessionResult:
         return pd.DataFrame([asdict(self)], columns=list(self.COLUMNS))
 
 
+def condition_rate(cond: ConditionSpec, factory: PluginFactory) -> float:
+    """The loop rate a condition runs at: its own ``rate_hz``, else its controller's, else 50 Hz."""
+    if cond.rate_hz:
+        return float(cond.rate_hz)
+    if cond.controller and not cond.manual:
+        return float(getattr(factory.load("controller", cond.controller), "rate_hz", 50.0) or 50.0)
+    return 50.0
+
+
 class SessionRunner:
     """Runs one session's stored plan through a :class:`Recorder`.
 
@@ -501,11 +510,7 @@ class SessionRunner:
         return child() if callable(child) else SimulatedClock(0.0)
 
     def _rate(self, cond: ConditionSpec) -> float:
-        if cond.rate_hz:
-            return float(cond.rate_hz)
-        if cond.controller and not cond.manual:
-            return float(getattr(self.factory.load("controller", cond.controller), "rate_hz", 50.0) or 50.0)
-        return 50.0
+        return condition_rate(cond, self.factory)
 
     def _control(self, control: Control, tid: int, t: float, flag: dict[str, Any]) -> str | None:
         if control.kind == "invalid":
