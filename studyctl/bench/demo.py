@@ -16,7 +16,7 @@ from studyctl.bench import BenchResult
 
 
 def run(quick: bool = False) -> BenchResult:
-    from studyctl.report.demo import REFERENCE_STUDIES, run_demo
+    from studyctl.workflows.demo import REFERENCE_STUDIES, run_demo
 
     studies = [(name, 2) for name, _ in REFERENCE_STUDIES] if quick else list(REFERENCE_STUDIES)
     with tempfile.TemporaryDirectory(prefix="studyctl-bench-demo-") as tmp:

@@ -42,8 +42,8 @@ SEED = 2024
 def _cohort_metrics(protocol: str, n: int, rate: float | None, folder: Path) -> tuple[pd.DataFrame, float, float]:
     """Metric values of an ``n``-participant cohort at loop-rate cap ``rate``, CPU and wall s per participant."""
     from studyctl.analysis.run import analyze
-    from studyctl.analysis.simulate import create_cohort, relax_sqlite_durability, run_participant
     from studyctl.store.workspace import open_study
+    from studyctl.workflows.simulate import create_cohort, relax_sqlite_durability, run_participant
 
     cohort = create_cohort(protocol, n, SEED, folder, sim_rate_hz=rate)
     cpu0, wall0 = time.process_time(), time.perf_counter()

@@ -97,7 +97,7 @@ def register(app: typer.Typer) -> None:
         study: str = STUDY_OPTION,
     ) -> None:
         """Analyse a plan and write tidy CSV tables, figures, an HTML report and Markdown into a folder."""
-        from studyctl.report.pipeline import build_report
+        from studyctl.workflows.report import build_report
 
         console = _console()
         with console.status("analysing…") as status:
@@ -144,7 +144,7 @@ def register_sim(app: typer.Typer) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from studyctl.analysis.simulate import check_simulation, simulate_study
+        from studyctl.workflows.simulate import check_simulation, simulate_study
 
         check_simulation(protocol, participants, sim_rate_hz)
         folder = out or Path(f"{Path(protocol).stem}-sim")
@@ -185,7 +185,7 @@ def register_sim(app: typer.Typer) -> None:
         workers: int = typer.Option(None, "--workers", help="Parallel worker processes (default: CPU cores)."),
         as_json: bool = typer.Option(False, "--json", help="Print the per-study summary as JSON."),
         sim_rate_hz: float = typer.Option(
-            250.0,  # studyctl.report.demo.DEMO_SIM_RATE_HZ (not imported here: the CLI starts without pandas)
+            250.0,  # studyctl.workflows.demo.DEMO_SIM_RATE_HZ (not imported here: the CLI starts without pandas)
             "--sim-rate-hz",
             help="Loop rate of the simulated 1 kHz tissue controllers (physics stays at the device's rate); "
             "`studyctl bench simrate` shows what it changes.",
@@ -198,7 +198,7 @@ def register_sim(app: typer.Typer) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         from studyctl.engine.api import check_sim_rate
-        from studyctl.report.demo import REFERENCE_STUDIES, run_demo
+        from studyctl.workflows.demo import REFERENCE_STUDIES, run_demo
 
         if not full_rate:
             check_sim_rate(sim_rate_hz)  # before any progress bar

@@ -109,8 +109,9 @@ def register(app: typer.Typer) -> None:
         )
 
         from studyctl.errors import SessionInterrupted
-        from studyctl.power import prepare_power, run_power
+        from studyctl.power import prepare_power
         from studyctl.report.power_figures import population_text
+        from studyctl.workflows.power import run_power
 
         console = Console(highlight=False)
         err = Console(stderr=True, highlight=False)

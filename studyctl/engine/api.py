@@ -32,9 +32,9 @@ from studyctl.engine.store_recorder import StoreRecorder
 from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
 from studyctl.errors import NotFoundError, SessionError, UsageError
 from studyctl.plugins.interfaces import Participant
-from studyctl.protocol.enrollment import study_protocol
 from studyctl.protocol.schedule import Schedule
 from studyctl.store import StudyStore
+from studyctl.store.enrollment import study_protocol
 from studyctl.store.models import Event
 
 UNFINISHED = ("running", "paused", "interrupted")

@@ -10,7 +10,8 @@ cluster or on an existing Dask scheduler the results are identical.
 Public API:
 
 * :func:`prepare_power` → :class:`PowerSpec` (every input checked before any work);
-* :func:`run_power` → :class:`PowerRun` (resumable; writes the report folder);
+* :func:`studyctl.workflows.power.run_power` → :class:`~studyctl.workflows.power.PowerRun` (resumable; writes
+  the report folder and its power-curve figure);
 * :func:`simulate_replicate` → :class:`ReplicateResult` (one replicate study; the Dask task);
 * :class:`Population`, :func:`load_population`, :func:`population_model` — the stated population;
 * :func:`summarise` → :class:`PowerTable`; :func:`replicate_seeds`.
@@ -18,7 +19,6 @@ Public API:
 
 from studyctl.power.population import Population, PopulationParticipant, load_population, population_model
 from studyctl.power.replicate import ReplicateResult, simulate_replicate
-from studyctl.power.run import PowerRun, run_power
 from studyctl.power.seeds import replicate_seeds
 from studyctl.power.spec import PowerSpec, prepare_power
 from studyctl.power.summary import PowerTable, summarise
@@ -26,7 +26,6 @@ from studyctl.power.summary import PowerTable, summarise
 __all__ = [
     "Population",
     "PopulationParticipant",
-    "PowerRun",
     "PowerSpec",
     "PowerTable",
     "ReplicateResult",
@@ -34,7 +33,6 @@ __all__ = [
     "population_model",
     "prepare_power",
     "replicate_seeds",
-    "run_power",
     "simulate_replicate",
     "summarise",
 ]

@@ -153,8 +153,8 @@ def simulate_replicate(
     from studyctl.engine.factory import EntryPointFactory
     from studyctl.power.population import population_model
     from studyctl.protocol import allocate_strata, load_protocol_text
-    from studyctl.protocol.enrollment import enroll
     from studyctl.store import StudyStore
+    from studyctl.store.enrollment import enroll
 
     t0, c0 = time.perf_counter(), time.process_time()
     where = f"replicate {replicate} at {participants} participants"

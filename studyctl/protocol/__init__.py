@@ -9,9 +9,9 @@ Public API (other packages import from here):
   :data:`SCHEDULE_ALGORITHM_VERSION`
 * :func:`schedule_balance`, :class:`BalanceReport`, and the schemes in
   :mod:`studyctl.protocol.counterbalance`
-* enrollment (it writes to the store, so import it from :mod:`studyctl.protocol.enrollment`):
-  :func:`~studyctl.protocol.enrollment.enroll`, :func:`~studyctl.protocol.enrollment.replan`,
-  :func:`~studyctl.protocol.enrollment.study_protocol`
+
+Enrollment writes a protocol's schedule to the store, so it lives in the store package (above protocol):
+:mod:`studyctl.store.enrollment` (``enroll``, ``replan``, ``study_protocol``).
 """
 
 from studyctl.protocol.counterbalance import BalanceReport, balance_report

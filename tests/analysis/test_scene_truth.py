@@ -9,10 +9,10 @@ from sqlalchemy import select
 
 import studyctl.analysis.metrics as metrics
 from studyctl.analysis import analyze
-from studyctl.analysis.simulate import simulate_study
 from studyctl.engine.plan import SessionPlan
 from studyctl.store.models import Event, Session, Trial
 from studyctl.store.workspace import open_study
+from studyctl.workflows.simulate import simulate_study
 
 
 @pytest.mark.parametrize(

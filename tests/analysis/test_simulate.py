@@ -6,7 +6,7 @@ import pandas as pd
 import pytest
 
 from studyctl.analysis import analyze
-from studyctl.analysis.simulate import simulate_study
+from studyctl.workflows.simulate import simulate_study
 
 
 @pytest.mark.slow

@@ -17,7 +17,7 @@ from studyctl.engine.preflight import preflight
 from studyctl.engine.progress import study_progress
 from studyctl.errors import NotFoundError, SessionError, UsageError
 from studyctl.protocol import Schedule
-from studyctl.protocol.enrollment import enroll, study_protocol
+from studyctl.store.enrollment import enroll, study_protocol
 from studyctl.store.workspace import init_workspace, open_study
 
 PROTOCOL = Path(__file__).parent / "data" / "pty_protocol.yaml"

@@ -76,7 +76,7 @@ def workspaces(env, tmp_path_factory):
     script = textwrap.dedent(f'''
         import sys
         from studyctl.store.workspace import init_workspace, open_study
-        from studyctl.protocol.enrollment import enroll
+        from studyctl.store.enrollment import enroll
         for ws in sys.argv[1:]:
             init_workspace(ws, protocol={str(PROTOCOL)!r})
             with open_study(workspace=ws) as o:

@@ -25,9 +25,9 @@ from test_kill_resume import CODE, cli, env, run_and_kill, snapshot  # noqa: F40
 from studyctl.engine.api import resume_session, run_session
 from studyctl.errors import SessionInterrupted
 from studyctl.participants.tissue_palpator import VirtualTissuePalpator
-from studyctl.protocol.enrollment import enroll
 from studyctl.resources import find_shipped
 from studyctl.store import StudyStore
+from studyctl.store.enrollment import enroll
 from studyctl.store.workspace import init_workspace, open_study
 
 pytestmark = pytest.mark.slow
@@ -56,7 +56,7 @@ def needle_workspaces(env, tmp_path_factory):  # noqa: F811
     script = textwrap.dedent(f'''
         import sys
         from studyctl.store.workspace import init_workspace, open_study
-        from studyctl.protocol.enrollment import enroll
+        from studyctl.store.enrollment import enroll
         for ws in sys.argv[1:]:
             init_workspace(ws, protocol={str(protocol)!r})
             with open_study(workspace=ws) as o:

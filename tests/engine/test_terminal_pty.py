@@ -102,7 +102,7 @@ def workspace(tmp_path):
     script = (
         "import sys\n"
         "from studyctl.store.workspace import init_workspace, open_study\n"
-        "from studyctl.protocol.enrollment import enroll\n"
+        "from studyctl.store.enrollment import enroll\n"
         f"init_workspace({str(ws)!r}, protocol={str(PROTOCOL)!r})\n"
         f"with open_study(workspace={str(ws)!r}) as o:\n"
         "    enroll(o.store, code='PTY-AAAAA')\n"

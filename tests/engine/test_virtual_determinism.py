@@ -97,10 +97,10 @@ def test_safety_fast_paths_match_the_general_path(monkeypatch: pytest.MonkeyPatc
 
 def _session_digest(out: Path) -> dict[str, str]:
     """Run one seeded virtual needle participant the way ``studyctl simulate`` does; hash what it stored."""
-    from studyctl.analysis.simulate import relax_sqlite_durability
     from studyctl.engine.api import run_session
-    from studyctl.protocol.enrollment import enroll, study_protocol
+    from studyctl.store.enrollment import enroll, study_protocol
     from studyctl.store.workspace import init_workspace, open_study
+    from studyctl.workflows.simulate import relax_sqlite_durability
 
     init = init_workspace(out, protocol="needle_insertion", seed=1, db=None)
     with open_study(None, str(init.root), init.study) as opened:

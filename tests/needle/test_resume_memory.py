@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import sqlite3
 
-from studyctl.analysis.simulate import create_cohort
 from studyctl.engine.api import resume_session, run_session
 from studyctl.engine.recorder import MEMORY_EVENT
 from studyctl.errors import SessionInterrupted
 from studyctl.store.workspace import open_study
+from studyctl.workflows.simulate import create_cohort
 
 STOP_AFTER_STEPS = 19  # inside the last scenario, after the operator has learnt what to trust in it
 

@@ -28,6 +28,6 @@ def mini_spec():
 @pytest.fixture(scope="session")
 def serial_run(mini_spec, tmp_path_factory):
     """The reference: every replicate run serially in this process."""
-    from studyctl.power import run_power
+    from studyctl.workflows.power import run_power
 
     return run_power(mini_spec, tmp_path_factory.mktemp("serial"), workers=0)

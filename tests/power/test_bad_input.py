@@ -8,8 +8,9 @@ import pytest
 from power_testdata import PLAN, PROTOCOL
 
 from studyctl.errors import ProtocolError, UsageError
-from studyctl.power import prepare_power, run_power
+from studyctl.power import prepare_power
 from studyctl.power.spec import parse_memory, parse_sizes
+from studyctl.workflows.power import run_power
 
 
 def test_plan_of_another_protocol():

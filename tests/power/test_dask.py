@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 from power_testdata import PLAN, PROTOCOL, SEED
 
-from studyctl.power import run_power
+from studyctl.workflows.power import run_power
 
 START_TIMEOUT_S = 90
 

@@ -11,10 +11,11 @@ import pandas as pd
 import pytest
 from power_testdata import REPLICATES, SIZES
 
-from studyctl.power import Population, run_power, simulate_replicate, summarise
+from studyctl.power import Population, simulate_replicate, summarise
 from studyctl.power.replicate import ROW_COLUMNS
 from studyctl.power.summary import COLUMNS
 from studyctl.stats import wilson_interval
+from studyctl.workflows.power import run_power
 
 
 def test_replicate_runs_whole_sessions_and_the_plan(serial_run):

@@ -14,8 +14,8 @@ from sqlalchemy import update
 from studyctl.cli.app import main
 from studyctl.errors import IntegrityError, UsageError
 from studyctl.protocol import expand_schedule, load_protocol_text
-from studyctl.protocol.enrollment import CODE_ALPHABET, enroll, new_code, next_slot, replan
 from studyctl.store import StudyStore
+from studyctl.store.enrollment import CODE_ALPHABET, enroll, new_code, next_slot, replan
 from studyctl.store.models import Participant
 from studyctl.store.workspace import init_workspace
 
@@ -109,7 +109,7 @@ WORKER = textwrap.dedent(
     import sys, time
     from pathlib import Path
     from studyctl.store import StudyStore
-    from studyctl.protocol.enrollment import enroll
+    from studyctl.store.enrollment import enroll
     url, go, n, first = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
     store = StudyStore.open(url)
     deadline = time.monotonic() + 60

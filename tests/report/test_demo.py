@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from studyctl.errors import ConfigError
-from studyctl.report.demo import MARKER, run_demo
+from studyctl.workflows.demo import MARKER, run_demo
 
 
 @pytest.fixture(scope="module")
@@ -62,9 +62,9 @@ def test_the_cli_default_loop_rate_is_the_library_default():
     import inspect
 
     from studyctl.cli.analysis import register_sim
-    from studyctl.report.demo import DEMO_SIM_RATE_HZ
+    from studyctl.workflows.demo import DEMO_SIM_RATE_HZ
 
-    assert f"{DEMO_SIM_RATE_HZ!r},  # studyctl.report.demo.DEMO_SIM_RATE_HZ" in inspect.getsource(register_sim)
+    assert f"{DEMO_SIM_RATE_HZ!r},  # studyctl.workflows.demo.DEMO_SIM_RATE_HZ" in inspect.getsource(register_sim)
     assert inspect.signature(run_demo).parameters["sim_rate_hz"].default == DEMO_SIM_RATE_HZ
 
 

@@ -22,9 +22,9 @@ from studyctl.errors import DeviceError, ModelParameterError
 from studyctl.models.palpation_metrics import chance_hit_probability, score_trial
 from studyctl.participants.tissue_palpator import VirtualTissuePalpator
 from studyctl.plugins.interfaces import Observation, TrialInfo
-from studyctl.protocol.enrollment import enroll
 from studyctl.resources import find_shipped
 from studyctl.scenes.tissue import StiffnessTissueScene
+from studyctl.store.enrollment import enroll
 from studyctl.store.workspace import init_workspace, open_study
 
 NEEDS = frozenset({"stiffness_map", "surface"})

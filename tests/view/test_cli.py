@@ -28,7 +28,7 @@ def workspace(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"}
     script = (
         "from studyctl.store.workspace import init_workspace, open_study\n"
-        "from studyctl.protocol.enrollment import enroll\n"
+        "from studyctl.store.enrollment import enroll\n"
         f"init_workspace({str(ws)!r}, protocol={str(PROTOCOL)!r})\n"
         f"with open_study(workspace={str(ws)!r}) as o:\n"
         "    enroll(o.store, code='PTY-AAAAA')\n"

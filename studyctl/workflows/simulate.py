@@ -94,8 +94,8 @@ def create_cohort(
     Enrollment stores each participant's schedule (sequence slot, placements) exactly as for people.
     ``sim_rate_hz`` caps the loop rate of the cohort's sessions (:func:`studyctl.engine.api.run_session`).
     """
-    from studyctl.protocol.enrollment import enroll, study_protocol
     from studyctl.protocol.schedule import allocate_strata
+    from studyctl.store.enrollment import enroll, study_protocol
     from studyctl.store.workspace import init_workspace, open_study
 
     check_simulation(protocol, participants, sim_rate_hz)

@@ -29,8 +29,8 @@ from typing import Any
 
 import pandas as pd
 
-from studyctl.analysis.simulate import Cohort
 from studyctl.errors import ConfigError, StudyctlError
+from studyctl.workflows.simulate import Cohort
 
 #: (protocol / plan name, participants in the paper)
 REFERENCE_STUDIES: tuple[tuple[str, int], ...] = (
@@ -134,7 +134,7 @@ def _prepare_folder(folder: Path) -> None:
 
 def _prepare_study(name: str, participants: int, seed: int, out: Path, sim_rate_hz: float | None) -> Cohort:
     """Fresh folder, workspace and enrolled cohort of one study (main process, fast)."""
-    from studyctl.analysis.simulate import create_cohort
+    from studyctl.workflows.simulate import create_cohort
 
     folder = out / name
     _prepare_folder(folder)
@@ -143,7 +143,7 @@ def _prepare_study(name: str, participants: int, seed: int, out: Path, sim_rate_
 
 def _session_task(cohort: Cohort, code: str) -> tuple[str, float]:
     """One participant's session (runs in a worker process)."""
-    from studyctl.analysis.simulate import run_participant
+    from studyctl.workflows.simulate import run_participant
 
     t0 = time.perf_counter()
     status = run_participant(cohort, code)
@@ -152,7 +152,7 @@ def _session_task(cohort: Cohort, code: str) -> tuple[str, float]:
 
 def _report_task(cohort: Cohort, folder: str) -> dict[str, Any]:
     """Analysis and report of one study (runs in a worker process)."""
-    from studyctl.report.pipeline import build_report
+    from studyctl.workflows.report import build_report
 
     rep = build_report(cohort.study, folder, workspace=cohort.workspace)
     result, files = rep.result, rep.files
