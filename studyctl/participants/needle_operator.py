@@ -28,6 +28,11 @@ controller, the device and the scene; no metric is written here. Behaviour param
 our choices, stated with their reasons; the per-participant traits are drawn once per session from the
 stream the engine hands to :meth:`VirtualNeedleOperator.begin_session` (the same after a resume).
 
+Code map: :class:`OperatorParams` (the checked ``PARAMS``), :class:`Traits` (one person), :class:`TrialState`
+(everything held during a trial), :class:`Phase` with one handler per phase (``_step``); what it senses is in
+:mod:`~studyctl.participants.needle_perception`, how it answers questionnaires in
+:mod:`~studyctl.participants.needle_questionnaire`.
+
 Questionnaire answers are judged from the session's stored trial record the engine passes with each item
 (durations, scans, timeouts, each scenario's view), never from memory that a resumed process would lack.
 """
@@ -36,12 +41,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import Enum, auto
 from typing import Any
 
 import numpy as np
 
 from studyctl.errors import ModelParameterError
 from studyctl.participants.ct_reader import CTReading, read_ct
+from studyctl.participants.needle_perception import AxialCueDetector, Plan, PositionSense, Vec, feel_force
+from studyctl.participants.needle_questionnaire import judge_item
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 from studyctl.plugins.params import Param, validate_params
 
@@ -117,11 +126,170 @@ PARAMS = (
 )
 DEFAULTS: dict[str, float] = {p.name: p.default for p in PARAMS}
 
-# phases
-_PLAN, _READ, _APPROACH, _INSERT, _HOLD, _FINISH, _DONE, _JUDGE = range(8)
+
+@dataclass(frozen=True)
+class OperatorParams:
+    """The checked :data:`PARAMS` of one operator (field names are the parameter names)."""
+
+    insert_speed_mm_s: float
+    final_speed_mm_s: float
+    approach_speed_mm_s: float
+    realtime_speed_gain: float
+    guided_speed_gain: float
+    cued_speed_gain: float
+    trait_sd: float
+    decision_hz: float
+    plan_read_s: float
+    scan_read_s: float
+    visual_period_s: float
+    proprio_drift: float
+    motor_noise_mm: float
+    motor_tau_s: float
+    speed_noise: float
+    orientation_sd_deg: float
+    force_threshold_n: float
+    force_weber: float
+    force_noise_n: float
+    radial_threshold_n: float
+    follow_gain_mm_per_ns: float
+    wall_n: float
+    reaction_s: float
+    entry_scan_mm: float
+    recheck_mm: float
+    finish_mm: float
+    accept_mm: float
+    margin_mm: float
+    overshoot_mm: float
+    preentry_mm: float
+    home_x_mm: float
+    home_y_mm: float
+    home_z_mm: float
+
+    @classmethod
+    def from_mapping(cls, params: Mapping[str, Any] | None) -> OperatorParams:
+        p = validate_params("participant virtual_needle_operator", params, PARAMS)
+        for key in ("insert_speed_mm_s", "final_speed_mm_s", "approach_speed_mm_s", "decision_hz", "motor_tau_s"):
+            if p[key] <= 0:
+                raise ModelParameterError(f"participant virtual_needle_operator: {key} = {p[key]:g} must be > 0")
+        return cls(**{k: float(v) for k, v in p.items()})
+
+    @property
+    def home(self) -> Vec:
+        return (self.home_x_mm, self.home_y_mm, self.home_z_mm)
 
 
-def _norm(v: tuple[float, float, float]) -> float:
+@dataclass(frozen=True)
+class Traits:
+    """One person's multipliers (median 1) of speed, motor noise, position-sense drift, reading time and
+    force thresholds; drawn once per session."""
+
+    speed: float
+    noise: float
+    drift: float
+    read: float
+    threshold: float
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, sd: float) -> Traits:
+        speed, noise, drift, read, threshold = (float(np.exp(rng.normal(0.0, sd))) for _ in range(5))
+        return cls(speed, noise, drift, read, threshold)
+
+
+class Phase(Enum):
+    """Where the operator is in a trial; :meth:`VirtualNeedleOperator._step` has one handler for each."""
+
+    PLAN = auto()  # no plan yet: ask for the planning scan (or look at the live view)
+    READ = auto()  # holding still, waiting for a scan and reading it
+    APPROACH = auto()  # free-space reach to the pre-entry point above the incision
+    INSERT = auto()  # advancing along a line (insertion, or a correction after a scan)
+    HOLD = auto()  # stopped, button released, settling
+    JUDGE = auto()  # is the tip in the tumour? (entered right after the confirming scan is read)
+    FINISH = auto()  # about to press finish
+    DONE = auto()  # finished; waits for the trial to end
+
+
+@dataclass
+class MinJerk:
+    """A free-space reach: minimum-jerk reference from ``a`` to ``b`` over ``T`` s, then maybe on to ``then``."""
+
+    a: Vec
+    b: Vec
+    T: float
+    then: Vec | None = None
+    elapsed: float = 0.0
+
+
+@dataclass
+class Line:
+    """Advance the reference until the believed tip is ``stop`` mm past ``origin`` along ``axis``.
+
+    With ``aim`` the reference heads for that point (re-aimed at every decision, so an offset seen on an
+    image is steered out), else it moves along ``dir``. The reference may lead the believed tip (tissue
+    resists, the hand is compliant) by at most 5 mm (``max_ref``): beyond that the push is given up.
+    """
+
+    dir: Vec
+    axis: Vec
+    aim: Vec | None
+    origin: Vec
+    stop: float
+    v: float
+    max_ref: float
+    ref_s: float
+    moving_s: float = 0.0
+
+
+@dataclass
+class TrialState:
+    """Everything the operator holds during one trial (made anew by ``begin_trial``)."""
+
+    info: TrialInfo
+    every: int  # device ticks per decision
+    dt: float  # seconds per decision
+    realtime: bool
+    scans_allowed: bool
+    v_ins: float
+    v_fin: float
+    v_app: float
+    z: np.ndarray  # pre-drawn noise: a few rows per decision
+    ref: Vec  # where it wants its (believed) tip
+    prev_ref: Vec
+    last_cmd: Vec
+    action: Action
+    record: dict[str, Any]  # what it will remember of this trial
+    sense: PositionSense
+    cue: AxialCueDetector = field(default_factory=AxialCueDetector)
+    tick: int = 0
+    zi: int = 0
+    wobble: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    speed_dev: float = 0.0
+    axis: Vec = (0.0, 0.0, -1.0)
+    button: float = 1.0
+    phase: Phase = Phase.PLAN
+    next_phase: Phase = Phase.PLAN
+    busy_until: float = 0.0
+    frame: Mapping[str, Any] | None = None
+    last_view_t: float = -1e9
+    plan: Plan | None = None
+    move: MinJerk | Line | None = None
+    react_until: float = 0.0
+    scans: int = 0
+    stop_reason: str = ""
+    felt_radial_s: float = 0.0
+    corrections: int = 0
+
+    def noise(self) -> np.ndarray:
+        z = self.z[self.zi]
+        self.zi = (self.zi + 1) % len(self.z)
+        return z
+
+    def need_plan(self) -> Plan:
+        if self.plan is None:
+            raise RuntimeError("virtual_needle_operator: acting on a plan before a scan produced one")
+        return self.plan
+
+
+def _norm(v: Vec) -> float:
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
@@ -133,28 +301,17 @@ class VirtualNeedleOperator(Participant):
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         super().__init__(params)
-        p = validate_params("participant virtual_needle_operator", params, PARAMS)
-        for key in ("insert_speed_mm_s", "final_speed_mm_s", "approach_speed_mm_s", "decision_hz", "motor_tau_s"):
-            if p[key] <= 0:
-                raise ModelParameterError(f"participant virtual_needle_operator: {key} = {p[key]:g} must be > 0")
-        self.p = p
-        self.traits: dict[str, float] | None = None
+        self.p = OperatorParams.from_mapping(params)
+        self.traits: Traits | None = None
         self.history: list[dict[str, Any]] = []  # what it remembers of its own trials
         self.trust_cue: dict[str, bool] = {}  # per scenario label: has a force cue marked the target?
         self.trust_guide: dict[str, bool] = {}  # per scenario label: has a firm guidance channel been felt?
+        self.s: TrialState | None = None
 
-    # ------------------------------------------------------------------ trial set-up
-    def _draw_traits(self, rng: np.random.Generator) -> dict[str, float]:
-        sd = self.p["trait_sd"]
-
-        def f() -> float:
-            return float(np.exp(rng.normal(0.0, sd)))
-
-        return {"speed": f(), "noise": f(), "drift": f(), "read": f(), "threshold": f()}
-
+    # ------------------------------------------------------------------ session and trial set-up
     def begin_session(self, rng: np.random.Generator) -> None:
         """The engine hands over the session's person stream at every (re)start: the same traits after a resume."""
-        self.traits = self._draw_traits(rng)
+        self.traits = Traits.draw(rng, self.p.trait_sd)
 
     def memory(self) -> dict[str, Any]:
         """What it has learnt to trust per scenario, and its own trial record, stored by the engine with each
@@ -169,62 +326,385 @@ class VirtualNeedleOperator(Participant):
 
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
         if self.traits is None:  # run outside a session (a bare trial loop): the first trial's stream
-            self.traits = self._draw_traits(rng)
+            self.traits = Traits.draw(rng, self.p.trait_sd)
         p, tr = self.p, self.traits
-        self.info = info
-        self.rng = rng
-        self._every = max(1, round(info.rate_hz / p["decision_hz"]))
-        self._dt = self._every / info.rate_hz
-        self._tick = self._every - 1  # decide on the first call
-        self._realtime = info.visual == "realtime"
-        self._scans_allowed = info.visual == "on_request"
-        gain = p["realtime_speed_gain"] if self._realtime else 1.0
-        self._v_ins = p["insert_speed_mm_s"] * tr["speed"] * gain
-        self._v_fin = p["final_speed_mm_s"] * tr["speed"] * gain
-        self._v_app = p["approach_speed_mm_s"] * tr["speed"] * gain
-        n = 4 * (int(info.time_limit_s / self._dt) + 16)
-        self._z = rng.standard_normal((n, 8))  # pre-drawn noise: three rows per decision
-        self._zi = 0
-        home = (p["home_x_mm"], p["home_y_mm"], p["home_z_mm"])
-        self._ref = home  # where it wants its (believed) tip
-        self._beta = [0.0, 0.0, 0.0]  # proprioceptive error
-        self._corr = (0.0, 0.0, 0.0)  # correction learnt from the last image
-        self._wobble = [0.0, 0.0, 0.0]
-        self._speed_dev = 0.0
-        self._last_cmd = home
-        self._axis = (0.0, 0.0, -1.0)
-        self._button = 1.0
-        self._phase = _PLAN
-        self._next_phase = _PLAN
-        self._busy_until = 0.0
-        self._frame: Mapping[str, Any] | None = None
-        self._last_view_t = -1e9
-        self._plan: dict[str, Any] | None = None
-        self._sig_lat = 3.0  # its uncertainty (mm) about where the tip is, lateral and along the path
-        self._sig_ax = 3.0
-        self._move: dict[str, Any] | None = None
-        self._baseline = None
-        self._cue_run = 0.0
-        self._cue_felt = False
-        self._react_until = 0.0
-        self._scans = 0
-        self._finish_at: float | None = None
-        self._stop_reason = ""
-        self._felt_radial = 0.0
-        self._corrections = 0
-        self._prev_ref = home
-        self._trial = {
-            "condition": info.condition,
-            "visual": info.visual,
-            "cue": False,
-            "wall": False,
-            "radial_felt_s": 0.0,
-        }
-        self._action = self._make_action(home, ())
+        every = max(1, round(info.rate_hz / p.decision_hz))
+        dt = every / info.rate_hz
+        realtime = info.visual == "realtime"
+        gain = p.realtime_speed_gain if realtime else 1.0
+        n = 4 * (int(info.time_limit_s / dt) + 16)
+        z = rng.standard_normal((n, 8))
+        home = p.home
+        self.s = TrialState(
+            info=info,
+            every=every,
+            dt=dt,
+            realtime=realtime,
+            scans_allowed=info.visual == "on_request",
+            v_ins=p.insert_speed_mm_s * tr.speed * gain,
+            v_fin=p.final_speed_mm_s * tr.speed * gain,
+            v_app=p.approach_speed_mm_s * tr.speed * gain,
+            z=z,
+            ref=home,
+            prev_ref=home,
+            last_cmd=home,
+            action=Action({}),
+            record={"condition": info.condition, "visual": info.visual, "cue": False, "wall": False,
+                    "radial_felt_s": 0.0},
+            sense=PositionSense(3.0),
+            tick=every - 1,  # decide on the first call
+        )
+        self.s.action = self._make_action(home, ())
 
-    # ------------------------------------------------------------------ helpers
-    def _make_action(self, cmd: tuple[float, float, float], requests: tuple[Request, ...]) -> Action:
-        a = self._axis
+    @property
+    def _st(self) -> TrialState:
+        if self.s is None:
+            raise RuntimeError("virtual_needle_operator: acting before begin_trial")
+        return self.s
+
+    @property
+    def _tr(self) -> Traits:
+        if self.traits is None:
+            raise RuntimeError("virtual_needle_operator: acting before its traits were drawn")
+        return self.traits
+
+    # ------------------------------------------------------------------ the tick
+    def act(self, t: float, percept: Mapping[str, Any]) -> Action:
+        st = self._st
+        if "scan" in percept and percept["scan"] is not None:
+            st.frame = percept["scan"]
+            if st.busy_until == math.inf:
+                read = self.p.plan_read_s if st.plan is None else self.p.scan_read_s
+                st.busy_until = t + read * self._tr.read
+        st.tick += 1
+        if st.tick < st.every:
+            return st.action
+        st.tick = 0
+        requests = self._decide(t, percept)
+        cmd = self._command(percept)
+        st.action = self._make_action(cmd, ())
+        if requests:  # requests go out once; the ticks until the next decision repeat only the inputs
+            return Action(st.action.inputs, requests)
+        return st.action
+
+    def _decide(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        st, p = self._st, self.p
+        # position sense drifts with intended movement
+        z = st.noise()
+        moved = math.dist(st.ref, st.prev_ref)
+        st.prev_ref = st.ref
+        st.sense.drift(moved, p.proprio_drift * self._tr.drift, z)
+        self._perceive(t, percept)
+        if st.realtime and "view" in percept and t - st.last_view_t >= p.visual_period_s:
+            st.last_view_t = t
+            self._take_image(percept["view"], percept)
+        if t > st.info.time_limit_s - 3.0 and st.phase not in (Phase.FINISH, Phase.DONE):
+            return self._begin_finish(percept, t, "time")
+        return self._step(t, percept)
+
+    def _step(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        """One handler per phase."""
+        match self._st.phase:
+            case Phase.PLAN:
+                return self._on_plan(t)
+            case Phase.READ:
+                return self._on_read(t, percept)
+            case Phase.APPROACH:
+                return self._on_approach(t, percept)
+            case Phase.INSERT:
+                return self._on_insert(t, percept)
+            case Phase.HOLD:
+                return self._on_hold(t, percept)
+            case Phase.JUDGE:
+                return self._judge(t, percept)
+            case Phase.FINISH:
+                return self._on_finish(t)
+            case Phase.DONE:
+                return ()
+
+    # ------------------------------------------------------------------ phase handlers
+    def _on_plan(self, t: float) -> tuple[Request, ...]:
+        st = self._st
+        if st.realtime:
+            if st.plan is not None:  # the live view showed everything: look at it, then go
+                st.phase, st.busy_until, st.next_phase = Phase.READ, t + self.p.plan_read_s * self._tr.read, \
+                    Phase.APPROACH
+            return ()
+        return self._scan_then(t, Phase.APPROACH)
+
+    def _on_read(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        st = self._st
+        if t < st.busy_until:
+            return ()
+        if st.frame is not None:
+            self._take_image(st.frame, percept)
+            st.frame = None
+        if st.plan is None:
+            return self._scan_then(t, st.next_phase)
+        return self._after_read(t, percept)
+
+    def _on_approach(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        st = self._st
+        mv = st.move
+        if not isinstance(mv, MinJerk):
+            return ()
+        if mv.then is not None and mv.elapsed >= mv.T:
+            self._start_reach(mv.b, mv.then, st.v_app)
+            return ()
+        if mv.elapsed >= mv.T + 0.3:
+            st.move = None
+            if st.scans_allowed and st.sense.sig_lat > self.p.entry_scan_mm:
+                return self._scan_then(t, Phase.INSERT)
+            return self._enter_insert(percept)
+        return ()
+
+    def _on_insert(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        st, p = self._st, self.p
+        pl = st.need_plan()
+        if st.cue.felt and st.react_until and t >= st.react_until:
+            # a force cue: stop, hold, relax the push
+            st.react_until = 0.0
+            return self._stop(t, percept, "cue")
+        mv = st.move
+        if not isinstance(mv, Line):
+            return self._stop(t, percept, "blocked")
+        b = self._belief(percept)
+        o, d = mv.origin, mv.axis
+        done = (b[0] - o[0]) * d[0] + (b[1] - o[1]) * d[1] + (b[2] - o[2]) * d[2]
+        if done >= mv.stop:
+            return self._stop(t, percept, st.stop_reason if st.stop_reason == "correct" else "depth")
+        if mv.ref_s >= mv.max_ref:
+            return self._stop(t, percept, "blocked")
+        depth = pl.depth(b)
+        sig_lat = st.sense.sig_lat
+        if st.scans_allowed and sig_lat > p.recheck_mm and depth < pl.length - 10.0:
+            st.stop_reason = "recheck"
+            self._relax(percept)
+            return self._scan_then(t, Phase.INSERT)
+        if (
+            st.scans_allowed
+            and st.stop_reason == "depth"
+            and self.trust_cue.get(st.info.condition, False)
+            and depth >= pl.length - p.margin_mm
+            and sig_lat > p.finish_mm
+        ):
+            # going by feel for the depth, but the tip must be on line to meet the small tumour: check once
+            st.stop_reason = "recheck"
+            self._relax(percept)
+            return self._scan_then(t, Phase.INSERT)
+        if st.realtime and math.dist(b, pl.tumour) <= 0.5 * p.accept_mm:
+            return self._stop(t, percept, "seen")
+        return ()
+
+    def _on_hold(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        st = self._st
+        if t < st.busy_until:
+            return ()
+        if st.stop_reason == "cue":
+            trust = self.trust_cue.get(st.info.condition, False)
+            if trust and st.sense.sig_lat <= self.p.finish_mm:
+                return self._begin_finish(percept, t, "cue")
+        if st.realtime:
+            return self._judge(t, percept)
+        return self._scan_then(t, Phase.JUDGE)
+
+    def _on_finish(self, t: float) -> tuple[Request, ...]:
+        st = self._st
+        if t < st.busy_until:
+            return ()
+        st.phase = Phase.DONE
+        st.record.update(duration_s=t, scans=st.scans, corrections=st.corrections)
+        self.history.append(dict(st.record))
+        return (Request("finish"),)
+
+    # ------------------------------------------------------------------ transitions
+    def _after_read(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        """Act on a fresh image: start the approach, enter, or judge where the tip is."""
+        st = self._st
+        b = self._belief(percept)
+        st.button = 1.0
+        if st.next_phase is Phase.APPROACH:
+            # reach the pre-entry point from further out along the path, so the tip never cuts the liver
+            pl = st.need_plan()
+            st.phase = Phase.APPROACH
+            st.ref = b
+            far = (pl.entry[0] - 20.0 * pl.u[0], pl.entry[1] - 20.0 * pl.u[1], pl.entry[2] - 20.0 * pl.u[2])
+            self._start_reach(b, far, st.v_app, then=pl.entry)
+            return ()
+        if st.next_phase is Phase.INSERT:
+            return self._enter_insert(percept)
+        return self._judge(t, percept)
+
+    def _enter_insert(self, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        st, p = self._st, self.p
+        pl = st.need_plan()
+        st.phase = Phase.INSERT
+        st.button = 1.0
+        b = self._belief(percept)
+        st.ref = b
+        trust = self.trust_cue.get(st.info.condition, False)
+        if st.realtime:
+            stop = pl.length
+        elif trust:
+            stop = pl.length + p.overshoot_mm
+        else:
+            stop = pl.length - p.margin_mm
+        extra = stop - pl.length if stop > pl.length else 0.0
+        u, tum = pl.u, pl.tumour
+        aim = (tum[0] + extra * u[0], tum[1] + extra * u[1], tum[2] + extra * u[2])
+        speed = st.v_ins
+        if self.trust_guide.get(st.info.condition, False):
+            speed *= p.guided_speed_gain
+        if trust:
+            speed *= p.cued_speed_gain
+        self._start_line(b, u, pl.marker, stop, speed, aim=aim)
+        st.stop_reason = "depth"
+        return ()
+
+    def _relax(self, percept: Mapping[str, Any]) -> None:
+        """Stop pushing: the wanted position becomes where it feels the tip is."""
+        st = self._st
+        st.move = None
+        st.ref = self._belief(percept)
+
+    def _stop(self, t: float, percept: Mapping[str, Any], reason: str) -> tuple[Request, ...]:
+        st = self._st
+        self._relax(percept)
+        st.button = 0.0
+        st.stop_reason = reason
+        st.phase = Phase.HOLD
+        st.busy_until = t + 0.3
+        return ()
+
+    def _judge(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        """Is the tip in the tumour? If not, correct towards it (advancing or withdrawing slowly)."""
+        st, p = self._st, self.p
+        pl = st.need_plan()
+        b = self._belief(percept)
+        tum = pl.tumour
+        miss = math.dist(b, tum)
+        if st.stop_reason == "cue" and miss <= 2.5 * p.accept_mm:
+            self.trust_cue[st.info.condition] = True
+        if miss <= p.accept_mm:
+            return self._begin_finish(percept, t, "in_tumour")
+        st.phase = Phase.INSERT
+        st.button = 1.0
+        st.ref = b
+        st.cue.felt = False
+        # aim at the centroid, stop there (by belief) and look again
+        d = ((tum[0] - b[0]) / miss, (tum[1] - b[1]) / miss, (tum[2] - b[2]) / miss)
+        self._start_line(b, d, b, miss, st.v_fin)
+        st.stop_reason = "correct"
+        st.corrections += 1
+        return ()
+
+    def _begin_finish(self, percept: Mapping[str, Any], t: float, why: str) -> tuple[Request, ...]:
+        st = self._st
+        self._relax(percept)
+        st.button = 0.0
+        st.phase = Phase.FINISH
+        st.busy_until = t + self.p.reaction_s + 0.3
+        st.record["finish_reason"] = why
+        return ()
+
+    def _scan_then(self, t: float, next_phase: Phase) -> tuple[Request, ...]:
+        """Hold still and request a scan (or just pause to look in real-time conditions)."""
+        st = self._st
+        st.button = 0.0
+        st.phase = Phase.READ
+        st.next_phase = next_phase
+        if st.scans_allowed:
+            st.scans += 1
+            st.frame = None
+            st.busy_until = math.inf  # until the frame arrives
+            return (Request("scan"),)
+        st.busy_until = t + 0.5 * self.p.scan_read_s * self._tr.read
+        return ()
+
+    # ------------------------------------------------------------------ seeing and feeling
+    def _belief(self, percept: Mapping[str, Any]) -> Vec:
+        st = self._st
+        return st.sense.belief(percept, st.last_cmd)
+
+    def _take_image(self, frame: Mapping[str, Any], percept: Mapping[str, Any]) -> CTReading:
+        st = self._st
+        reading = read_ct(frame, st.axis)
+        if reading.tip_mm is not None:
+            old = st.sense.see_tip(reading.tip_mm, st.sense.felt(percept, st.last_cmd), 0.3)
+            c, r = st.sense.corr, st.ref
+            # the belief moved, the hand did not: keep the set-point where it is
+            st.ref = (r[0] + c[0] - old[0], r[1] + c[1] - old[1], r[2] + c[2] - old[2])
+            st.prev_ref = st.ref
+        if st.plan is None and reading.tumour_mm is not None and reading.marker_mm is not None:
+            self._make_plan(reading.tumour_mm, reading.marker_mm)
+        return reading
+
+    def _make_plan(self, t: Vec, m: Vec) -> None:
+        st = self._st
+        d = (t[0] - m[0], t[1] - m[1], t[2] - m[2])
+        length = _norm(d)
+        u = (d[0] / length, d[1] / length, d[2] / length)
+        # the pen is pointed along the plan with an orientation error
+        z = st.noise()
+        err = math.radians(self.p.orientation_sd_deg)
+        a = (u[0] + err * z[0], u[1] + err * z[1], u[2] + err * z[2])
+        n = _norm(a)
+        st.axis = (a[0] / n, a[1] / n, a[2] / n)
+        pre = self.p.preentry_mm
+        st.plan = Plan(t, m, u, length, (m[0] - pre * u[0], m[1] - pre * u[1], m[2] - pre * u[2]))
+
+    def _perceive(self, t: float, percept: Mapping[str, Any]) -> None:
+        """Forces on the hand: follow a felt guidance push, and watch the axial force for a cue."""
+        st, p = self._st, self.p
+        felt = feel_force(percept, st.axis, p.force_noise_n, st.noise()) if "fx_n" in percept else None
+        if felt is None:
+            return
+        th = self._tr.threshold
+        cond = st.info.condition
+        if st.button >= 0.5 and felt.radial_n > p.radial_threshold_n * th:
+            # a felt lateral push: yield to it, and trust that it keeps the tip near the path
+            g = p.follow_gain_mm_per_ns * st.dt
+            r, (rx, ry, rz) = st.ref, felt.radial
+            st.ref = (r[0] + g * rx, r[1] + g * ry, r[2] + g * rz)
+            st.record["radial_felt_s"] += st.dt
+            st.felt_radial_s += st.dt
+            if st.felt_radial_s > 0.2:
+                st.sense.sig_lat = min(st.sense.sig_lat, p.finish_mm)
+            if felt.radial_n > p.wall_n * th and st.phase is Phase.INSERT:  # the channel, felt in tissue
+                self.trust_guide[cond] = True
+                st.record["wall"] = True
+        else:
+            st.felt_radial_s = 0.0
+        if st.button >= 0.5 and self.trust_guide.get(cond, False):
+            # inside a channel it has felt to be firm, it takes the tip to be on the path laterally
+            st.sense.sig_lat = min(st.sense.sig_lat, 0.9 * p.finish_mm)
+        # axial cue: a rise above the running baseline while advancing deep in the liver
+        mv = st.move
+        if st.phase is Phase.INSERT and st.plan is not None and st.button >= 0.5 and isinstance(mv, Line):
+            mv.moving_s += st.dt
+            depth = st.plan.depth(self._belief(percept))
+            if st.cue.update(felt.axial, depth, 0.5 * st.plan.length, mv.moving_s, st.dt,
+                             p.force_threshold_n * th, p.force_weber * th):
+                st.record["cue"] = True
+                st.react_until = t + p.reaction_s
+
+    # ------------------------------------------------------------------ motor output
+    def _start_reach(self, start: Vec, goal: Vec, speed: float, *, then: Vec | None = None) -> None:
+        """A free-space reach: minimum-jerk reference from ``start`` to ``goal``."""
+        self._st.move = MinJerk(start, goal, max(math.dist(start, goal) / speed, 0.3), then)
+
+    def _start_line(self, start: Vec, direction: Vec, origin: Vec, stop: float, v: float,
+                    aim: Vec | None = None) -> None:
+        """Advance the reference until the believed tip is ``stop`` mm past ``origin`` along ``direction``."""
+        b = start
+        lead_done = (
+            (b[0] - origin[0]) * direction[0] + (b[1] - origin[1]) * direction[1] + (b[2] - origin[2]) * direction[2]
+        )
+        self._st.move = Line(direction, direction, aim, origin, stop, v, stop + 5.0, lead_done)
+
+    def _make_action(self, cmd: Vec, requests: tuple[Request, ...]) -> Action:
+        st = self._st
+        a = st.axis
         # Plain Python floats (the same doubles): numpy scalars here would make the device's pen axis, and from
         # it every tick of the controller's force law, numpy-scalar arithmetic, several times slower.
         return Action(
@@ -235,502 +715,58 @@ class VirtualNeedleOperator(Participant):
                 "dir_x": float(a[0]),
                 "dir_y": float(a[1]),
                 "dir_z": float(a[2]),
-                "button": float(self._button),
+                "button": float(st.button),
             },
             requests,
         )
 
-    def _noise(self) -> np.ndarray:
-        z = self._z[self._zi]
-        self._zi = (self._zi + 1) % len(self._z)
-        return z
-
-    def _felt_raw(self, percept: Mapping[str, Any]) -> tuple[float, float, float]:
-        """Where it feels the handle: the true position plus its drifting position-sense error."""
-        b = self._beta
-        if "x_mm" in percept:
-            return (percept["x_mm"] + b[0], percept["y_mm"] + b[1], percept["z_mm"] + b[2])
-        c = self._last_cmd
-        return (c[0] + b[0], c[1] + b[1], c[2] + b[2])
-
-    def _belief(self, percept: Mapping[str, Any]) -> tuple[float, float, float]:
-        f, c = self._felt_raw(percept), self._corr
-        return (f[0] + c[0], f[1] + c[1], f[2] + c[2])
-
-    def _take_image(self, frame: Mapping[str, Any], percept: Mapping[str, Any], t: float) -> CTReading:
-        reading = read_ct(frame, self._axis)
-        if reading.tip_mm is not None:
-            f, old, r = self._felt_raw(percept), self._corr, self._ref
-            c = (reading.tip_mm[0] - f[0], reading.tip_mm[1] - f[1], reading.tip_mm[2] - f[2])
-            self._corr = c
-            # the belief moved, the hand did not: keep the set-point where it is
-            self._ref = (r[0] + c[0] - old[0], r[1] + c[1] - old[1], r[2] + c[2] - old[2])
-            self._prev_ref = self._ref
-            self._sig_lat = self._sig_ax = 0.3
-        if self._plan is None and reading.tumour_mm is not None and reading.marker_mm is not None:
-            self._make_plan(reading)
-        return reading
-
-    def _make_plan(self, reading: CTReading) -> None:
-        t, m = reading.tumour_mm, reading.marker_mm
-        if t is None or m is None:
-            return
-        d = (t[0] - m[0], t[1] - m[1], t[2] - m[2])
-        length = _norm(d)
-        u = (d[0] / length, d[1] / length, d[2] / length)
-        # the pen is pointed along the plan with an orientation error
-        z = self._noise()
-        err = math.radians(self.p["orientation_sd_deg"])
-        a = (u[0] + err * z[0], u[1] + err * z[1], u[2] + err * z[2])
-        n = _norm(a)
-        self._axis = (a[0] / n, a[1] / n, a[2] / n)
-        pre = self.p["preentry_mm"]
-        self._plan = {
-            "tumour": t,
-            "marker": m,
-            "u": u,
-            "length": length,
-            "entry": (m[0] - pre * u[0], m[1] - pre * u[1], m[2] - pre * u[2]),
-        }
-
-    def _need_plan(self) -> dict[str, Any]:
-        if self._plan is None:
-            raise RuntimeError("virtual_needle_operator: acting on a plan before a scan produced one")
-        return self._plan
-
-    def _depth(self, b: tuple[float, float, float]) -> float:
-        """Believed depth of the tip along the planned path, from the marker (mm)."""
-        pl = self._need_plan()
-        m, u = pl["marker"], pl["u"]
-        return (b[0] - m[0]) * u[0] + (b[1] - m[1]) * u[1] + (b[2] - m[2]) * u[2]
-
-    def _start_move(self, t: float, start: tuple[float, ...], goal: tuple[float, ...], speed: float) -> None:
-        """A free-space reach: minimum-jerk reference from ``start`` to ``goal``."""
-        dist = math.dist(start, goal)
-        self._move = {"kind": "minjerk", "t0": t, "T": max(dist / speed, 0.3), "a": tuple(start), "b": tuple(goal)}
-
-    def _start_line(
-        self,
-        start: tuple[float, ...],
-        direction: tuple[float, ...],
-        origin: tuple[float, ...],
-        stop: float,
-        v: float,
-        aim: tuple[float, ...] | None = None,
-    ) -> None:
-        """Advance the reference until the believed tip is ``stop`` mm past ``origin`` along ``direction``.
-
-        With ``aim`` the reference heads for that point (re-aimed at every decision, so an offset seen on
-        an image is steered out), else it moves along ``direction``. The reference may lead the believed
-        tip (tissue resists, the hand is compliant) by at most 5 mm: beyond that the operator gives up
-        this push and stops.
-        """
-        b = tuple(start)
-        lead_done = (
-            (b[0] - origin[0]) * direction[0] + (b[1] - origin[1]) * direction[1] + (b[2] - origin[2]) * direction[2]
-        )
-        self._move = {
-            "kind": "line",
-            "dir": tuple(direction),
-            "axis": tuple(direction),
-            "aim": None if aim is None else tuple(aim),
-            "origin": tuple(origin),
-            "stop": stop,
-            "v": v,
-            "max_ref": stop + 5.0,
-            "ref_s": lead_done,
-        }
-
-    def _scan_then(self, t: float, next_phase: int) -> tuple[Request, ...]:
-        """Hold still and request a scan (or just pause to look in real-time conditions)."""
-        self._button = 0.0
-        self._phase = _READ
-        self._next_phase = next_phase
-        if self._scans_allowed:
-            self._scans += 1
-            self._frame = None
-            self._busy_until = math.inf  # until the frame arrives
-            return (Request("scan"),)
-        self._busy_until = t + 0.5 * self.p["scan_read_s"] * self.traits["read"]  # type: ignore[index]
-        return ()
-
-    # ------------------------------------------------------------------ the tick
-    def act(self, t: float, percept: Mapping[str, Any]) -> Action:
-        if "scan" in percept and percept["scan"] is not None:
-            self._frame = percept["scan"]
-            if self._busy_until == math.inf:
-                read = self.p["plan_read_s"] if self._plan is None else self.p["scan_read_s"]
-                self._busy_until = t + read * self.traits["read"]  # type: ignore[index]
-        self._tick += 1
-        if self._tick < self._every:
-            return self._action
-        self._tick = 0
-        requests = self._decide(t, percept)
-        cmd = self._command(percept)
-        self._action = self._make_action(cmd, ())
-        if requests:  # requests go out once; the ticks until the next decision repeat only the inputs
-            return Action(self._action.inputs, requests)
-        return self._action
-
-    def _perceive(self, t: float, percept: Mapping[str, Any]) -> None:
-        """Forces on the hand: axial cue detection and lateral guidance following."""
-        if "fx_n" not in percept:
-            return
-        z = self._noise()
-        sn = self.p["force_noise_n"]
-        fx, fy, fz = percept["fx_n"] + sn * z[3], percept["fy_n"] + sn * z[4], percept["fz_n"] + sn * z[5]
-        a = self._axis
-        f_ax = -(fx * a[0] + fy * a[1] + fz * a[2])  # resistance felt along the needle
-        rx, ry, rz = fx + f_ax * a[0], fy + f_ax * a[1], fz + f_ax * a[2]
-        f_rad = math.sqrt(rx * rx + ry * ry + rz * rz)
-        th = self.traits["threshold"]  # type: ignore[index]
-        if self._button >= 0.5 and f_rad > self.p["radial_threshold_n"] * th:
-            # a felt lateral push: yield to it, and trust that it keeps the tip near the path
-            g = self.p["follow_gain_mm_per_ns"] * self._dt
-            r = self._ref
-            self._ref = (r[0] + g * rx, r[1] + g * ry, r[2] + g * rz)
-            self._trial["radial_felt_s"] += self._dt
-            self._felt_radial += self._dt
-            if self._felt_radial > 0.2:
-                self._sig_lat = min(self._sig_lat, self.p["finish_mm"])
-            if f_rad > self.p["wall_n"] * th and self._phase == _INSERT:  # the channel, felt in tissue
-                self.trust_guide[self.info.condition] = True
-                self._trial["wall"] = True
-        else:
-            self._felt_radial = 0.0
-        if self._button >= 0.5 and self.trust_guide.get(self.info.condition, False):
-            # inside a channel it has felt to be firm, it takes the tip to be on the path laterally
-            self._sig_lat = min(self._sig_lat, 0.9 * self.p["finish_mm"])
-        # axial cue: a rise above the running baseline while advancing deep in the liver
-        mv = self._move
-        if self._phase == _INSERT and self._plan is not None and self._button >= 0.5 and mv is not None:
-            mv["moving_s"] = mv.get("moving_s", 0.0) + self._dt
-            depth = self._depth(self._belief(percept))
-            steady = mv["moving_s"] >= 0.5 and f_ax > 0.0  # sliding in, not starting, stopping or pulling
-            if self._baseline is None or depth < 0.5 * self._plan["length"]:
-                # learn what liver resistance feels like on the way in; it is kept for the whole trial
-                if steady:
-                    b0 = self._baseline
-                    self._baseline = f_ax if b0 is None else b0 + 0.1 * (f_ax - b0)
-                self._cue_run = 0.0
-                return
-            rise = f_ax - self._baseline
-            need = max(self.p["force_threshold_n"] * th, self.p["force_weber"] * th * abs(self._baseline))
-            if mv["moving_s"] < 0.3:  # the start of every push feels stiffer (stiction): expect ~30 % more
-                need += 0.3 * abs(self._baseline)
-            if rise > need:
-                self._cue_run += self._dt
-                if self._cue_run >= 0.05 and not self._cue_felt:
-                    self._cue_felt = True
-                    self._trial["cue"] = True
-                    self._react_until = t + self.p["reaction_s"]
-            else:
-                self._cue_run = 0.0
-                if steady:
-                    self._baseline += (self._dt / 0.3) * (f_ax - self._baseline)
-
-    def _decide(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        p = self.p
-        # position sense drifts with movement
-        z = self._noise()
-        moved = math.dist(self._ref, self._prev_ref)  # intended movement drives the drift
-        self._prev_ref = self._ref
-        if moved > 0.0:
-            s = p["proprio_drift"] * self.traits["drift"] * math.sqrt(moved)  # type: ignore[index]
-            b = self._beta
-            b[0] += s * z[0]
-            b[1] += s * z[1]
-            b[2] += s * z[2]
-            grow = (p["proprio_drift"] * self.traits["drift"]) ** 2 * moved  # type: ignore[index]
-            self._sig_lat = math.sqrt(self._sig_lat**2 + grow)
-            self._sig_ax = math.sqrt(self._sig_ax**2 + grow)
-        self._perceive(t, percept)
-        if self._realtime and "view" in percept and t - self._last_view_t >= p["visual_period_s"]:
-            self._last_view_t = t
-            self._take_image(percept["view"], percept, t)
-        if self._finish_at is None and t > self.info.time_limit_s - 3.0 and self._phase not in (_FINISH, _DONE):
-            return self._begin_finish(t, percept, "time")
-        phase = self._phase
-        if phase == _PLAN:
-            if self._realtime:
-                if self._plan is not None:
-                    read = p["plan_read_s"] * self.traits["read"]  # type: ignore[index]
-                    self._phase, self._busy_until, self._next_phase = _READ, t + read, _APPROACH
-                return ()
-            return self._scan_then(t, _APPROACH)
-        if phase == _READ:
-            if t < self._busy_until:
-                return ()
-            if self._frame is not None:
-                self._take_image(self._frame, percept, t)
-                self._frame = None
-            if self._plan is None:
-                return self._scan_then(t, self._next_phase)
-            return self._after_read(t, percept)
-        if phase == _APPROACH:
-            mv = self._move
-            if mv is not None and "then" in mv and mv.get("elapsed", 0.0) >= mv["T"]:
-                self._start_move(t, mv["b"], mv["then"], self._v_app)
-                return ()
-            if mv is not None and mv.get("elapsed", 0.0) >= mv["T"] + 0.3:
-                self._move = None
-                if self._scans_allowed and self._sig_lat > p["entry_scan_mm"]:
-                    return self._scan_then(t, _INSERT)
-                return self._enter_insert(t, percept)
-            return ()
-        if phase == _INSERT:
-            return self._insert_step(t, percept)
-        if phase == _HOLD:
-            if t < self._busy_until:
-                return ()
-            return self._after_hold(t, percept)
-        if phase == _FINISH:
-            if t >= self._busy_until:
-                self._phase = _DONE
-                self._remember(t)
-                return (Request("finish"),)
-            return ()
-        return ()
-
-    def _after_read(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        """Act on a fresh image: start the approach, enter, or judge where the tip is."""
-        nxt = self._next_phase
-        b = self._belief(percept)
-        self._button = 1.0
-        if nxt == _APPROACH:
-            # reach the pre-entry point from further out along the path, so the tip never cuts the liver
-            pl = self._need_plan()
-            self._phase = _APPROACH
-            self._ref = b
-            far = tuple(pl["entry"][i] - 20.0 * pl["u"][i] for i in range(3))
-            self._start_move(t, b, far, self._v_app)
-            self._move["then"] = pl["entry"]  # type: ignore[index]
-            return ()
-        if nxt == _INSERT:
-            return self._enter_insert(t, percept)
-        return self._judge(t, percept)
-
-    def _enter_insert(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        pl = self._need_plan()
-        self._phase = _INSERT
-        self._button = 1.0
-        b = self._belief(percept)
-        self._ref = b
-        trust = self.trust_cue.get(self.info.condition, False)
-        if self._realtime:
-            stop = pl["length"]
-        elif trust:
-            stop = pl["length"] + self.p["overshoot_mm"]
-        else:
-            stop = pl["length"] - self.p["margin_mm"]
-        extra = stop - pl["length"] if stop > pl["length"] else 0.0
-        u, tum = pl["u"], pl["tumour"]
-        aim = (tum[0] + extra * u[0], tum[1] + extra * u[1], tum[2] + extra * u[2])
-        speed = self._v_ins
-        if self.trust_guide.get(self.info.condition, False):
-            speed *= self.p["guided_speed_gain"]
-        if trust:
-            speed *= self.p["cued_speed_gain"]
-        self._start_line(b, u, pl["marker"], stop, speed, aim=aim)
-        self._stop_reason = "depth"
-        return ()
-
-    def _insert_step(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        pl = self._need_plan()
-        if self._cue_felt and self._react_until and t >= self._react_until:
-            # a force cue: stop, hold, relax the push
-            self._react_until = 0.0
-            return self._stop(t, percept, "cue")
-        mv = self._move
-        if mv is None:
-            return self._stop(t, percept, "blocked")
-        b = self._belief(percept)
-        o, d = mv["origin"], mv["axis"]
-        done = (b[0] - o[0]) * d[0] + (b[1] - o[1]) * d[1] + (b[2] - o[2]) * d[2]
-        if done >= mv["stop"]:
-            return self._stop(t, percept, self._stop_reason if self._stop_reason == "correct" else "depth")
-        if mv["ref_s"] >= mv["max_ref"]:
-            return self._stop(t, percept, "blocked")
-        depth = self._depth(b)
-        if self._scans_allowed and self._sig_lat > self.p["recheck_mm"] and depth < pl["length"] - 10.0:
-            self._stop_reason = "recheck"
-            self._relax(percept)
-            return self._scan_then(t, _INSERT)
-        if (
-            self._scans_allowed
-            and self._stop_reason == "depth"
-            and self.trust_cue.get(self.info.condition, False)
-            and depth >= pl["length"] - self.p["margin_mm"]
-            and self._sig_lat > self.p["finish_mm"]
-        ):
-            # going by feel for the depth, but the tip must be on line to meet the small tumour: check once
-            self._stop_reason = "recheck"
-            self._relax(percept)
-            return self._scan_then(t, _INSERT)
-        if self._realtime and math.dist(b, pl["tumour"]) <= 0.5 * self.p["accept_mm"]:
-            return self._stop(t, percept, "seen")
-        return ()
-
-    def _relax(self, percept: Mapping[str, Any]) -> None:
-        """Stop pushing: the wanted position becomes where it feels the tip is."""
-        self._move = None
-        self._ref = self._belief(percept)
-
-    def _stop(self, t: float, percept: Mapping[str, Any], reason: str) -> tuple[Request, ...]:
-        self._relax(percept)
-        self._button = 0.0
-        self._stop_reason = reason
-        self._phase = _HOLD
-        self._busy_until = t + 0.3
-        return ()
-
-    def _after_hold(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        if self._stop_reason == "cue":
-            trust = self.trust_cue.get(self.info.condition, False)
-            if trust and self._sig_lat <= self.p["finish_mm"]:
-                return self._begin_finish(t, percept, "cue")
-        if self._realtime:
-            return self._judge(t, percept)
-        return self._scan_then(t, _JUDGE)
-
-    def _judge(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        """Is the tip in the tumour? If not, correct towards it (advancing or withdrawing slowly)."""
-        pl = self._need_plan()
-        b = self._belief(percept)
-        tum = pl["tumour"]
-        miss = math.dist(b, tum)
-        if self._stop_reason == "cue" and miss <= 2.5 * self.p["accept_mm"]:
-            self.trust_cue[self.info.condition] = True
-        if miss <= self.p["accept_mm"]:
-            return self._begin_finish(t, percept, "in_tumour")
-        self._phase = _INSERT
-        self._button = 1.0
-        self._ref = b
-        self._cue_felt = False
-        # aim at the centroid, stop there (by belief) and look again
-        d = ((tum[0] - b[0]) / miss, (tum[1] - b[1]) / miss, (tum[2] - b[2]) / miss)
-        self._start_line(b, d, b, miss, self._v_fin)
-        self._stop_reason = "correct"
-        self._corrections += 1
-        return ()
-
-    def _begin_finish(self, t: float, percept: Mapping[str, Any], why: str) -> tuple[Request, ...]:
-        self._relax(percept)
-        self._button = 0.0
-        self._phase = _FINISH
-        self._busy_until = t + self.p["reaction_s"] + 0.3
-        self._trial["finish_reason"] = why
-        return ()
-
-    def _remember(self, t: float) -> None:
-        self._trial.update(duration_s=t, scans=self._scans, corrections=self._corrections)
-        self.history.append(dict(self._trial))
-
-    # ------------------------------------------------------------------ motor output
-    def _command(self, percept: Mapping[str, Any]) -> tuple[float, float, float]:
+    def _command(self, percept: Mapping[str, Any]) -> Vec:
         """Advance the reference, then turn the wanted (believed) tip into a hand set-point."""
-        p, tr = self.p, self.traits
-        mv = self._move
-        dt = self._dt
-        z = self._noise()
-        if mv is not None and self._button >= 0.5:
-            if mv["kind"] == "minjerk":
-                mv["elapsed"] = mv.get("elapsed", 0.0) + dt
-                s = min(1.0, mv["elapsed"] / mv["T"])
+        st, p = self._st, self.p
+        mv = st.move
+        dt = st.dt
+        z = st.noise()
+        if mv is not None and st.button >= 0.5:
+            if isinstance(mv, MinJerk):
+                mv.elapsed += dt
+                s = min(1.0, mv.elapsed / mv.T)
                 w = s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
-                a, b = mv["a"], mv["b"]
-                self._ref = (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * (b[2] - a[2]))
+                a, b = mv.a, mv.b
+                st.ref = (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * (b[2] - a[2]))
             else:
                 # constant speed with a slow fluctuation (signal-dependent motor noise)
                 k = dt / 0.5
-                self._speed_dev += -k * self._speed_dev + p["speed_noise"] * math.sqrt(2 * k) * z[6]
-                step = mv["v"] * max(0.2, 1.0 + self._speed_dev) * dt
-                r = self._ref
-                aim = mv["aim"]
+                st.speed_dev += -k * st.speed_dev + p.speed_noise * math.sqrt(2 * k) * z[6]
+                step = mv.v * max(0.2, 1.0 + st.speed_dev) * dt
+                r = st.ref
+                aim = mv.aim
                 if aim is not None:
                     d = (aim[0] - r[0], aim[1] - r[1], aim[2] - r[2])
                     n = _norm(d)
                     if n > 2.0:  # close to the aim point the direction is kept
-                        mv["dir"] = (d[0] / n, d[1] / n, d[2] / n)
-                u = mv["dir"]
-                self._ref = (r[0] + step * u[0], r[1] + step * u[1], r[2] + step * u[2])
-                mv["ref_s"] += step
+                        mv.dir = (d[0] / n, d[1] / n, d[2] / n)
+                u = mv.dir
+                st.ref = (r[0] + step * u[0], r[1] + step * u[1], r[2] + step * u[2])
+                mv.ref_s += step
         # lateral wobble (Ornstein–Uhlenbeck), stronger with a noisier hand
-        k = dt / p["motor_tau_s"]
-        sd = p["motor_noise_mm"] * tr["noise"] * math.sqrt(2 * k)  # type: ignore[index]
-        wb = self._wobble
+        k = dt / p.motor_tau_s
+        sd = p.motor_noise_mm * self._tr.noise * math.sqrt(2 * k)
+        wb = st.wobble
         for i in range(3):
             wb[i] += -k * wb[i] + sd * z[i]
         # wanted believed tip → set-point: undo the (unknown to it) position-sense error and correction
-        r, b, c = self._ref, self._beta, self._corr
+        r, b, c = st.ref, st.sense.beta, st.sense.corr
         cmd = (r[0] - c[0] - b[0] + wb[0], r[1] - c[1] - b[1] + wb[1], r[2] - c[2] - b[2] + wb[2])
-        self._last_cmd = cmd
+        st.last_cmd = cmd
         return cmd
 
     # ------------------------------------------------------------------ questionnaires
     def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:
-        """A Likert code judged from the completed trials of the session (faster, fewer scans, fewer timeouts).
+        """A Likert code judged from the session's completed trials (:func:`~.needle_questionnaire.judge_item`).
 
-        The trials are the engine's stored record (``item["history"]``: condition, its view, duration, scans,
-        how each ended, in plan order), so an interrupted and resumed session answers as an uninterrupted one;
-        its own memory (:attr:`history`) serves only when the item carries no record (a bare trial loop).
+        The trials are the engine's stored record (``item["history"]``), so an interrupted and resumed session
+        answers as an uninterrupted one; its own memory (:attr:`history`) serves only when the item carries no
+        record (a bare trial loop).
         """
-        codes = list(item.get("codes") or [1, 2, 3, 4, 5])
-        lo, hi = min(codes), max(codes)
-        mid = (lo + hi) / 2.0
-        half = (hi - lo) / 2.0
         record = item.get("history")
-        rows = [dict(r) for r in (record if record is not None else self.history)]
-        cond = item.get("condition")
-        key = f"{item.get('id', '')} {item.get('text', '')}".lower()
-        mine = [r for r in rows if r.get("condition") == cond] if cond else []
-        first = rows[0].get("condition") if rows else None
-        base = [r for r in rows if r.get("condition") == first]
-
-        def mean(sel: list[dict[str, Any]], k: str) -> float:
-            vals = [float(r[k]) for r in sel if r.get(k) is not None]
-            return sum(vals) / len(vals) if vals else math.nan
-
-        def faster(sel: list[dict[str, Any]]) -> float:
-            d0, d1 = mean(base, "duration_s"), mean(sel, "duration_s")
-            return (d0 - d1) / d0 if sel and base and d0 > 0 else 0.0
-
-        def fewer_scans(sel: list[dict[str, Any]]) -> float:
-            s0, s1 = mean(base, "scans"), mean(sel, "scans")
-            return (s0 - s1) / s0 if sel and base and s0 > 0 else 0.0
-
-        def gain(sel: list[dict[str, Any]]) -> float:
-            """Relative improvement over the first scenario (time counts twice as much as scans)."""
-            if not sel or not base:
-                return 0.0
-            if mean(base, "scans") > 0:
-                return (2 * faster(sel) + fewer_scans(sel)) / 3
-            return faster(sel)
-
-        def timeouts(sel: list[dict[str, Any]]) -> float:
-            """Share of trials stopped by the time limit (the target not reached in time)."""
-            late = sum(1 for r in sel if r.get("timed_out") or r.get("ended_by") == "time_limit")
-            return late / len(sel) if sel else 0.0
-
-        # the scenarios with enhanced haptics: after the first (baseline) one, without the real-time image
-        haptic = [r for r in rows if r.get("visual") != "realtime" and r.get("condition") != first]
-        if "baseline" in key or "improv" in key:
-            score = mid + half * math.tanh(3.0 * gain(mine))
-        elif "navigat" in key or "easy" in key and "haptic" not in key:
-            score = mid + half * math.tanh(3.0 * faster(mine) - 1.5 * timeouts(mine))
-        elif "confiden" in key:
-            score = mid + half * math.tanh(1.5 * gain(mine) + 1.5 * fewer_scans(mine) - 1.5 * timeouts(mine))
-        elif "equal" in key:
-            rt = [r for r in rows if r.get("visual") == "realtime"]
-            score = hi - 4 * half * abs(gain(rt) - gain(haptic)) if rt and haptic else mid
-        elif "haptic" in key or "easier" in key:
-            score = mid + half * math.tanh(3.0 * gain(haptic))
-        elif "learn" in key:
-            half_n = len(rows) // 2
-            early, late = rows[:half_n], rows[half_n:]
-            d0, d1 = mean(early, "duration_s"), mean(late, "duration_s")
-            score = mid + half * (math.tanh(3.0 * (d0 - d1) / d0) if early and late and d0 > 0 else 0.0)
-        else:
-            score = mid
-        score += float(rng.normal(0.0, 0.6))
-        return int(min(hi, max(lo, round(score))))
+        return judge_item(item, record if record is not None else self.history, rng)

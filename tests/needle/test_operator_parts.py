@@ -1,0 +1,59 @@
+"""The needle operator's parts on their own: its parameter record, its phases and its perception."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+
+import numpy as np
+import pytest
+
+from studyctl.errors import ModelParameterError
+from studyctl.participants import needle_operator as op_mod
+from studyctl.participants.needle_operator import PARAMS, OperatorParams, Phase, VirtualNeedleOperator
+from studyctl.participants.needle_perception import AxialCueDetector, PositionSense, feel_force
+
+
+def test_params_record_holds_every_declared_param():
+    assert [f.name for f in dataclasses.fields(OperatorParams)] == [p.name for p in PARAMS]
+    p = OperatorParams.from_mapping({"insert_speed_mm_s": 7})
+    assert p.insert_speed_mm_s == 7.0 and dataclasses.is_dataclass(p)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        p.insert_speed_mm_s = 1.0  # type: ignore[misc]
+    with pytest.raises(ModelParameterError, match="insert_speed_mm_s"):
+        VirtualNeedleOperator({"insert_speed_mm_s": 0.0})
+
+
+def test_every_phase_has_its_handler():
+    src = inspect.getsource(VirtualNeedleOperator._step)
+    for phase in Phase:
+        assert f"case Phase.{phase.name}:" in src
+    assert "type: ignore" not in inspect.getsource(op_mod)
+
+
+def test_position_sense_drifts_with_movement_and_an_image_resets_it():
+    s = PositionSense(3.0)
+    s.drift(0.0, 0.2, [1.0, 1.0, 1.0])
+    assert s.beta == [0.0, 0.0, 0.0] and s.sig_lat == 3.0  # no movement, no drift
+    s.drift(4.0, 0.2, [1.0, -1.0, 0.5])
+    assert s.beta == pytest.approx([0.4, -0.4, 0.2]) and s.sig_lat == pytest.approx((9 + 0.16) ** 0.5)
+    felt = s.felt({"x_mm": 1.0, "y_mm": 2.0, "z_mm": 3.0}, (0.0, 0.0, 0.0))
+    assert felt == pytest.approx((1.4, 1.6, 3.2))
+    s.see_tip((1.0, 2.0, 3.0), felt, 0.3)
+    assert s.belief({"x_mm": 1.0, "y_mm": 2.0, "z_mm": 3.0}, (0, 0, 0)) == pytest.approx((1.0, 2.0, 3.0))
+    assert s.sig_lat == s.sig_ax == 0.3
+
+
+def test_force_split_and_axial_cue():
+    f = feel_force({"fx_n": 0.0, "fy_n": 0.3, "fz_n": 0.5}, (0.0, 0.0, -1.0), 0.0, np.zeros(8))
+    assert f is not None and f.axial == pytest.approx(0.5) and f.radial_n == pytest.approx(0.3)
+    assert feel_force({}, (0.0, 0.0, -1.0), 0.0, np.zeros(8)) is None
+    det = AxialCueDetector()
+    dt = 0.01
+    for k in range(100):  # liver on the way in: ~0.3 N
+        assert not det.update(0.3, depth=k * 0.1, half_length=20.0, moving_s=1.0, dt=dt, threshold_n=0.1, weber=0.1)
+    assert det.baseline == pytest.approx(0.3)
+    felt = [det.update(0.3 + 0.05, 30.0, 20.0, 1.0, dt, 0.1, 0.1) for _ in range(20)]
+    assert not any(felt)  # a rise below threshold
+    felt = [det.update(0.6, 30.0, 20.0, 1.0, dt, 0.1, 0.1) for _ in range(20)]
+    assert felt.count(True) == 1 and det.felt  # noticed once, after the hold time
