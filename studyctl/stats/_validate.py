@@ -91,8 +91,9 @@ def check_confidence(confidence: float) -> float:
 
 
 def check_count(value: Any, name: str) -> int:
-    """A non-negative integer count (floats with an integral value are accepted)."""
-    if isinstance(value, bool):
+    """A non-negative integer count (numbers with an integral value, e.g. a float64 sum, are accepted; text,
+    booleans and fractions are not)."""
+    if isinstance(value, (bool, np.bool_, str, bytes)):
         raise StatsInputError(f"{name} must be a non-negative integer, got {value!r}")
     try:
         f = float(value)

@@ -11,8 +11,11 @@ distribution of s = sqrt(χ²_ν/ν). Both integrals use two Gauss-Legendre pane
 of a log-concave bound of the integrand (found by Newton's method); the bound's curvature gives
 windows that provably hold everything within e^-48 of the peak. Everything is summed in log space,
 so tails far below 1e-300 keep their relative accuracy until they underflow. log P(R > w) is
-tabulated once per k on 0 ≤ w ≤ 60 (step 0.015, 2×64 nodes each) and read through a quintic
-spline, which keeps a Tukey call in the millisecond range. k = 2 uses the exact identity
+tabulated per k on 0 ≤ w ≤ 60 (step 0.015, 2×64 nodes each) and read through a quintic
+spline, which keeps a Tukey call in the millisecond range. Building one table costs ~0.3 s, which
+was the whole of a report's first Tukey call, so the spline coefficients for k = 3…_K_SHIPPED ship
+in the wheel (``studentized_range_tables.npz``, written by ``python -m
+studyctl.stats.studentized_range_tables``); other k are built on first use. k = 2 uses the exact identity
 P(Q > q) = 2·P(t_ν > q/√2).
 """
 
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 from scipy import interpolate, optimize, special
@@ -38,6 +42,7 @@ _XZ, _WZ = np.polynomial.legendre.leggauss(_NZ)
 _XS, _WS = np.polynomial.legendre.leggauss(_NS)
 _LOG_WZ = np.log(_WZ)
 _LOG_WS = np.log(_WS)
+TABLE_FILE = "studentized_range_tables.npz"
 
 
 def _check(k: int, df: float) -> tuple[int, float]:
@@ -78,10 +83,41 @@ def _panels(peak: np.ndarray, left: np.ndarray, right: np.ndarray, x: np.ndarray
     return nodes, logjac
 
 
+_SPLINE_DEGREE = 5
+
+
+def range_grid() -> np.ndarray:
+    """The w grid on which log P(R > w) is tabulated."""
+    return np.linspace(0.0, _W_MAX, int(round(_W_MAX / _W_STEP)) + 1)
+
+
+def build_range_table(k: int) -> interpolate.BSpline:
+    """Quintic spline through log P(R > w) on :func:`range_grid` (by quadrature; ~0.3 s)."""
+    grid = range_grid()
+    return interpolate.make_interp_spline(grid, _log_range_sf_direct(grid, k), k=_SPLINE_DEGREE)
+
+
 @lru_cache(maxsize=64)
 def _range_table(k: int) -> interpolate.BSpline:
-    grid = np.linspace(0.0, _W_MAX, int(round(_W_MAX / _W_STEP)) + 1)
-    return interpolate.make_interp_spline(grid, _log_range_sf_direct(grid, k), k=5)
+    shipped = _shipped_coefficients(k)
+    if shipped is not None:
+        # construct_fast: the knots were validated when the table was written
+        return interpolate.BSpline.construct_fast(*shipped, _SPLINE_DEGREE)
+    return build_range_table(k)
+
+
+def _shipped_coefficients(k: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(knots, coefficients) of k's spline shipped beside this module, or None when absent, written for
+    another grid or not covering k (then the table is built on first use)."""
+    path = Path(__file__).with_name(TABLE_FILE)
+    if not path.is_file():
+        return None
+    with np.load(path) as data:
+        if f"k{k}" not in data.files:
+            return None
+        if not np.array_equal(data["grid_spec"], np.array([_W_MAX, _W_STEP, _SPLINE_DEGREE, _NZ], dtype=float)):
+            return None
+        return data["knots"], data[f"k{k}"]
 
 
 def log_range_sf(w: np.ndarray, k: int) -> np.ndarray:
@@ -136,7 +172,8 @@ def _log_range_sf_direct(w: np.ndarray, k: int) -> np.ndarray:
 def _log_sf(q: np.ndarray, k: int, df: float) -> np.ndarray:
     q = np.asarray(q, dtype=np.float64)
     out = np.zeros(q.shape)  # log 1 for q ≤ 0
-    pos = q > 0
+    out[np.isposinf(q)] = -np.inf  # P(Q > ∞) = 0; the quadrature's Newton step would give NaN
+    pos = (q > 0) & np.isfinite(q)
     if not np.any(pos):
         return out
     qp = q[pos]
@@ -218,9 +255,17 @@ def studentized_range_sf(q: float | np.ndarray, k: int, df: float) -> float | np
     0.0771033
     """
     k, df = _check(k, df)
-    arr = np.asarray(q, dtype=np.float64)
+    try:
+        arr = np.asarray(q, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise StatsInputError(f"q must be a number or an array of numbers, got {q!r}") from None
+    if np.isnan(arr).any():
+        raise StatsInputError("q contains NaN; the studentized range survival function needs numbers (q = inf gives 0)")
     res = np.exp(_log_sf(arr.reshape(-1), k, df)).reshape(arr.shape)
     return float(res) if res.ndim == 0 else res
+
+
+_PPF_GRID = np.arange(1, 25) * 0.5  # first bracket of the quantile, evaluated in one vectorised call
 
 
 @lru_cache(maxsize=256)
@@ -230,11 +275,39 @@ def _ppf_cached(p: float, k: int, df: float) -> float:
     def f(q: float) -> float:
         return float(_log_sf(np.array([q]), k, df)[0]) - target
 
-    lo, hi = 0.0, 2.0
-    while f(hi) > 0:
-        lo, hi = hi, hi * 2.0
-        if hi > 1e6:
-            raise StatsInputError(f"studentized range quantile not found for p={p}, k={k}, df={df}")
+    # Each scalar evaluation costs a Newton solve and two quadratures, and a report's first Tukey call
+    # used to spend most of its time here; so the bracket comes from vectorised calls (a coarse grid,
+    # then two narrow pairs around the secant guess) and brentq only polishes the last digits.
+    vals = _log_sf(_PPF_GRID, k, df) - target
+    below = np.flatnonzero(vals <= 0)
+    if below.size == 0:
+        lo, hi = float(_PPF_GRID[-1]), float(_PPF_GRID[-1]) * 2.0
+        while f(hi) > 0:
+            lo, hi = hi, hi * 2.0
+            if hi > 1e6:
+                raise StatsInputError(f"studentized range quantile not found for p={p}, k={k}, df={df}")
+        return float(optimize.brentq(f, lo, hi, xtol=1e-13, rtol=4e-15))
+    j = int(below[0])
+    if j == 0:
+        return float(optimize.brentq(f, 0.0, float(_PPF_GRID[0]), xtol=1e-13, rtol=4e-15))
+    lo, hi, f_lo, f_hi = float(_PPF_GRID[j - 1]), float(_PPF_GRID[j]), float(vals[j - 1]), float(vals[j])
+    if f_lo > f_hi:  # narrow to ±0.02 around the secant guess
+        guess = lo + (hi - lo) * f_lo / (f_lo - f_hi)
+        pair = np.clip(np.array([guess - 0.02, guess + 0.02]), lo, hi)
+        f_pair = _log_sf(pair, k, df) - target
+        if f_pair[0] > 0:
+            lo = float(pair[0])
+        if f_pair[1] <= 0:
+            hi = float(pair[1])
+    # On a bracket this narrow, log P(Q > q) is smooth enough that inverse interpolation through 7 nodes is
+    # exact to rounding; the nodes must still bracket the root monotonically, else brentq decides.
+    # (When the secant guess missed by more than 0.02 the bracket is still wide: brentq from there.)
+    nodes = np.linspace(lo, hi, 7)
+    f_nodes = _log_sf(nodes, k, df) - target
+    if hi - lo <= 0.05 and np.all(np.diff(f_nodes) < 0) and f_nodes[0] > 0 >= f_nodes[-1]:
+        root = float(interpolate.BarycentricInterpolator(f_nodes, nodes)(0.0))
+        if lo <= root <= hi:
+            return root
     return float(optimize.brentq(f, lo, hi, xtol=1e-13, rtol=4e-15))
 
 
