@@ -4,7 +4,7 @@ They stay at the top of the repository, where coordinators and reviewers look fo
 mapped to ``studyctl._resources.*`` so an installed studyctl finds them without the source tree.
 """
 
-from setuptools import find_packages, setup
+from setuptools import find_namespace_packages, find_packages, setup
 
 RESOURCE_DIRS = {"protocols": "protocols", "analysis": "analysis", "migrations": "migrations"}
 
@@ -20,6 +20,7 @@ def resource_packages() -> dict[str, str]:
 
 mapped = resource_packages()
 setup(
-    packages=find_packages(include=["studyctl", "studyctl.*"]) + list(mapped),
+    # namespace packages too: data-only folders (studyctl/view/static, …) have no __init__.py
+    packages=find_namespace_packages(include=["studyctl", "studyctl.*"], exclude=["*.__pycache__"]) + list(mapped),
     package_dir={"": ".", **mapped},
 )
