@@ -75,6 +75,10 @@ class ModelParameterError(StudyctlError, ValueError):
     """A model or controller parameter is out of its allowed range."""
 
 
+class PopulationError(StudyctlError, ValueError):
+    """A population or targets file is invalid, or does not fit the protocol it is used with."""
+
+
 class StatsInputError(StudyctlError, ValueError):
     """Input to a statistical function is invalid (empty sample, bad confidence, successes > n …)."""
 
@@ -91,6 +95,7 @@ __all__ = [
     "ModelParameterError",
     "NotFoundError",
     "PluginError",
+    "PopulationError",
     "ProtocolError",
     "SafetyFault",
     "SchemaVersionError",

@@ -140,13 +140,20 @@ def register_sim(app: typer.Typer) -> None:
             help="Run rate-adjustable feedback loops (the 1 kHz tissue controllers) at most this fast: faster "
             "simulation, outcomes as measured by `studyctl bench simrate` (default: the protocol's rates).",
         ),
+        population: Path = typer.Option(
+            None, "--population", help="Population file the virtual people are drawn from (default: the "
+            "protocol's shipped population, studyctl/populations/<protocol>.yaml, when there is one)."),
     ) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from studyctl.workflows.simulate import check_simulation, simulate_study
+        from studyctl.populations import describe_choice
+        from studyctl.protocol import load_protocol
+        from studyctl.workflows.simulate import check_simulation, cohort_population, simulate_study
 
-        check_simulation(protocol, participants, sim_rate_hz)
+        proto = load_protocol(check_simulation(protocol, participants, sim_rate_hz))
+        pop = cohort_population(proto, population if population is not None else "shipped")
+        typer.echo(describe_choice(pop, proto.study.id, population is not None), err=True)
         folder = out or Path(f"{Path(protocol).stem}-sim")
         with Progress(
             TextColumn("{task.description}"),
@@ -166,6 +173,7 @@ def register_sim(app: typer.Typer) -> None:
                 durable=durable,
                 sim_rate_hz=sim_rate_hz,
                 on_progress=lambda i, n, code: progress.update(task, completed=i, code=code),
+                population=pop,
             )
         typer.echo(
             f"Simulated {result.participants} participants of {result.study!r} in {result.seconds:.1f} s: "
@@ -255,6 +263,8 @@ def register_sim(app: typer.Typer) -> None:
                 )
             console.print(table)
             for r in result.studies:
+                if r.population:
+                    console.print(f"  {r.study}: {r.population}", markup=False)
                 for line in r.headline:
                     console.print(f"  {r.study}: {line}", markup=False)
                 if r.error:

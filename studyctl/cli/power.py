@@ -8,8 +8,20 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-_POP_HELP = ("YAML file with a population: section (baseline, condition_effects, group_effects, between_sd): "
-             "additive shifts of the virtual participant's parameters that state the simulated effect.")
+_POP_HELP = ("A population file (format: studyctl-population/1) the virtual people are drawn from (default: the "
+             "protocol's shipped, calibrated population), or a YAML file with a population: section (baseline, "
+             "condition_effects, group_effects, between_sd): additive shifts on top that state the simulated effect.")
+
+
+def _is_trait_file(file: Path | None) -> bool:
+    """Whether ``file`` is a studyctl-population/1 file (else: the knob file of earlier versions)."""
+    if file is None or not file.is_file():
+        return False
+    from studyctl.populations.model import FORMAT
+
+    head = file.read_text(encoding="utf-8", errors="replace")
+    return any(line.split("#")[0].strip().replace('"', "").replace("'", "") == f"format: {FORMAT}"
+               for line in head.splitlines())
 
 
 def _population(file: Path | None, effects: list[str], group_effects: list[str], spreads: list[str],
@@ -115,9 +127,14 @@ def register(app: typer.Typer) -> None:
 
         console = Console(highlight=False)
         err = Console(stderr=True, highlight=False)
-        pop = _population(population, effect, group_effect, between_sd, baseline)
+        from studyctl.populations import describe_choice
+
+        trait_file = _is_trait_file(population)
+        pop = _population(None if trait_file else population, effect, group_effect, between_sd, baseline)
         spec = prepare_power(protocol, plan, sizes=participants, replicates=replicates, seed=seed,
-                             population=pop, memory_limit=memory_limit)
+                             population=pop, memory_limit=memory_limit,
+                             traits=population if trait_file else "shipped")
+        console.print(describe_choice(spec.traits, spec.study_id, trait_file), markup=False)
         sizes = ", ".join(map(str, spec.sizes))
         console.print(f"power: {spec.study_id}, plan {spec.plan.title!r}; participants {sizes}; "
                       f"{spec.replicates} replicates each; seed {spec.seed}", markup=False)

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import os
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from sqlalchemy import select
 
@@ -26,11 +27,11 @@ from studyctl.engine.factory import EntryPointFactory, PluginFactory, build_part
 from studyctl.engine.plan import SessionPlan, Step
 from studyctl.engine.planning import plan_for_participant
 from studyctl.engine.preflight import preflight
-from studyctl.engine.seeding import answer_rng, session_seed
+from studyctl.engine.seeding import answer_rng, population_rng, session_seed
 from studyctl.engine.session import SessionResult, SessionRunner, condition_rate
 from studyctl.engine.store_recorder import StoreRecorder
 from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
-from studyctl.errors import NotFoundError, SessionError, UsageError
+from studyctl.errors import NotFoundError, PopulationError, SessionError, UsageError
 from studyctl.plugins.interfaces import Participant
 from studyctl.protocol.schedule import Schedule
 from studyctl.store import StudyStore
@@ -63,6 +64,7 @@ def _prepare(
     clock: Clock | None,
     script: Script | None,
     log: Callable[[str], None] | None,
+    person_params: Mapping[str, Any] | None = None,
 ) -> _Setup:
     """Preflight, then the participant, prompts and clock: all before anything is written."""
     report = preflight(plan, factory, virtual=virtual,
@@ -75,7 +77,8 @@ def _prepare(
             if not ref:
                 raise SessionError(f"the protocol of study {plan.study!r} names no virtual participant "
                                    "(participants.virtual); run it with a person instead of --virtual")
-            participant = build_participant(factory, ref["plugin"], ref.get("params", {}))
+            # a population's person (fixed params and drawn traits) over the protocol's params
+            participant = build_participant(factory, ref["plugin"], {**ref.get("params", {}), **(person_params or {})})
         clock = clock or SimulatedClock()
         if ui is None:
             ui = VirtualUI(participant, lambda pos, n: answer_rng(seed, pos, n), clock=clock, log=log)
@@ -118,6 +121,7 @@ def _launch(
     speed: float | None,
     log: Callable[[str], None] | None,
     frontend: Frontend | None,
+    person_params: Mapping[str, Any] | None = None,
 ) -> SessionResult:
     """Prepare everything, then ``begin()`` the stored session (create or reopen it) and run it.
 
@@ -128,7 +132,7 @@ def _launch(
         script = Script.load(script)
     factory = factory or EntryPointFactory()
     setup = _prepare(plan, seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
-                     clock=clock or _paced(speed), script=script, log=log)
+                     clock=clock or _paced(speed), script=script, log=log, person_params=person_params)
     try:
         rec = begin()
         if frontend is not None:
@@ -158,6 +162,8 @@ def run_session(
     log: Callable[[str], None] | None = None,
     frontend: Frontend | None = None,
     sim_rate_hz: float | None = None,
+    population: Any | None = None,
+    traits: Mapping[str, float] | None = None,
 ) -> SessionResult:
     """Run an enrolled participant's whole session, from instructions to the end-of-study questionnaire.
 
@@ -198,6 +204,13 @@ def run_session(
         tissue controllers). The simulated device still integrates its physics at its own rate; what this
         changes in the outcomes is measured by ``studyctl bench simrate``. The rates go into the stored plan
         (a resume keeps them) and every trial records the rate it ran at. None: the protocol's rates.
+    population
+        Virtual sessions only: a :class:`~studyctl.populations.TraitPopulation` for the protocol's participant
+        kind. The person's traits are drawn from the session seed's population stream
+        (:func:`~studyctl.engine.seeding.population_rng`, stratum-aware) unless ``traits`` gives them, and
+        reach the participant as constructor params (fixed ones, then traits, over the protocol's params).
+        The population's name, version, sha256 and the person's traits are stored as a ``population`` event in
+        the transaction that starts the session; a resume rebuilds the same person from it.
 
     Returns
     -------
@@ -241,10 +254,24 @@ def run_session(
                                "session runs at the protocol's rates")
         plan = plan.with_condition_rates(simulation_rates(plan, factory or EntryPointFactory(), sim_rate_hz))
     seed = session_seed(int(target.seed), participant_code) if seed is None else int(seed)
+    record = person_params = None
+    if population is not None:
+        if not virtual:
+            raise SessionError("a population describes virtual participants; a person's session takes none")
+        plugin = (plan.virtual_participant or {}).get("plugin")
+        if plugin != population.participant:
+            raise PopulationError(f"population {population.path or population.name} is for participant "
+                                  f"{population.participant!r}, but study {target.name!r} simulates {plugin!r}; "
+                                  f"give a population written for {plugin}")
+        if traits is None:
+            traits = population.draw(population_rng(seed), person.stratum)
+        record = population.record(traits, person.stratum)
+        person_params = population.params(traits)
     return _launch(plan, seed, virtual,
-                   lambda: StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site),
+                   lambda: StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site,
+                                                population=record),
                    participant=participant, ui=ui, clock=clock, script=script, factory=factory, progress=progress,
-                   speed=speed, log=log, frontend=frontend)
+                   speed=speed, log=log, frontend=frontend, person_params=person_params)
 
 
 def check_sim_rate(sim_rate_hz: float) -> float:
@@ -336,8 +363,19 @@ def resume_session(
         rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=state.last_t)
         return rec
 
+    stored = stored_population(store, session_id) if state.virtual else None
+    person_params = {**stored.get("fixed", {}), **stored.get("traits", {})} if stored else None
     return _launch(state.plan, state.seed, state.virtual, begin, participant=participant, ui=ui, clock=clock,
-                   script=script, factory=factory, progress=progress, speed=speed, log=log, frontend=frontend)
+                   script=script, factory=factory, progress=progress, speed=speed, log=log, frontend=frontend,
+                   person_params=person_params)
+
+
+def stored_population(store: StudyStore, session_id: int) -> dict[str, Any] | None:
+    """The ``population`` event of a session (which population, this person's traits), or None."""
+    with store.reading() as s:
+        payload = s.scalar(select(Event.payload).where(Event.session_id == session_id, Event.kind == "population")
+                           .order_by(Event.seq).limit(1))
+    return dict(payload) if payload else None
 
 
 def _paced(speed: float | None) -> Clock | None:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 # Purpose tags keep the streams of one step independent of each other.
-_SCENE, _PARTICIPANT, _DEVICE, _ANSWER, _REPLACEMENT, _PERSON = 1, 2, 3, 4, 5, 6
+_SCENE, _PARTICIPANT, _DEVICE, _ANSWER, _REPLACEMENT, _PERSON, _POPULATION = 1, 2, 3, 4, 5, 6, 7
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,13 @@ def person_rng(seed: int) -> np.random.Generator:
     """Generator for what a virtual participant draws once per session (its traits), handed to it at the start
     of every run of the session, so a resumed session's participant is the same person."""
     return _rng(seed, 0, _PERSON)
+
+
+def population_rng(seed: int) -> np.random.Generator:
+    """Generator for a virtual person's between-subject traits drawn from a population file
+    (:meth:`studyctl.populations.TraitPopulation.draw`): one stream per session seed, so the same seeds give
+    the same people whatever population values a calibration tries (common random numbers)."""
+    return _rng(seed, 0, _POPULATION)
 
 
 def answer_rng(seed: int, position: int, item_number: int) -> np.random.Generator:

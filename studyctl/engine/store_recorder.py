@@ -165,8 +165,12 @@ class StoreRecorder:
         seed: int,
         virtual: bool,
         site: str | None = None,
+        population: Mapping[str, Any] | None = None,
     ) -> StoreRecorder:
-        """Start a new session: the session row, its plan and one planned row per trial, in one transaction."""
+        """Start a new session: the session row, its plan and one planned row per trial, in one transaction.
+
+        ``population`` (a virtual person's population record: name, version, sha256, traits) is stored as a
+        ``population`` event in the same transaction."""
         with store.in_transaction() as tx:
             participant = tx.get(Participant, participant_id)
             if participant is None:
@@ -175,6 +179,8 @@ class StoreRecorder:
             sess = store.start_session(participant_id, seed=seed, site=site, tx=tx)
             store.append_event(sess.id, "session_plan", {"plan": plan.to_json(), "virtual": bool(virtual)},
                                t_mono=0.0, tx=tx)
+            if population is not None:
+                store.append_event(sess.id, "population", dict(population), t_mono=0.0, tx=tx)
             trials: list[TrialRecord] = []
             for step in plan.trials():
                 row = _add_trial_row(store, tx, sess.id, step, "planned", 1)

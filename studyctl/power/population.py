@@ -238,10 +238,12 @@ class PopulationModel:
     conditions: tuple[str, ...]
     strata: tuple[str, ...]
 
-    def base(self) -> dict[str, float]:
-        """Every shiftable parameter's base value (default < protocol params < baseline)."""
+    def base(self, person: Mapping[str, Any] | None = None) -> dict[str, float]:
+        """Every shiftable parameter's base value (default < protocol params < the person's drawn traits and
+        fixed params from a population file < baseline)."""
         out = {name: r.default for name, r in self.space.items()}
         out.update({k: float(v) for k, v in self.protocol_params.items() if k in self.space})
+        out.update({k: float(v) for k, v in (person or {}).items() if k in self.space})
         out.update(self.population.baseline)
         return out
 
@@ -249,9 +251,10 @@ class PopulationModel:
         """One participant's own offsets ``u_i`` (parameters in sorted order: the draw order is fixed)."""
         return {p: float(rng.normal(0.0, sd)) for p, sd in sorted(self.population.between_sd.items()) if sd > 0}
 
-    def values(self, stratum: str, condition: str, offsets: Mapping[str, float]) -> tuple[dict[str, float], int]:
+    def values(self, stratum: str, condition: str, offsets: Mapping[str, float],
+               person: Mapping[str, Any] | None = None) -> tuple[dict[str, float], int]:
         """The knob-set parameters of one participant in one condition, and how many were clipped."""
-        base = self.base()
+        base = self.base(person)
         shifted = {p: base[p] for p in self.population.parameters()}
         for shifts in (
             self.population.group_effects.get(stratum, {}),
@@ -268,14 +271,18 @@ class PopulationModel:
             shifted[p] = c
         return shifted, clipped
 
-    def actor(self, stratum: str, offsets: Mapping[str, float]) -> tuple[Participant, int]:
-        """The virtual participant for a participant of ``stratum`` with its offsets, and the clip count."""
+    def actor(self, stratum: str, offsets: Mapping[str, float], person: Mapping[str, Any] | None = None
+              ) -> tuple[Participant, int]:
+        """The virtual participant for a participant of ``stratum`` with its offsets, and the clip count.
+
+        ``person``: the constructor params a population file drew for this person (its traits and fixed
+        params); the knobs shift on top of them."""
         by_condition: dict[str, dict[str, Any]] = {}
         clipped = 0
         for c in self.conditions:
-            vals, n = self.values(stratum, c, offsets)
+            vals, n = self.values(stratum, c, offsets, person)
             clipped += n
-            by_condition[c] = {**self.protocol_params, **vals}
+            by_condition[c] = {**self.protocol_params, **(person or {}), **vals}
         return PopulationParticipant(self.plugin_cls, by_condition), clipped
 
     def to_frame(self) -> pd.DataFrame:

@@ -151,6 +151,7 @@ def simulate_replicate(
     from studyctl.analysis import compute_metrics, run_plan
     from studyctl.engine.api import run_session
     from studyctl.engine.factory import EntryPointFactory
+    from studyctl.engine.seeding import population_rng
     from studyctl.power.population import population_model
     from studyctl.protocol import allocate_strata, load_protocol_text
     from studyctl.store import StudyStore
@@ -178,11 +179,16 @@ def simulate_replicate(
         )
         for i, (stratum, _slot) in enumerate(pairs):
             enrolled = enroll(store, stratum if several else None, study=study.name, code=participant_code(prefix, i))
-            actor, n_clipped = model.actor(enrolled.stratum, model.draw_offsets(offsets_rng))
+            traits = None
+            if spec.traits is not None:  # this person's traits, then the knobs' shifts on top
+                traits = spec.traits.draw(population_rng(seeds.session_seeds[i]), enrolled.stratum)
+            actor, n_clipped = model.actor(enrolled.stratum, model.draw_offsets(offsets_rng),
+                                           None if traits is None else spec.traits.params(traits))
             clipped += n_clipped
             try:
                 result = run_session(store, enrolled.code, study=study.name, virtual=True,
-                                     seed=seeds.session_seeds[i], participant=actor, factory=factory)
+                                     seed=seeds.session_seeds[i], participant=actor, factory=factory,
+                                     population=spec.traits, traits=traits)
             except SessionInterrupted:
                 # Ctrl-C inside a session: the engine made it resumable, but this study lives in memory and is
                 # dropped; the replicate simply did not finish (a rerun of the power command redoes it).

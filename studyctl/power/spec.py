@@ -46,6 +46,9 @@ class PowerSpec:
     replicates: int
     sequences: int | None
     memory_limit: int | None = None
+    #: The virtual people's between-subject traits (a studyctl.populations.TraitPopulation; the knobs above shift
+    #: on top of each person's drawn traits). None: every person starts from the participant's defaults.
+    traits: Any = None
 
     def fingerprint(self) -> dict[str, Any]:
         """What every replicate's result depends on (a results file from other settings cannot be reused)."""
@@ -54,6 +57,7 @@ class PowerSpec:
             "protocol_sha256": self.protocol_sha256,
             "plan_sha256": self.plan_sha256,
             "population": self.population.to_dict(),
+            "traits_sha256": None if self.traits is None else self.traits.sha256,
             "seed": self.seed,
         }
 
@@ -186,6 +190,7 @@ def prepare_power(
     seed: int | None = None,
     population: Population | None = None,
     memory_limit: str | int | None = None,
+    traits: Any = "shipped",
 ) -> PowerSpec:
     """Check every input of a power analysis and return the spec the replicates run from.
 
@@ -206,6 +211,9 @@ def prepare_power(
         The population knobs (default: none, the virtual participant as the protocol configures it).
     memory_limit
         Cap on each worker's memory (``"2GiB"``; None/0: none).
+    traits
+        The population the virtual people are drawn from: ``"shipped"`` (default: the protocol's shipped,
+        calibrated population when there is one), a population file, a ``TraitPopulation``, or None.
 
     Raises
     ------
@@ -237,6 +245,9 @@ def prepare_power(
     )
     population = population or Population()
     population_model(population, proto)
+    from studyctl.populations import population_for
+
+    traits = population_for(proto, traits)
     _preflight(proto)
     return PowerSpec(
         protocol_name=Path(path).stem,
@@ -251,4 +262,5 @@ def prepare_power(
         replicates=int(replicates),
         sequences=nseq,
         memory_limit=parse_memory(memory_limit),
+        traits=traits,
     )

@@ -69,6 +69,7 @@ class StudyRun:
     problems: tuple[str, ...] = ()
     error: str = ""
     headline: tuple[str, ...] = ()
+    population: str = ""  # which population the virtual people came from (describe_choice line)
 
     COLUMNS = (
         "study",
@@ -86,6 +87,7 @@ class StudyRun:
         "partial",
         "report",
         "error",
+        "population",
     )
 
     @property
@@ -341,6 +343,10 @@ def run_demo(
     for name, _n in studies:
         info = runs[name]
         info.setdefault("total_s", time.perf_counter() - started[name])
+        if name in cohorts:
+            from studyctl.populations import describe_choice
+
+            info["population"] = describe_choice(cohorts[name].population, name, False)
         ordered.append(
             StudyRun(
                 simulate_s=sim_s.get(name, 0.0), **{k: v for k, v in info.items() if k in StudyRun.__dataclass_fields__}

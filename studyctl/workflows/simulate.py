@@ -11,10 +11,13 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
 from studyctl.errors import UsageError
+from studyctl.populations import SHIPPED
+from studyctl.populations import population_for as cohort_population  # re-exported for callers
 from studyctl.store.status import study_status
 
 ProgressFn = Callable[[int, int, str], None]  # (participants done, participants total, message)
@@ -34,6 +37,8 @@ class SimulationResult:
     trials_not_completed: int
     seed: int
     seconds: float
+    population: str = ""  # "name v<version>" of the population used ("" = the participant's defaults)
+    population_sha256: str = ""
 
     COLUMNS = (
         "protocol",
@@ -46,6 +51,8 @@ class SimulationResult:
         "trials_not_completed",
         "seed",
         "seconds",
+        "population",
+        "population_sha256",
     )
 
     def to_frame(self) -> pd.DataFrame:
@@ -78,6 +85,7 @@ class Cohort:
     seed: int
     db: str | None = None
     sim_rate_hz: float | None = None  # loop-rate cap of the sessions (see run_session); None: protocol rates
+    population: Any = None  # TraitPopulation each virtual person is drawn from; None: the participant's defaults
 
 
 def create_cohort(
@@ -88,17 +96,22 @@ def create_cohort(
     *,
     db: str | None = None,
     sim_rate_hz: float | None = None,
+    population: Any = SHIPPED,
 ) -> Cohort:
     """Create the workspace and enroll ``participants``, spread over the strata by their target sizes.
 
     Enrollment stores each participant's schedule (sequence slot, placements) exactly as for people.
     ``sim_rate_hz`` caps the loop rate of the cohort's sessions (:func:`studyctl.engine.api.run_session`).
+    ``population``: a :class:`~studyctl.populations.TraitPopulation` or a population file; the default
+    (:data:`SHIPPED`) is the protocol's shipped population when there is one; None: the participant's defaults.
     """
+    from studyctl.protocol import load_protocol
     from studyctl.protocol.schedule import allocate_strata
     from studyctl.store.enrollment import enroll, study_protocol
     from studyctl.store.workspace import init_workspace, open_study
 
-    check_simulation(protocol, participants, sim_rate_hz)
+    # the population is checked before anything is written: a bad file leaves no half-made workspace
+    population = cohort_population(load_protocol(check_simulation(protocol, participants, sim_rate_hz)), population)
     init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
     with open_study(db, str(init.root), init.study) as opened:
         proto = study_protocol(opened.study)
@@ -111,7 +124,8 @@ def create_cohort(
             for i, (stratum, _) in enumerate(allocate_strata(proto, participants), start=1)
         )
         name = opened.study.name
-    return Cohort(str(protocol), name, str(init.root), str(init.database), codes, int(seed), db, sim_rate_hz)
+    return Cohort(str(protocol), name, str(init.root), str(init.database), codes, int(seed), db, sim_rate_hz,
+                  population)
 
 
 def run_participant(cohort: Cohort, code: str, *, durable: bool = False, store=None) -> str:  # noqa: ANN001
@@ -124,7 +138,8 @@ def run_participant(cohort: Cohort, code: str, *, durable: bool = False, store=N
     from studyctl.store.workspace import open_study
 
     def run(target) -> str:  # noqa: ANN001
-        result = run_session(target, code, study=cohort.study, virtual=True, sim_rate_hz=cohort.sim_rate_hz)
+        result = run_session(target, code, study=cohort.study, virtual=True, sim_rate_hz=cohort.sim_rate_hz,
+                             population=cohort.population)
         return str(getattr(result, "status", ""))
 
     if store is not None:
@@ -152,6 +167,8 @@ def summarize(cohort: Cohort, *, sessions_completed: int, seconds: float) -> Sim
         trials_not_completed=sum(v for k, v in counts.items() if k != "completed"),
         seed=cohort.seed,
         seconds=seconds,
+        population="" if cohort.population is None else f"{cohort.population.name} v{cohort.population.version}",
+        population_sha256="" if cohort.population is None else cohort.population.sha256,
     )
 
 
@@ -165,6 +182,7 @@ def simulate_study(
     durable: bool = False,
     sim_rate_hz: float | None = None,
     on_progress: ProgressFn | None = None,
+    population: Any = SHIPPED,
 ) -> SimulationResult:
     """Create a study workspace in ``out_dir`` and run ``participants`` virtual participants through it.
 
@@ -191,11 +209,16 @@ def simulate_study(
         1 kHz for the tissue controllers); ``studyctl bench simrate`` measures what it changes.
     on_progress
         Called after each participant with (done, total, message).
+    population
+        Where the virtual people come from: the protocol's shipped population (default, when one exists), a
+        population file or :class:`~studyctl.populations.TraitPopulation`, or None for the participant's
+        own defaults. Each session stores the population's sha256 and the person's traits.
     """
     from studyctl.store.workspace import open_study
 
     t0 = time.perf_counter()
-    cohort = create_cohort(protocol, participants, seed, out_dir, db=db, sim_rate_hz=sim_rate_hz)
+    cohort = create_cohort(protocol, participants, seed, out_dir, db=db, sim_rate_hz=sim_rate_hz,
+                           population=population)
     sessions = 0
     with open_study(db, cohort.workspace, cohort.study) as opened:
         if not durable:
