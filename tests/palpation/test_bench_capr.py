@@ -21,3 +21,16 @@ def test_bench_capr_json(capsys):
     assert rows["contact only"]["units"] < rows["full"]["units"]
     assert rows["one unit per type"]["units"] == 3 and rows["one unit per type"]["command_error_pct"] > 1.0
     assert fig["reduced_within_1pct_command_error_pct"] <= 1.0
+
+
+def test_read_offset_continuous_rate_against_spike_counts():
+    """Our continuous-rate read is above spike counting by the 15-21 % the public code's counts show."""
+    from studyctl.bench.capr import ReferenceStructure, read_offset
+    from studyctl.controllers.bio_inspired import BioInspiredController
+
+    fig = read_offset(BioInspiredController({}), ReferenceStructure({}))
+    # 0.8 N plateau: ours ≈ 66.7 Hz, counted ≈ 55-57 Hz (public code 56.2-56.4, research/capr.md §7)
+    assert 64 < fig["read_sa1_plateau_rate_hz"] < 69 and 53 < fig["read_sa1_plateau_spikes_hz"] < 58
+    # 0.5 N/s ramp, RA1: ours ≈ 115 Hz, counted ≈ 97 Hz
+    assert 110 < fig["read_ra1_ramp_rate_hz"] < 120 and 92 < fig["read_ra1_ramp_spikes_hz"] < 101
+    assert 10 < fig["read_offset_sa1_plateau_pct"] < 25 and 10 < fig["read_offset_ra1_ramp_pct"] < 25
