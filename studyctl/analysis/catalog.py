@@ -1,174 +1,32 @@
-"""What an analysis plan may ask for: the tests, their options, post-hoc procedures and effect sizes.
+"""What an analysis plan may ask for: the tests (their registry), aliases, option values, and the kinds
+of figure.
 
 The plan validator checks names against this catalogue (with nearest-name suggestions) and the runner
-dispatches on it, so a test that is listed here is one the runner can execute.
+dispatches on it, so a test that is listed here is one the runner can execute. The figure kinds are
+listed here and only here; the figure-data collectors and the report's drawers are keyed by them.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-# How samples are formed from the tidy metric table.
-BETWEEN = "between"  # independent samples: one value per participant (and cell), levels compared as groups
-WITHIN = "within"  # paired by participant: every participant contributes to every compared level
-PROPORTION = "proportion"  # pooled counts (successes / n) per level
-DESCRIPTIVE = "descriptive"  # no hypothesis test
+from studyctl.analysis.procedures import (
+    BETWEEN,
+    DESCRIPTIVE,
+    PROPORTION,
+    REGISTRY,
+    WITHIN,
+    TestSpec,
+)
 
-
-@dataclass(frozen=True)
-class TestKind:
-    """One test the runner knows."""
-
-    name: str
-    design: str
-    min_levels: int
-    max_levels: int | None  # None: any number; 2: two levels, or pairwise over `pairs`
-    options: frozenset[str]
-    posthoc: frozenset[str]
-    effect_sizes: tuple[str, ...]  # the first is the default
-    summary: str
-
-
-_ALT = frozenset({"alternative"})
-
-TESTS: dict[str, TestKind] = {
-    t.name: t
-    for t in (
-        TestKind(
-            "rank_sum",
-            BETWEEN,
-            2,
-            2,
-            _ALT | {"method", "continuity"},
-            frozenset(),
-            ("rank_biserial",),
-            "Wilcoxon rank-sum / Mann-Whitney U (independent samples)",
-        ),
-        TestKind(
-            "signed_rank",
-            WITHIN,
-            2,
-            2,
-            _ALT | {"method", "continuity", "zero_method", "critical_value"},
-            frozenset(),
-            ("matched_pairs_r",),
-            "Wilcoxon signed-rank (paired by participant); optionally W against the exact W_critical",
-        ),
-        TestKind(
-            "kruskal_wallis",
-            BETWEEN,
-            2,
-            None,
-            frozenset(),
-            frozenset({"dunn", "multcompare", "rank_sum"}),
-            ("epsilon_squared",),
-            "Kruskal-Wallis H (independent samples)",
-        ),
-        TestKind(
-            "anova_oneway",
-            BETWEEN,
-            2,
-            None,
-            frozenset(),
-            frozenset({"tukey_hsd"}),
-            ("eta_squared", "omega_squared"),
-            "one-way ANOVA F (independent samples)",
-        ),
-        TestKind(
-            "tukey_hsd",
-            BETWEEN,
-            2,
-            None,
-            frozenset({"confidence"}),
-            frozenset(),
-            ("mean_difference",),
-            "Tukey HSD pairwise comparisons (Tukey-Kramer for unequal sizes)",
-        ),
-        TestKind(
-            "dunn",
-            BETWEEN,
-            2,
-            None,
-            frozenset({"p_adjust", "variant"}),
-            frozenset(),
-            ("mean_rank_difference",),
-            "Dunn's pairwise rank tests",
-        ),
-        TestKind(
-            "friedman",
-            WITHIN,
-            2,
-            None,
-            frozenset(),
-            frozenset({"signed_rank"}),
-            ("kendall_w",),
-            "Friedman rank test (repeated measures, complete blocks)",
-        ),
-        TestKind(
-            "rm_anova",
-            WITHIN,
-            2,
-            None,
-            frozenset(),
-            frozenset(),
-            ("partial_eta_squared",),
-            "repeated-measures one-way ANOVA (participants as blocks)",
-        ),
-        TestKind(
-            "wilson",
-            PROPORTION,
-            1,
-            None,
-            frozenset({"confidence"}),
-            frozenset(),
-            ("proportion",),
-            "Wilson score interval of a pooled proportion",
-        ),
-        TestKind(
-            "newcombe",
-            PROPORTION,
-            2,
-            2,
-            frozenset({"confidence"}),
-            frozenset(),
-            ("difference",),
-            "Newcombe hybrid-score interval for a difference of proportions; significant when |Δp| exceeds"
-            " the margin towards zero",
-        ),
-        TestKind(
-            "percent_change",
-            DESCRIPTIVE,
-            2,
-            None,
-            frozenset(),
-            frozenset(),
-            ("percent_change",),
-            "percent change of the mean against a reference level",
-        ),
-        TestKind(
-            "descriptive",
-            DESCRIPTIVE,
-            1,
-            None,
-            frozenset(),
-            frozenset(),
-            (),
-            "n, mean, SD, SE, median and quartiles per cell",
-        ),
-        TestKind(
-            "likert_table",
-            DESCRIPTIVE,
-            1,
-            None,
-            frozenset(),
-            frozenset(),
-            (),
-            "mean Likert score per item and level",
-        ),
-    )
-}
+#: The tests a plan may name, by name: the registry of :mod:`studyctl.analysis.procedures`.
+TESTS: dict[str, TestSpec] = REGISTRY
 
 ALIASES = {"mann_whitney": "rank_sum", "wilcoxon_rank_sum": "rank_sum", "wilcoxon_signed_rank": "signed_rank"}
+
+#: Post-hoc names that are a registered test run in a variant: ``multcompare`` is Dunn's procedure as
+#: MATLAB's multcompare after kruskalwallis computes it.
+POSTHOC_VARIANTS = {"multcompare": ("dunn", "multcompare")}
 
 P_ADJUST = ("none", "holm", "bonferroni", "bh")
 
@@ -181,3 +39,59 @@ OPTION_VALUES: dict[str, tuple[object, ...]] = {
     "continuity": (True, False),
     "critical_value": (True, False),
 }
+
+
+# Where a figure's data come from.
+FROM_RESULTS = "results"  # the analysis result's tables (units, proportions, percent change, Likert)
+FROM_TRIALS = "stored trials"  # samples of stored trials (read through the study reader)
+FROM_CONTROLLERS = "controllers"  # model curves: the protocol's controllers run on synthetic input
+
+
+@dataclass(frozen=True)
+class FigureKind:
+    """One kind of figure a plan may ask for."""
+
+    name: str
+    data: str  # FROM_RESULTS, FROM_TRIALS or FROM_CONTROLLERS
+    summary: str
+
+
+FIGURE_KINDS: dict[str, FigureKind] = {
+    k.name: k
+    for k in (
+        FigureKind("box", FROM_RESULTS, "box plots of a metric by condition (and group), marks from a test"),
+        FigureKind(
+            "proportion",
+            FROM_RESULTS,
+            "pooled proportion per level with Wilson intervals (detection by tumour class, Se, PPV)",
+        ),
+        FigureKind("percent_change", FROM_RESULTS, "bars of % change against a reference level"),
+        FigureKind("likert", FROM_RESULTS, "mean Likert score per item and condition"),
+        FigureKind(
+            "force_trace", FROM_TRIALS, "sensor force and actuator commands around a tumour contact (stored samples)"
+        ),
+        FigureKind("needle_force_profile", FROM_TRIALS, "axial needle force against depth (stored samples)"),
+        FigureKind(
+            "controller_response", FROM_CONTROLLERS, "controller outputs for trapezoidal pressure waves (runs them)"
+        ),
+    )
+}
+
+#: Kinds whose data are collected from the study database (:mod:`studyctl.analysis.figure_data`).
+SIGNAL_FIGURES = tuple(k.name for k in FIGURE_KINDS.values() if k.data != FROM_RESULTS)
+
+__all__ = [
+    "ALIASES",
+    "BETWEEN",
+    "DESCRIPTIVE",
+    "FIGURE_KINDS",
+    "OPTION_VALUES",
+    "POSTHOC_VARIANTS",
+    "P_ADJUST",
+    "PROPORTION",
+    "SIGNAL_FIGURES",
+    "TESTS",
+    "WITHIN",
+    "FigureKind",
+    "TestSpec",
+]

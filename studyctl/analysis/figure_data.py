@@ -14,16 +14,22 @@ Each collector returns a :class:`~studyctl.analysis.results.FigureData`; when so
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
+from studyctl.analysis.catalog import SIGNAL_FIGURES
+from studyctl.analysis.metrics import tumour_contact_mask
 from studyctl.analysis.plan import AnalysisPlan, FigureEntry
 from studyctl.analysis.results import FigureData
+from studyctl.analysis.trials import StoredStudy, TrialView
 from studyctl.errors import StudyctlError
+from studyctl.store.reader import StudyReader
+
+if TYPE_CHECKING:
+    from studyctl.protocol import Protocol
 
 FORCE = "force_n"
 COMMANDS = (("balloon_pct", "balloon (%)"), ("vibration_pct", "vibration (%)"))
@@ -45,7 +51,10 @@ def trapezoid_waves(
 
 
 def controller_response(
-    protocol: Any, *, conditions: Sequence[str] | None = None, waves: Sequence[tuple[float, float, float]] | None = None
+    protocol: Protocol,
+    *,
+    conditions: Sequence[str] | None = None,
+    waves: Sequence[tuple[float, float, float]] | None = None,
 ) -> FigureData:
     """Run each condition's controller on trapezoidal force waves; channels force and both commands."""
     from studyctl.plugins import registry
@@ -89,48 +98,27 @@ def controller_response(
     )
 
 
-def _first_trials(store: Any, study: Any, conditions: Sequence[str]) -> dict[str, int]:
-    """The first completed trial (by id) of each condition."""
-    from sqlalchemy import select
-
-    from studyctl.store.models import Participant, Session, Trial
-
-    with store.reading() as s:
-        rows = s.execute(
-            select(Trial.condition, Trial.id)
-            .join(Session, Session.id == Trial.session_id)
-            .join(Participant, Participant.id == Session.participant_id)
-            .where(Participant.study_id == study.id, Trial.status == "completed", Trial.condition.in_(conditions))
-            .order_by(Trial.id)
-        ).all()
-    out: dict[str, int] = {}
-    for cond, tid in rows:
-        out.setdefault(cond, int(tid))
-    return out
-
-
 def _per_condition(
     plan: AnalysisPlan,
-    store: Any,
-    study: Any,
+    study: StoredStudy,
     conds: Sequence[str],
-    panel: Callable[[str, int], pd.DataFrame | str],
+    panel: Callable[[TrialView], pd.DataFrame | str],
     meta: dict[str, Any],
 ) -> FigureData:
     """One panel per condition, from its first completed trial.
 
-    ``panel(condition, trial_id)`` returns the panel's frame, or the text of why it cannot be drawn (the
-    figure's ``problem`` lists those after the condition). Panels are labelled with the plan's condition
-    labels; ``meta`` is added after ``panels``.
+    ``panel(trial)`` returns the panel's frame, or the text of why it cannot be drawn (the figure's
+    ``problem`` lists those after the condition). Panels are labelled with the plan's condition labels;
+    ``meta`` is added after ``panels``.
     """
-    trials = _first_trials(store, study, conds)
+    trials = study.first_completed(conds)
     labels = {c.id: c.display for c in plan.condition_levels}
     frames, panels, problems = [], [], []
     for cond in conds:
         if cond not in trials:
             problems.append(f"{cond}: no completed trial")
             continue
-        frame = panel(cond, trials[cond])
+        frame = panel(trials[cond])
         if isinstance(frame, str):
             problems.append(f"{cond}: {frame}")
             continue
@@ -143,21 +131,19 @@ def _per_condition(
     return FigureData(frame, meta={"panels": panels, **meta}, problem="; ".join(problems))
 
 
-def force_trace(plan: AnalysisPlan, store: Any, study: Any, spec: FigureEntry) -> FigureData:
+def force_trace(plan: AnalysisPlan, study: StoredStudy, spec: FigureEntry) -> FigureData:
     """Force and commands ±``window_s`` around the first tumour contact of one trial per condition.
 
     Tumour contact is what the contact metrics use (:func:`studyctl.analysis.metrics.tumour_contact_mask`):
     the probe over a tumour with the force above the threshold; those spans are shaded.
     """
-    from studyctl.analysis.metrics import tumour_contact_mask
-
     threshold = float(spec.options.get("threshold_n", _contact_threshold(plan)))
     window = float(spec.options.get("window_s", 3.0))
 
-    def panel(cond: str, tid: int) -> pd.DataFrame | str:
-        samples = store.read_samples(tid)
+    def panel(trial: TrialView) -> pd.DataFrame | str:
+        tid, samples = trial.trial_id, trial.samples
         try:
-            contact = tumour_contact_mask(samples, _trial_truth(store, tid), threshold)
+            contact = tumour_contact_mask(samples, trial.truth, threshold)
         except StudyctlError as exc:
             return f"trial {tid}: {exc}"
         t = samples["t"].to_numpy(dtype=float)
@@ -178,7 +164,7 @@ def force_trace(plan: AnalysisPlan, store: Any, study: Any, spec: FigureEntry) -
         "threshold": threshold,
         "channels": [(FORCE, "sensor force (N)", "left"), *[(c, lbl, "right") for c, lbl in COMMANDS]],
     }
-    return _per_condition(plan, store, study, conds, panel, meta)
+    return _per_condition(plan, study, conds, panel, meta)
 
 
 def _contact_threshold(plan: AnalysisPlan) -> float:
@@ -189,16 +175,16 @@ def _contact_threshold(plan: AnalysisPlan) -> float:
     return 0.5
 
 
-def needle_force_profile(plan: AnalysisPlan, store: Any, study: Any, spec: FigureEntry) -> FigureData:
+def needle_force_profile(plan: AnalysisPlan, study: StoredStudy, spec: FigureEntry) -> FigureData:
     """Axial force against depth along the planned path, one stored trial per condition."""
 
-    def panel(cond: str, tid: int) -> pd.DataFrame | str:
-        samples = store.read_samples(tid)
+    def panel(trial: TrialView) -> pd.DataFrame | str:
+        tid, samples = trial.trial_id, trial.samples
         need = ("x_mm", "y_mm", "z_mm", "fx_n", "fy_n", "fz_n")
         if samples.empty or any(c not in samples for c in need):
             return f"trial {tid} lacks samples of {', '.join(c for c in need if c not in samples)}"
         try:
-            truth = _trial_truth(store, tid)
+            truth = trial.truth
         except StudyctlError as exc:
             return str(exc)
         a = np.asarray(truth["incision_mm"], dtype=float)
@@ -220,63 +206,42 @@ def needle_force_profile(plan: AnalysisPlan, store: Any, study: Any, spec: Figur
 
     conds = list(spec.options.get("conditions") or plan.condition_ids[:2])
     meta = {"x_label": "depth along the planned path (mm)", "channels": [("f_axial_n", "axial force (N)", "left")]}
-    return _per_condition(plan, store, study, conds, panel, meta)
+    return _per_condition(plan, study, conds, panel, meta)
 
 
-def _trial_truth(store: Any, tid: int) -> Mapping[str, Any]:
-    """The scene truth of a stored trial: its logged truth event, else rebuilt from the session plan."""
-    from sqlalchemy import select
-
-    from studyctl.analysis.metrics import rebuild_truth
-    from studyctl.engine.plan import SessionPlan
-    from studyctl.store.models import Event, Session, Trial
-
-    with store.reading() as s:
-        tr = s.get(Trial, tid)
-        sess = s.get(Session, tr.session_id)
-        ev = s.execute(
-            select(Event.kind, Event.payload).where(Event.trial_id == tid, Event.kind.in_(("scene_truth", "truth")))
-        ).first()
-        plan_ev = s.execute(
-            select(Event.payload)
-            .where(Event.session_id == sess.id, Event.kind.in_(("session_plan", "plan_amended")))
-            .order_by(Event.seq.desc())
-        ).first()
-    if ev is not None:
-        return dict(ev[1] or {})
-    plan = SessionPlan.from_json(plan_ev[0]["plan"])
-    step = int((tr.outcome or {}).get("step", tr.plan_position))
-    return rebuild_truth(plan, tr.placement or {}, int(sess.seed or 0), step)
+def _controller_response(plan: AnalysisPlan, study: StoredStudy, spec: FigureEntry) -> FigureData:
+    if study.protocol is None:
+        return FigureData(pd.DataFrame(), problem="the study stores no protocol")
+    waves = spec.options.get("waves")
+    return controller_response(
+        study.protocol, conditions=spec.options.get("conditions"), waves=[tuple(w) for w in waves] if waves else None
+    )
 
 
-def collect(
-    plan: AnalysisPlan, *, db: str | None = None, workspace: str | Path | None = None, study: str | None = None
-) -> dict[str, FigureData]:
-    """Figure data for every signal figure of ``plan`` from the study database."""
-    from studyctl.protocol import load_protocol_text
-    from studyctl.store.workspace import open_study
+#: The collector of each figure kind whose data do not come from the result tables
+#: (:data:`studyctl.analysis.catalog.SIGNAL_FIGURES`; a test checks the two agree).
+COLLECTORS: dict[str, Callable[[AnalysisPlan, StoredStudy, FigureEntry], FigureData]] = {
+    "force_trace": force_trace,
+    "needle_force_profile": needle_force_profile,
+    "controller_response": _controller_response,
+}
 
+
+def needs_figure_data(plan: AnalysisPlan) -> bool:
+    """Whether any figure of ``plan`` draws data from the study database (not from the result tables)."""
+    return plan.data.source == "database" and any(f.kind in SIGNAL_FIGURES for f in plan.figures)
+
+
+def collect(plan: AnalysisPlan, study: StoredStudy | StudyReader) -> dict[str, FigureData]:
+    """Figure data for every signal figure of ``plan`` from a stored study (one reader per report)."""
+    stored = study if isinstance(study, StoredStudy) else StoredStudy(study)
     out: dict[str, FigureData] = {}
-    with open_study(db, None if workspace is None else str(workspace), study) as opened:
-        protocol = None
-        if opened.study.protocol_text:
-            protocol = load_protocol_text(opened.study.protocol_text, f"<protocol of {opened.study.name}>")
-        for spec in plan.figures:
-            try:
-                if spec.kind == "controller_response":
-                    if protocol is None:
-                        out[spec.id] = FigureData(pd.DataFrame(), problem="the study stores no protocol")
-                    else:
-                        waves = spec.options.get("waves")
-                        out[spec.id] = controller_response(
-                            protocol,
-                            conditions=spec.options.get("conditions"),
-                            waves=[tuple(w) for w in waves] if waves else None,
-                        )
-                elif spec.kind == "force_trace":
-                    out[spec.id] = force_trace(plan, opened.store, opened.study, spec)
-                elif spec.kind == "needle_force_profile":
-                    out[spec.id] = needle_force_profile(plan, opened.store, opened.study, spec)
-            except StudyctlError as exc:
-                out[spec.id] = FigureData(pd.DataFrame(), problem=str(exc))
+    for spec in plan.figures:
+        collector = COLLECTORS.get(spec.kind)
+        if collector is None:
+            continue
+        try:
+            out[spec.id] = collector(plan, stored, spec)
+        except StudyctlError as exc:
+            out[spec.id] = FigureData(pd.DataFrame(), problem=str(exc))
     return out

@@ -1,9 +1,9 @@
 """Metrics computed from what the study database holds: trials, events, samples, reports and answers.
 
-Never from a participant's internals: a metric sees only what was recorded. Ground truth (tumour sites,
-nodule centres, the planned needle path) comes from the scene as it was built for the trial: the
-``scene_truth`` event when the engine recorded one, otherwise the scene plugin rebuilt from the stored
-plan (scene spec, the trial's placement and its seeded scene stream).
+Never from a participant's internals: a metric sees only what was recorded, through the analysis view of
+the stored study (:mod:`studyctl.analysis.trials`, read by :class:`studyctl.store.reader.StudyReader`).
+Ground truth (tumour sites, nodule centres, the planned needle path) follows the one rule of
+:mod:`studyctl.analysis.truth`.
 
 Per-trial numbers come from the other packages' pure helpers where they exist
 (:mod:`studyctl.models.needle_metrics`, :mod:`studyctl.models.palpation_metrics`); the matching of
@@ -17,83 +17,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from functools import cached_property
 from typing import Any
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import select
 
 from studyctl.analysis.metric_defs import BUILTIN
 from studyctl.analysis.plan import AnalysisPlan
 from studyctl.analysis.table import COLUMNS, MISSING_COLUMNS, MetricTable, empty_frame
+from studyctl.analysis.trials import StoredStudy, TrialView
 from studyctl.errors import AnalysisError, StudyctlError
-
-# --------------------------------------------------------------------------------------- trial view
-
-
-@dataclass
-class TrialView:
-    """Everything recorded about one completed trial, with samples and truth loaded on first use."""
-
-    trial_id: int
-    participant: str
-    group: str | None
-    condition: str
-    repetition: int | None
-    position: int
-    time_limit_s: float | None
-    outcome: Mapping[str, Any]
-    placement: Mapping[str, Any]
-    events: list[dict[str, Any]]
-    reports: list[dict[str, Any]]
-    session_seed: int
-    plan: Any  # studyctl.engine.plan.SessionPlan
-    protocol: Any  # studyctl.protocol.Protocol
-    _load_samples: Callable[[int], pd.DataFrame] = field(repr=False, default=lambda _tid: pd.DataFrame())
-
-    @cached_property
-    def samples(self) -> pd.DataFrame:
-        return self._load_samples(self.trial_id)
-
-    @cached_property
-    def truth(self) -> Mapping[str, Any]:
-        for ev in self.events:
-            if ev["kind"] in ("scene_truth", "truth"):
-                return dict(ev.get("payload") or {})
-        return rebuild_truth(self.plan, self.placement, self.session_seed, self.position)
-
-    @property
-    def duration_s(self) -> float:
-        """The trial's duration: the loop's own end time, capped at the time limit."""
-        d = self.outcome.get("duration_s")
-        if d is None:
-            for ev in self.events:
-                if ev["kind"] == "trial_loop_end":
-                    d = ev["t"]
-        if d is None:
-            raise AnalysisError("the trial recorded no duration")
-        d = float(d)
-        return min(d, float(self.time_limit_s)) if self.time_limit_s else d
-
-
-_SCENES: dict[str, type] = {}  # scene classes by plugin name (entry-point lookups are slow)
-
-
-def rebuild_truth(plan: Any, placement: Mapping[str, Any], seed: int, position: int) -> Mapping[str, Any]:
-    """The scene's ground truth, rebuilt exactly as the engine built the scene for this trial."""
-    from studyctl.engine.seeding import trial_streams
-    from studyctl.plugins import registry
-
-    if not plan.scene:
-        raise AnalysisError("the study's plan names no scene, so there is no ground truth to score against")
-    cls = _SCENES.get(plan.scene)
-    if cls is None:
-        cls = _SCENES[plan.scene] = registry.load_plugin("scene", plan.scene)
-    scene = cls.build(plan.scene_spec, placement or {}, frozenset(), trial_streams(seed, position).scene)
-    return scene.truth()
-
+from studyctl.store.models import Study
+from studyctl.store.reader import StudyReader
+from studyctl.store.repository import StudyStore
 
 # ------------------------------------------------------------------------------------------ families
 # Each returns rows (level, value, denominator) for one trial, or raises AnalysisError (→ missing).
@@ -104,15 +40,15 @@ Row = tuple[str | None, float, float]
 def _needle(trial: TrialView, which: str) -> list[Row]:
     from studyctl.models.needle_metrics import needle_trial_metrics
 
-    cache = trial.__dict__.setdefault("_needle_cache", {})
-    if "m" not in cache:
+    cache = trial.cache
+    if "needle" not in cache:
         if trial.samples.empty:
             raise AnalysisError("no samples were recorded for this trial")
         events = [{"kind": e["kind"], "t": e["t"], **(e.get("payload") or {})} for e in trial.events]
-        cache["m"] = needle_trial_metrics(
+        cache["needle"] = needle_trial_metrics(
             trial.samples, events, trial.truth, time_limit_s=float(trial.time_limit_s or 90.0)
         )
-    m = cache["m"]
+    m = cache["needle"]
     value = {
         "scans": m.scans,
         "duration": m.duration_s,
@@ -137,7 +73,7 @@ def _tissue(trial: TrialView, which: str, params: Mapping[str, Any]) -> list[Row
     """Seed 002/003 detection metrics through :func:`studyctl.models.palpation_metrics.score_trial`."""
     from studyctl.models.palpation_metrics import score_trial
 
-    cache = trial.__dict__.setdefault("_tissue_cache", {})
+    cache = trial.cache
     if "score" not in cache:
         radius = trial.protocol.trial.report.hit_radius if trial.protocol is not None else None
         if radius is None:
@@ -227,12 +163,12 @@ def tumour_contact_mask(samples: pd.DataFrame, truth: Mapping[str, Any], thresho
 
 def _contact(trial: TrialView, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample times, forces and the tumour-contact mask of a trial (cached per threshold)."""
-    cache = trial.__dict__.setdefault("_contact_cache", {})
-    if threshold not in cache:
+    key = f"contact@{threshold!r}"
+    if key not in trial.cache:
         s = trial.samples
         mask = tumour_contact_mask(s, trial.truth, threshold)
-        cache[threshold] = (s["t"].to_numpy(dtype=float), s["force_n"].to_numpy(dtype=float), mask)
-    return cache[threshold]
+        trial.cache[key] = (s["t"].to_numpy(dtype=float), s["force_n"].to_numpy(dtype=float), mask)
+    return trial.cache[key]
 
 
 def _palpation(trial: TrialView, which: str, params: Mapping[str, Any]) -> list[Row]:
@@ -269,182 +205,26 @@ FAMILIES: dict[str, Callable[[TrialView, Mapping[str, Any]], list[Row]]] = {
     "tumour_contact_time": lambda t, p: _palpation(t, "tumour_contact_time", p),
 }
 
-# ------------------------------------------------------------------------------------------ loading
-
-
-@dataclass
-class _Loaded:
-    trials: list[TrialView]
-    missing: list[dict[str, Any]]
-    responses: pd.DataFrame
-    info: dict[str, Any]
-
-
-def _load(store: Any, study: Any, protocol: Any) -> _Loaded:
-    from studyctl.engine.plan import SessionPlan
-    from studyctl.store.models import Event, LocationReport, Participant, Session, Trial
-
-    missing: list[dict[str, Any]] = []
-    with store.reading() as s:
-        participants = list(
-            s.scalars(select(Participant).where(Participant.study_id == study.id).order_by(Participant.id))
-        )
-        pids = [p.id for p in participants]
-        sessions = (
-            list(s.scalars(select(Session).where(Session.participant_id.in_(pids)).order_by(Session.id)))
-            if pids
-            else []
-        )
-        sids = [x.id for x in sessions]
-        trials = list(s.scalars(select(Trial).where(Trial.session_id.in_(sids)).order_by(Trial.id))) if sids else []
-        events = (
-            s.execute(
-                select(Event.session_id, Event.trial_id, Event.t_mono, Event.kind, Event.payload)
-                .where(Event.session_id.in_(sids))
-                .where((Event.trial_id.is_not(None)) | Event.kind.in_(("session_plan", "plan_amended")))
-                .order_by(Event.session_id, Event.seq)
-            ).all()
-            if sids
-            else []
-        )
-        tids = [t.id for t in trials]
-        reports = (
-            s.execute(
-                select(LocationReport.trial_id, LocationReport.t, LocationReport.payload)
-                .where(LocationReport.trial_id.in_(tids))
-                .order_by(LocationReport.id)
-            ).all()
-            if tids
-            else []
-        )
-    by_pid = {p.id: p for p in participants}
-    plans: dict[int, Any] = {}
-    trial_events: dict[int, list[dict[str, Any]]] = {}
-    for sid, tid, t, kind, payload in events:
-        if tid is None:
-            plans[sid] = SessionPlan.from_json((payload or {})["plan"])  # the last (amended) plan wins
-        else:
-            trial_events.setdefault(tid, []).append({"kind": kind, "t": float(t), "payload": payload or {}})
-    trial_reports: dict[int, list[dict[str, Any]]] = {}
-    for tid, t, payload in reports:
-        trial_reports.setdefault(tid, []).append({"t": float(t), **(payload or {})})
-    session_of = {x.id: x for x in sessions}
-
-    def group_of(p: Any) -> str | None:
-        return p.group or p.stratum
-
-    by_step: dict[tuple[int, int], list[Any]] = {}
-    for tr in trials:
-        step = int((tr.outcome or {}).get("step", tr.plan_position))
-        by_step.setdefault((tr.participant_id, step), []).append(tr)
-    views: list[TrialView] = []
-    status_counts: dict[str, int] = {}
-    for (pid, step), rows in by_step.items():
-        p = by_pid[pid]
-        for r in rows:
-            status_counts[r.status] = status_counts.get(r.status, 0) + 1
-        done = [r for r in rows if r.status == "completed"]
-        if not done:
-            last = rows[-1]
-            why = {
-                "planned": "planned but never run (session not finished)",
-                "running": "interrupted while running (resume the session)",
-            }.get(last.status, f"{last.status}: {last.invalid_reason or 'no reason recorded'}")
-            missing.append(
-                {
-                    "participant": p.code,
-                    "group": group_of(p),
-                    "condition": last.condition,
-                    "trial": str(last.id),
-                    "metric": "*",
-                    "reason": f"no completed trial at plan step {step}: {why}",
-                }
-            )
-            continue
-        tr = done[-1]
-        sess = session_of[tr.session_id]
-        views.append(
-            TrialView(
-                trial_id=tr.id,
-                participant=p.code,
-                group=group_of(p),
-                condition=tr.condition,
-                repetition=tr.repetition,
-                position=step,
-                time_limit_s=tr.time_limit_s,
-                outcome=dict(tr.outcome or {}),
-                placement=dict(tr.placement or {}),
-                events=trial_events.get(tr.id, []),
-                reports=trial_reports.get(tr.id, []),
-                session_seed=int(sess.seed or 0),
-                plan=plans.get(sess.id),
-                protocol=protocol,
-                _load_samples=store.read_samples,
-            )
-        )
-    responses = _responses(store, participants, plans, by_pid)
-    info = {
-        "participants": len(participants),
-        "sessions": len(sessions),
-        "trials_completed": status_counts.get("completed", 0),
-        "trials_other": {k: v for k, v in sorted(status_counts.items()) if k != "completed"},
-    }
-    return _Loaded(views, missing, responses, info)
-
-
-def _responses(store: Any, participants: list, plans: Mapping[int, Any], by_pid: Mapping[int, Any]) -> pd.DataFrame:
-    """Questionnaire answers with the condition they followed (None for end-of-study instruments)."""
-    cols = ["participant", "group", "condition", "instrument", "item", "code", "session_id"]
-    if not participants:
-        return pd.DataFrame(columns=cols)
-    frame = store.responses_frame()
-    if frame.empty:
-        return pd.DataFrame(columns=cols)
-    frame = frame[frame["participant_id"].isin(list(by_pid))]
-    rows = []
-    for r in frame.itertuples(index=False):
-        p = by_pid[r.participant_id]
-        condition = None
-        plan = plans.get(r.session_id)
-        if plan is not None and isinstance(r.context, str) and r.context.startswith("step:"):
-            try:
-                condition = plan.step(int(r.context.split(":", 1)[1])).condition
-            except StudyctlError:
-                condition = None
-        rows.append(
-            {
-                "participant": p.code,
-                "group": p.group or p.stratum,
-                "condition": condition,
-                "instrument": r.instrument,
-                "item": r.item,
-                "code": float(r.code),
-                "session_id": r.session_id,
-            }
-        )
-    return pd.DataFrame(rows, columns=cols)
-
-
 # ------------------------------------------------------------------------------------------ the table
 
 
 def compute_metrics(
     plan: AnalysisPlan,
-    store: Any,
-    study: Any,
+    source: StoredStudy | StudyReader | StudyStore,
+    study: str | Study | None = None,
     *,
     on_progress: Callable[[int, int], None] | None = None,
 ) -> MetricTable:
-    """Compute the plan's metrics for every completed trial of ``study``.
+    """Compute the plan's metrics for every completed trial of a stored study.
 
     Parameters
     ----------
     plan
         The analysis plan (its metrics and their parameters).
-    store
-        An open :class:`studyctl.store.StudyStore`.
-    study
-        The study row (``store.get_study(name)``).
+    source
+        The study as analysis sees it (:class:`~studyctl.analysis.trials.StoredStudy`, shared with trace
+        figures), a :class:`~studyctl.store.reader.StudyReader`, or an open store with ``study`` (its row
+        or name; None: the database's only study).
     on_progress
         Called with (trials done, trials total).
 
@@ -459,17 +239,14 @@ def compute_metrics(
     AnalysisError
         When the study has no completed trial at all (with what the trials' statuses are).
     """
-    from studyctl.protocol import load_protocol_text
-
-    protocol = (
-        load_protocol_text(study.protocol_text, f"<protocol of study {study.name}>") if study.protocol_text else None
-    )
-    loaded = _load(store, study, protocol)
-    source = f"{store.db.describe()} (study {study.name!r})" if hasattr(store, "db") else f"study {study.name!r}"
+    if isinstance(source, StudyStore):
+        source = StudyReader(source, study)
+    stored = source if isinstance(source, StoredStudy) else StoredStudy(source)
     rows: list[dict[str, Any]] = []
-    missing = list(loaded.missing)
+    missing = list(stored.missing)
     trial_metrics = [m for m in plan.metrics if plan.metric_name(m) != "likert"]
-    for i, trial in enumerate(loaded.trials):
+    trials = stored.trials
+    for i, trial in enumerate(trials):
         for mid in trial_metrics:
             name = plan.metric_name(mid)
             func = FAMILIES.get(name)
@@ -489,13 +266,14 @@ def compute_metrics(
                     rows.append({**base, "level": level, "value": value, "denominator": denom})
             except (StudyctlError, KeyError, ValueError) as exc:
                 missing.append({**_miss(base), "reason": str(exc)})
+        trial.release_samples()  # what the metrics needed is in the trial's cache; keep memory flat
         if on_progress is not None:
-            on_progress(i + 1, len(loaded.trials))
+            on_progress(i + 1, len(trials))
     for mid in plan.metrics:
         if plan.metric_name(mid) != "likert":
             continue
         instrument = str(plan.metric_params(mid).get("instrument") or "")
-        resp = loaded.responses
+        resp = stored.responses
         if instrument:
             resp = resp[resp["instrument"] == instrument]
         for r in resp.itertuples(index=False):
@@ -513,22 +291,23 @@ def compute_metrics(
                 }
             )
     frame = pd.DataFrame(rows, columns=list(COLUMNS)) if rows else empty_frame()
-    info = dict(loaded.info)
-    if not loaded.trials:
+    info = stored.info
+    name = stored.name
+    if not trials:
         other = info["trials_other"]
         info["empty_reason"] = (
-            f"study {study.name!r} has no completed trials (trials by status: {other or 'none at all'})"
+            f"study {name!r} has no completed trials (trials by status: {other or 'none at all'})"
         )
         if frame.empty:
             raise AnalysisError(
-                f"study {study.name!r} has no completed trials (trials by status: {other or 'none'}; "
+                f"study {name!r} has no completed trials (trials by status: {other or 'none'}; "
                 f"{info['participants']} participant(s)); run sessions first with studyctl run or studyctl simulate"
             )
     return MetricTable(
         frame=frame,
         missing=pd.DataFrame(missing, columns=list(MISSING_COLUMNS)),
-        source=source,
-        study=study.name,
+        source=stored.reader.source,
+        study=name,
         info=info,
     )
 
@@ -548,6 +327,5 @@ __all__ = [
     "compute_metrics",
     "known_metrics",
     "match_cells",
-    "rebuild_truth",
     "tumour_contact_mask",
 ]

@@ -54,15 +54,7 @@ from studyctl.protocol.problems import Problem, format_path
 from studyctl.protocol.yamlmarks import MarkedData
 from studyctl.suggest import did_you_mean
 
-FIGURE_KINDS = (
-    "box",  # box plots of a metric by condition (and group), significance marks from a test
-    "proportion",  # pooled proportion per level with Wilson intervals (detection by tumour class, Se, PPV)
-    "percent_change",  # bars of % change against a reference level
-    "likert",  # mean Likert score per item and condition
-    "force_trace",  # sensor force and actuator commands around a tumour contact (from stored samples)
-    "needle_force_profile",  # axial needle force against time/depth (from stored samples)
-    "controller_response",  # controller outputs for trapezoidal pressure waves (runs the controllers)
-)
+FIGURE_KINDS = tuple(catalog.FIGURE_KINDS)  # listed, with where their data come from, in the catalogue
 ROLES = ("paper", "within_subject", "supplementary")
 MISSING = ("available", "complete_cases", "fail")
 AGGREGATE = ("mean", "median", "none")

@@ -115,7 +115,8 @@ class AnalysisResult:
 
     ``rows``: the tests table; ``tables``: extra tables by name (``descriptives``, ``percent_change``,
     ``likert``, ``cells``); ``missing``: values not available and why; ``problems``: what made the result
-    partial (empty when complete).
+    partial (empty when complete); ``figures``: data of the figures drawn from stored samples or
+    controllers, by figure id (when asked for: :func:`studyctl.analysis.analyze` with ``figures=True``).
     """
 
     plan: AnalysisPlan
@@ -125,10 +126,12 @@ class AnalysisResult:
     missing: pd.DataFrame = field(default_factory=pd.DataFrame)
     problems: tuple[str, ...] = ()
     timings: Mapping[str, float] = field(default_factory=dict)
+    figures: Mapping[str, FigureData] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tables", MappingProxyType(dict(self.tables)))
         object.__setattr__(self, "timings", MappingProxyType(dict(self.timings)))
+        object.__setattr__(self, "figures", MappingProxyType(dict(self.figures)))
 
     @property
     def partial(self) -> bool:

@@ -1,16 +1,42 @@
-"""One call from a plan to a result: load the plan, get the data (database or CSV), run the tests."""
+"""One call from a plan to a result: load the plan, read the data (database or CSV), run the tests.
+
+This is where a plan is loaded (once) and where a stored study is opened (once, through one
+:class:`~studyctl.store.reader.StudyReader`) for both its metrics and the figures drawn from its samples.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from studyctl.analysis.execute import run_plan
 from studyctl.analysis.plan import AnalysisPlan, load_plan
-from studyctl.analysis.results import AnalysisResult
+from studyctl.analysis.results import AnalysisResult, FigureData
 from studyctl.analysis.table import MetricTable, read_summary_csv
+from studyctl.analysis.trials import StoredStudy
 from studyctl.errors import AnalysisError, UsageError
+from studyctl.store.reader import StudyReader
+
+
+@contextlib.contextmanager
+def open_stored_study(
+    plan: AnalysisPlan, *, db: str | None = None, workspace: str | Path | None = None, study: str | None = None
+) -> Iterator[StoredStudy]:
+    """The plan's study, opened for reading (closed on exit); its protocol must be the plan's.
+
+    The database is ``db`` (a URL or SQLite path), else ``$STUDYCTL_DB``, else the workspace's; the study
+    is ``study``, else the workspace's, else the database's only study.
+    """
+    with StudyReader.open(db, None if workspace is None else str(workspace), study) as reader:
+        used = reader.study.protocol_name
+        if used and used != plan.study:
+            raise AnalysisError(
+                f"plan {plan.source_path or plan.title!r} analyses protocol {plan.study!r}, but study "
+                f"{reader.study.name!r} ran protocol {used!r}; use that protocol's plan (studyctl analyze {used})"
+            )
+        yield StoredStudy(reader)
 
 
 def load_data(
@@ -21,27 +47,19 @@ def load_data(
     study: str | None = None,
     on_progress: Callable[[int, int], None] | None = None,
 ) -> MetricTable:
-    """The plan's metric table: from its CSV file, or computed from the study database.
-
-    The database is ``db`` (a URL or SQLite path), else ``$STUDYCTL_DB``, else the workspace's; the study
-    is ``study``, else the workspace's, else the database's only study. Its protocol must be the plan's.
-    """
+    """The plan's metric table: from its CSV file, or computed from the study database."""
     if plan.data.source == "csv":
-        if db is not None:
-            raise UsageError(f"plan {plan.source_path} reads its data from {plan.data.path}; --db is not used by it")
-        path = plan.csv_path()
-        return read_summary_csv(path, study=plan.study)
+        return _csv_table(plan, db)
     from studyctl.analysis.metrics import compute_metrics
-    from studyctl.store.workspace import open_study
 
-    with open_study(db, None if workspace is None else str(workspace), study) as opened:
-        used = opened.study.protocol_name
-        if used and used != plan.study:
-            raise AnalysisError(
-                f"plan {plan.source_path or plan.title!r} analyses protocol {plan.study!r}, but study "
-                f"{opened.study.name!r} ran protocol {used!r}; use that protocol's plan (studyctl analyze {used})"
-            )
-        return compute_metrics(plan, opened.store, opened.study, on_progress=on_progress)
+    with open_stored_study(plan, db=db, workspace=workspace, study=study) as stored:
+        return compute_metrics(plan, stored, on_progress=on_progress)
+
+
+def _csv_table(plan: AnalysisPlan, db: str | None) -> MetricTable:
+    if db is not None:
+        raise UsageError(f"plan {plan.source_path} reads its data from {plan.data.path}; --db is not used by it")
+    return read_summary_csv(plan.csv_path(), study=plan.study)
 
 
 def analyze(
@@ -51,6 +69,7 @@ def analyze(
     workspace: str | Path | None = None,
     study: str | None = None,
     table: MetricTable | None = None,
+    figures: bool = False,
     on_step: Callable[[str], None] | None = None,
 ) -> AnalysisResult:
     """Run an analysis plan end to end.
@@ -59,28 +78,52 @@ def analyze(
     ----------
     plan
         A plan object, a plan file, or the name of a shipped plan.
-    db, workspace
+    db, workspace, study
         Where the study database is (ignored for CSV plans and when ``table`` is given).
     table
         Metric values to analyse instead of reading them (tests, notebooks).
+    figures
+        Also collect the data of the plan's figures drawn from stored samples or controllers
+        (``result.figures``), from the same open study.
     on_step
         Progress callback with the name of each step.
 
     Returns
     -------
     AnalysisResult
-        ``timings`` has ``metrics_s`` (reading and computing metrics) and the runner's own figures.
+        ``timings`` has ``metrics_s`` (reading and computing metrics), the runner's own figures and, with
+        ``figures``, ``figure_data_s``.
     """
+    from studyctl.analysis.figure_data import collect, needs_figure_data
+
     if not isinstance(plan, AnalysisPlan):
         plan = load_plan(plan)
+    want_figures = figures and needs_figure_data(plan)
+    figure_data: dict[str, FigureData] = {}
+    timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    if table is None:
-        if on_step:
-            on_step("metrics")
-        table = load_data(plan, db=db, workspace=workspace, study=study)
-    metrics_s = time.perf_counter() - t0
-    result = run_plan(plan, table, on_step=on_step)
-    timings = {"metrics_s": metrics_s, **result.timings}
+    with contextlib.ExitStack() as stack:
+        stored = None
+        if plan.data.source == "database" and (table is None or want_figures):
+            stored = stack.enter_context(open_stored_study(plan, db=db, workspace=workspace, study=study))
+        if table is None:
+            if on_step:
+                on_step("metrics")
+            if stored is None:
+                table = _csv_table(plan, db)
+            else:
+                from studyctl.analysis.metrics import compute_metrics
+
+                table = compute_metrics(plan, stored)
+        timings["metrics_s"] = time.perf_counter() - t0
+        result = run_plan(plan, table, on_step=on_step)
+        timings.update(result.timings)
+        if want_figures and stored is not None:
+            if on_step:
+                on_step("figure data")
+            t1 = time.perf_counter()
+            figure_data = collect(plan, stored)
+            timings["figure_data_s"] = time.perf_counter() - t1
     return AnalysisResult(
         plan=result.plan,
         data=result.data,
@@ -89,4 +132,5 @@ def analyze(
         missing=result.missing,
         problems=result.problems,
         timings=timings,
+        figures=figure_data,
     )

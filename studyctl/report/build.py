@@ -114,8 +114,8 @@ def write_report(
     out_dir
         Created if missing; must be writable (checked first).
     figure_data
-        Trace and model-curve data by figure id (:func:`studyctl.analysis.figure_data.collect`);
-        a figure without its data is drawn as a notice and listed in ``problems``.
+        Trace and model-curve data by figure id; ``result.figures`` when not given. A figure without its
+        data is drawn as a notice and listed in ``problems``.
     on_step
         Called with the name of each step (progress display).
     """
@@ -155,7 +155,8 @@ def write_report(
     for fig_spec in plan.figures:
         if on_step:
             on_step(f"figure {fig_spec.id}")
-        fig, problem = draw_figure(result, fig_spec, (figure_data or {}).get(fig_spec.id))
+        data = (result.figures if figure_data is None else figure_data).get(fig_spec.id)
+        fig, problem = draw_figure(result, fig_spec, data)
         if problem:
             problems.append(f"figure {fig_spec.id}: {problem}")
         png = png_bytes(fig)

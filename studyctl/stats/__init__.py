@@ -9,7 +9,8 @@ message in ``warnings``.
 Tests: :func:`rank_sum`, :func:`signed_rank`, :func:`signed_rank_critical`,
 :func:`kruskal_wallis`, :func:`dunn`, :func:`anova_oneway`, :func:`tukey_hsd`, :func:`friedman`,
 :func:`rm_anova`. Intervals: :func:`wilson_interval`, :func:`newcombe_interval`. Helpers:
-:func:`adjust_pvalues`, :func:`studentized_range_sf`, :func:`studentized_range_ppf`.
+:func:`adjust_pvalues`, :func:`studentized_range_sf`, :func:`studentized_range_ppf`. Every result reads
+the same way through ``summary()`` (a :class:`TestSummary`) or, for pairwise procedures, ``pairs()``.
 """
 
 from .anova import anova_oneway
@@ -32,6 +33,7 @@ from .results import (
 )
 from .signedrank import signed_rank, signed_rank_critical
 from .studentized_range import studentized_range_ppf, studentized_range_sf
+from .summary import PairSummary, TestSummary
 from .tukey import tukey_hsd
 
 __all__ = [
@@ -40,9 +42,11 @@ __all__ = [
     "FriedmanResult",
     "KruskalResult",
     "NewcombeInterval",
+    "PairSummary",
     "RankSumResult",
     "RepeatedAnovaResult",
     "SignedRankResult",
+    "TestSummary",
     "TukeyResult",
     "WilsonInterval",
     "adjust_pvalues",

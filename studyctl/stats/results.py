@@ -8,6 +8,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from .summary import PairSummary, TestSummary
+
 
 def _cell(value: Any) -> Any:
     if isinstance(value, tuple):
@@ -42,6 +44,11 @@ class RankSumResult(_OneRow):
     degenerate: bool  # all values tied: no information, pvalue NaN
     warnings: tuple[str, ...] = ()
 
+    def summary(self) -> TestSummary:
+        return TestSummary("U", float(self.statistic), p=float(self.pvalue), z=float(self.z),
+                           effect_size_name="rank_biserial", effect_size=float(self.effect_size),
+                           method=self.method, warnings=self.warnings)
+
 
 @dataclass(frozen=True)
 class SignedRankResult(_OneRow):
@@ -65,6 +72,11 @@ class SignedRankResult(_OneRow):
     degenerate: bool
     warnings: tuple[str, ...] = ()
 
+    def summary(self) -> TestSummary:
+        return TestSummary("V (R+)", float(self.statistic), p=float(self.pvalue), z=float(self.z),
+                           effect_size_name="matched_pairs_r", effect_size=float(self.effect_size),
+                           method=self.method, warnings=self.warnings)
+
 
 @dataclass(frozen=True)
 class KruskalResult(_OneRow):
@@ -81,6 +93,11 @@ class KruskalResult(_OneRow):
     nan_dropped: int
     degenerate: bool
     warnings: tuple[str, ...] = ()
+
+    def summary(self) -> TestSummary:
+        return TestSummary("H", float(self.statistic), p=float(self.pvalue), df=float(self.df),
+                           effect_size_name="epsilon_squared", effect_size=float(self.effect_size),
+                           method="Kruskal-Wallis, chi-squared approximation, tie-corrected", warnings=self.warnings)
 
 
 @dataclass(frozen=True)
@@ -102,6 +119,14 @@ class AnovaResult(_OneRow):
     degenerate: bool
     warnings: tuple[str, ...] = ()
 
+    def summary(self, effect_size: str = "eta_squared") -> TestSummary:
+        """``effect_size``: ``eta_squared`` (default) or ``omega_squared``."""
+        sizes = {"eta_squared": self.eta_squared, "omega_squared": self.omega_squared}
+        return TestSummary("F", float(self.statistic), p=float(self.pvalue), df=float(self.df_between),
+                           effect_size_name=effect_size, effect_size=float(sizes[effect_size]),
+                           method=f"one-way ANOVA F({float(self.df_between):g}, {float(self.df_within):g})",
+                           warnings=self.warnings)
+
 
 @dataclass(frozen=True)
 class FriedmanResult(_OneRow):
@@ -116,6 +141,11 @@ class FriedmanResult(_OneRow):
     rows_dropped: int
     degenerate: bool
     warnings: tuple[str, ...] = ()
+
+    def summary(self) -> TestSummary:
+        return TestSummary("chi2 (Friedman)", float(self.statistic), p=float(self.pvalue), df=float(self.df),
+                           effect_size_name="kendall_w", effect_size=float(self.kendall_w),
+                           method="Friedman, chi-squared approximation, tie-corrected", warnings=self.warnings)
 
 
 @dataclass(frozen=True)
@@ -135,6 +165,17 @@ class RepeatedAnovaResult(_OneRow):
     degenerate: bool
     warnings: tuple[str, ...] = ()
 
+    def summary(self) -> TestSummary:
+        """``p`` is the Greenhouse-Geisser corrected p-value (the uncorrected one is in ``method``)."""
+        return TestSummary(
+            "F", float(self.statistic), p=float(self.pvalue_gg), df=float(self.df_effect),
+            effect_size_name="partial_eta_squared", effect_size=float(self.partial_eta_squared),
+            method=f"repeated-measures ANOVA F({float(self.df_effect):g}, {float(self.df_error):g}), participants "
+            f"as blocks; p with the Greenhouse-Geisser correction (epsilon = {float(self.epsilon_gg):.3f}; "
+            f"uncorrected p = {float(self.pvalue):.3g})",
+            warnings=self.warnings,
+        )
+
 
 @dataclass(frozen=True)
 class WilsonInterval(_OneRow):
@@ -146,6 +187,11 @@ class WilsonInterval(_OneRow):
     successes: int
     n: int
     confidence: float
+
+    def summary(self) -> TestSummary:
+        return TestSummary("successes", float(self.successes), estimate=float(self.estimate),
+                           ci_low=float(self.lower), ci_high=float(self.upper), ci_level=float(self.confidence),
+                           method="Wilson score interval")
 
 
 @dataclass(frozen=True)
@@ -160,6 +206,14 @@ class NewcombeInterval(_OneRow):
     p1: float
     p2: float
     confidence: float
+
+    def summary(self) -> TestSummary:
+        """``statistic`` is the margin towards zero: the pair differs when |Δp| exceeds it."""
+        d = float(self.difference)
+        return TestSummary("margin (CI towards 0)", float(self.margin), effect_size_name="difference",
+                           effect_size=d, estimate=d, ci_low=float(self.lower), ci_high=float(self.upper),
+                           ci_level=float(self.confidence),
+                           method="Newcombe hybrid score (method 10); significant when |Δp| > margin")
 
 
 def read_only(values: Any) -> np.ndarray:
@@ -205,6 +259,20 @@ class DunnResult(_PairTable):
 
     _COLUMNS = ("mean_rank_diff", "z", "pvalue", "p_adj")  # to_frame(): group1, group2 and these
 
+    def pairs(self) -> tuple[PairSummary, ...]:
+        """One summary per pair: z, the two-sided p, the adjusted p and the mean-rank difference."""
+        if self.p_adjust == "tukey-kramer":
+            method = "MATLAB multcompare after kruskalwallis (mean ranks, studentized range, df = inf)"
+        else:
+            method = f"Dunn z test, two-sided, {self.p_adjust} adjusted"
+        return tuple(
+            PairSummary(g1, g2, TestSummary(
+                "z", float(self.z[i]), p=float(self.pvalue[i]), z=float(self.z[i]), p_adj=float(self.p_adj[i]),
+                p_adjust=self.p_adjust, effect_size_name="mean_rank_difference",
+                effect_size=float(self.mean_rank_diff[i]), method=method, warnings=self.warnings))
+            for i, (g1, g2) in enumerate(zip(self.group1, self.group2, strict=True))
+        )
+
 
 @dataclass(frozen=True)
 class TukeyResult(_PairTable):
@@ -232,3 +300,14 @@ class TukeyResult(_PairTable):
     warnings: tuple[str, ...] = ()
 
     _COLUMNS = ("diff", "lower", "upper", "p_adj")  # to_frame(): R ``TukeyHSD`` layout
+
+    def pairs(self) -> tuple[PairSummary, ...]:
+        """One summary per pair: the mean difference (second − first) with its simultaneous interval."""
+        return tuple(
+            PairSummary(g1, g2, TestSummary(
+                "diff (second − first)", float(self.diff[i]), p_adj=float(self.p_adj[i]), p_adjust="tukey",
+                effect_size_name="mean_difference", effect_size=float(self.diff[i]), estimate=float(self.diff[i]),
+                ci_low=float(self.lower[i]), ci_high=float(self.upper[i]), ci_level=float(self.confidence),
+                method="Tukey HSD (Tukey-Kramer), studentized range", warnings=self.warnings))
+            for i, (g1, g2) in enumerate(zip(self.group1, self.group2, strict=True))
+        )

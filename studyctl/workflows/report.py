@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from studyctl.analysis.plan import AnalysisPlan, load_plan
+from studyctl.analysis.plan import AnalysisPlan
 from studyctl.analysis.results import AnalysisResult
 from studyctl.report.build import ReportFiles, ensure_writable, write_report
 
@@ -32,27 +32,22 @@ def build_report(
 ) -> ReportRun:
     """Analyse ``plan`` (database or CSV data) and write its report into ``out_dir``.
 
-    The output folder is checked for writability before anything is computed.
+    The output folder is checked for writability before anything is computed. The plan is loaded and
+    the study opened once, by :func:`studyctl.analysis.analyze`, for the tests and the figures' data.
     """
     from studyctl.analysis.run import analyze
 
-    if not isinstance(plan, AnalysisPlan):
-        plan = load_plan(plan)
     ensure_writable(out_dir)
     t0 = time.perf_counter()
-    result = analyze(plan, db=db, workspace=workspace, study=study, on_step=on_step)
-    t1 = time.perf_counter()
-    figure_data = {}
-    if plan.data.source == "database" and any(
-        f.kind in ("force_trace", "needle_force_profile", "controller_response") for f in plan.figures
-    ):
-        from studyctl.analysis.figure_data import collect
-
-        if on_step:
-            on_step("figure data")
-        figure_data = collect(plan, db=db, workspace=workspace, study=study)
+    result = analyze(plan, db=db, workspace=workspace, study=study, figures=True, on_step=on_step)
     t2 = time.perf_counter()
-    files = write_report(result, out_dir, figure_data=figure_data, on_step=on_step)
+    files = write_report(result, out_dir, on_step=on_step)
     t3 = time.perf_counter()
-    timings = {"analyze_s": t1 - t0, "figure_data_s": t2 - t1, "report_s": t3 - t2, "total_s": t3 - t0}
+    figure_data_s = result.timings.get("figure_data_s", 0.0)
+    timings = {
+        "analyze_s": t2 - t0 - figure_data_s,
+        "figure_data_s": figure_data_s,
+        "report_s": t3 - t2,
+        "total_s": t3 - t0,
+    }
     return ReportRun(result=result, files=files, timings=timings)

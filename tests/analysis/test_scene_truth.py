@@ -7,8 +7,8 @@ import json
 import pytest
 from sqlalchemy import select
 
-import studyctl.analysis.metrics as metrics
 from studyctl.analysis import analyze
+from studyctl.analysis.truth import SceneTruth
 from studyctl.engine.plan import SessionPlan
 from studyctl.store.models import Event, Session, Trial
 from studyctl.store.workspace import open_study
@@ -30,13 +30,14 @@ def test_stored_truth_is_the_scene_truth_and_analysis_uses_it(tmp_path, monkeypa
         stored = dict(s.execute(select(Event.trial_id, Event.payload).where(Event.kind == "scene_truth")).all())
     scored = [tr for tr in trials if not plan.conditions[tr.condition].manual or tr.id in stored]
     assert scored and all(tr.id in stored for tr in scored)
+    truths = SceneTruth()
     for tr in scored:
-        rebuilt = metrics.rebuild_truth(plan, tr.placement or {}, int(sess.seed), int(tr.plan_position))
+        rebuilt = truths.rebuild(plan, tr.placement or {}, int(sess.seed), int(tr.plan_position))
         assert stored[tr.id] == json.loads(json.dumps(rebuilt))  # what older databases get by rebuilding
 
     def no_rebuild(*_args, **_kwargs):
         raise AssertionError("analysis rebuilt a scene although the trial stored its truth")
 
-    monkeypatch.setattr(metrics, "rebuild_truth", no_rebuild)
+    monkeypatch.setattr(SceneTruth, "rebuild", no_rebuild)
     result = analyze(protocol, workspace=tmp_path / "ws")
     assert len(result.data.frame) and result.data.missing.empty
