@@ -92,7 +92,7 @@ def _tissue(trial: TrialView, which: str, params: Mapping[str, Any]) -> list[Row
     raise AnalysisError(f"unknown tissue metric {which!r}")
 
 
-def _grid_index(label: Any, labels: Sequence[str]) -> int:
+def _grid_index(label: str | int, labels: Sequence[str]) -> int:
     """1-based index of a reported grid label ('3', 'C') on the plan's report grid."""
     text = str(label)
     if text in labels:

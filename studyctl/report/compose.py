@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -34,7 +34,7 @@ def draw_figure(result: AnalysisResult, spec: FigureEntry, data: FigureData | No
     return drawer(result, spec, data, title)
 
 
-def _box(result: AnalysisResult, spec: FigureEntry, data: Any, title: str) -> tuple[Figure, str]:
+def _box(result: AnalysisResult, spec: FigureEntry, data: FigureData | None, title: str) -> tuple[Figure, str]:
     plan = result.plan
     units = result.tables.get("units", pd.DataFrame())
     tests = result.to_frame()
@@ -60,7 +60,7 @@ def _box(result: AnalysisResult, spec: FigureEntry, data: Any, title: str) -> tu
     return fig, (f"no values for {', '.join(missing)}" if missing else "")
 
 
-def _proportion(result: AnalysisResult, spec: FigureEntry, data: Any, title: str) -> tuple[Figure, str]:
+def _proportion(result: AnalysisResult, spec: FigureEntry, data: FigureData | None, title: str) -> tuple[Figure, str]:
     plan = result.plan
     props = result.tables.get("proportions", pd.DataFrame())
     mid = spec.metrics[0]
@@ -84,7 +84,9 @@ def _proportion(result: AnalysisResult, spec: FigureEntry, data: Any, title: str
     return fig, ""
 
 
-def _percent_change(result: AnalysisResult, spec: FigureEntry, data: Any, title: str) -> tuple[Figure, str]:
+def _percent_change(
+    result: AnalysisResult, spec: FigureEntry, data: FigureData | None, title: str
+) -> tuple[Figure, str]:
     plan = result.plan
     pct = result.tables.get("percent_change", pd.DataFrame())
     test_id = spec.options.get("test")
@@ -99,7 +101,7 @@ def _percent_change(result: AnalysisResult, spec: FigureEntry, data: Any, title:
     ), ""
 
 
-def _likert(result: AnalysisResult, spec: FigureEntry, data: Any, title: str) -> tuple[Figure, str]:
+def _likert(result: AnalysisResult, spec: FigureEntry, data: FigureData | None, title: str) -> tuple[Figure, str]:
     table = likert_items_table(result, spec.metrics[0])
     if table.empty:
         return F.message_figure("no Likert answers in this result", title=title), "no Likert answers"

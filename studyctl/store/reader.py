@@ -46,7 +46,7 @@ JSON = Mapping[str, Any]
 _EMPTY: JSON = MappingProxyType({})
 
 
-def _frozen(payload: Any) -> JSON:
+def _frozen(payload: Mapping[str, Any] | None) -> JSON:
     return MappingProxyType(dict(payload)) if payload else _EMPTY
 
 

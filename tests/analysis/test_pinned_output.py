@@ -1,0 +1,75 @@
+"""The analysis of one small stored study, pinned: tests, cells and the figures' data must not change.
+
+A seeded simulated study (bio-inspired palpation, 2 virtual participants) is analysed end to end from
+its database: metrics through the study reader, every test of the shipped plan, and the data of the
+trace and controller figures. The outputs are compared byte for byte with the pinned files in
+``tests/analysis/pinned/``. The same study with its stored scene truth removed (as databases written
+before truth events) must give the same outputs through the rebuilt scenes.
+
+If the simulated study itself was meant to change (engine, participants, populations), re-pin with
+``STUDYCTL_REPIN=1 pytest tests/analysis/test_pinned_output.py`` and say why in the commit.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sqlite3
+from pathlib import Path
+
+import pytest
+
+from studyctl.analysis import analyze
+from studyctl.workflows.simulate import simulate_study
+
+PINNED = Path(__file__).parent / "pinned"
+PROTOCOL = "bio_inspired_palpation"
+
+
+def _outputs(workspace: Path) -> dict[str, str]:
+    result = analyze(PROTOCOL, workspace=workspace, figures=True)
+    out = {
+        "tests.csv": result.to_frame().to_csv(index=False, lineterminator="\n"),
+        "cells.csv": result.tables["cells"].to_csv(index=False, lineterminator="\n"),
+        "metrics.csv": result.data.frame.to_csv(index=False, lineterminator="\n"),
+    }
+    figures = {}
+    for fid, data in sorted(result.figures.items()):
+        text = data.frame.to_csv(index=False, lineterminator="\n") + repr(sorted(data.meta.items())) + data.problem
+        figures[fid] = {"rows": len(data.frame), "sha256": hashlib.sha256(text.encode()).hexdigest()}
+    out["figures.json"] = json.dumps(figures, indent=1, sort_keys=True) + "\n"
+    return out
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory) -> Path:
+    ws = tmp_path_factory.mktemp("pinned") / "ws"
+    simulate_study(PROTOCOL, 2, 7, ws)
+    return ws
+
+
+def test_analysis_of_a_stored_study_is_pinned(study):
+    got = _outputs(study)
+    assert json.loads(got["figures.json"]), "the plan's signal figures produced no data"
+    if os.environ.get("STUDYCTL_REPIN") == "1":
+        PINNED.mkdir(exist_ok=True)
+        for name, text in got.items():
+            (PINNED / name).write_text(text)
+    changed = [name for name, text in got.items() if (PINNED / name).read_text() != text]
+    assert not changed, (
+        f"analysis output differs from tests/analysis/pinned/ in {', '.join(changed)}; if the simulated study "
+        "was meant to change, re-pin with STUDYCTL_REPIN=1 (see this file's docstring)"
+    )
+
+
+def test_rebuilt_scene_truth_scores_the_same(study, tmp_path):
+    ws = tmp_path / "old"
+    shutil.copytree(study, ws)
+    # An older database: no scene_truth events (events are append-only, so the copy drops the guard first).
+    with sqlite3.connect(ws / "study.db") as con:
+        con.execute("DROP TRIGGER event_no_delete")
+        gone = con.execute("DELETE FROM event WHERE kind = 'scene_truth'").rowcount
+    assert gone > 0
+    assert _outputs(ws) == _outputs(study)
