@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -27,9 +27,11 @@ from studyctl.analysis.plan import AnalysisPlan
 from studyctl.analysis.table import COLUMNS, MISSING_COLUMNS, MetricTable, empty_frame
 from studyctl.analysis.trials import StoredStudy, TrialView
 from studyctl.errors import AnalysisError, StudyctlError
-from studyctl.store.models import Study
 from studyctl.store.reader import StudyReader
 from studyctl.store.repository import StudyStore
+
+if TYPE_CHECKING:
+    from studyctl.store.models import Study
 
 # ------------------------------------------------------------------------------------------ families
 # Each returns rows (level, value, denominator) for one trial, or raises AnalysisError (→ missing).
