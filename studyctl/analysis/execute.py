@@ -12,6 +12,7 @@ so a partial result is visibly partial.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import time
 from collections.abc import Callable, Sequence
@@ -118,7 +119,9 @@ class _EntryRunner:
             **kw,
         )
 
-    def cell(self, levels: Sequence[str], options: dict[str, Any] | None = None, **data: Any) -> Cell:
+    def cell(
+        self, levels: Sequence[str], sub: pd.DataFrame, options: dict[str, Any] | None = None, **data: Any
+    ) -> Cell:
         es = self.entry.effect_size
         return Cell(
             levels=tuple(levels),
@@ -126,6 +129,7 @@ class _EntryRunner:
             options=dict(self.entry.options if options is None else options),
             effect_size=es[0] if es else None,
             reference=self.entry.reference,
+            units=sub,
             **data,
         )
 
@@ -204,7 +208,7 @@ class _EntryRunner:
             values = [sub.loc[sub[col] == lv, "value"].to_numpy(dtype=float) for lv in levels]
             head = {"test_id": self.entry.id, "metric": metric, "split": split}
             assert spec.tabulate is not None, f"{spec.name}: a descriptive entry needs tabulate"
-            rows = spec.tabulate(self.cell(levels, samples=tuple(values)))
+            rows = spec.tabulate(self.cell(levels, sub, samples=tuple(values)))
             self.tables[spec.table].extend({**head, **r} for r in rows)
             return []
         if len(levels) < spec.min_levels:
@@ -285,7 +289,7 @@ class _EntryRunner:
             samples = (x, y)
         assert spec.run is not None
         try:
-            (finding,) = spec.run(self.cell([a, b], options, samples=samples))
+            (finding,) = spec.run(self.cell([a, b], sub[sub[col].isin([a, b])], options, samples=samples))
         except StudyctlError as exc:
             return [self.row(metric, split, status="not_computed", warnings=str(exc), **common)]
         common.pop("test")
@@ -310,7 +314,7 @@ class _EntryRunner:
             if empty:
                 return [self.row(metric, split, status="not_computed", warnings=f"no values for {', '.join(empty)}",
                                  **base)]
-        cell = self.cell(levels, samples=tuple(samples))
+        cell = self.cell(levels, sub, samples=tuple(samples))
         if spec.pairwise:
             return self.run_procedure(metric, split, cell, spec, kind="pairwise")
         assert spec.run is not None
@@ -336,7 +340,7 @@ class _EntryRunner:
         spec = catalog.TESTS[name]
         if spec.pairwise:
             options = {**self.entry.options, "p_adjust": ph.p_adjust, "variant": variant}
-            ph_cell = Cell(levels=cell.levels, alpha=cell.alpha, samples=cell.samples, options=options)
+            ph_cell = dataclasses.replace(cell, options=options)
             return self.run_procedure(metric, split, ph_cell, spec, kind="posthoc")
         parent = self.parent_label(metric, split)
         rows: list[TestRow] = []
@@ -380,7 +384,7 @@ class _EntryRunner:
             for lv in levels:
                 x, n = counts[lv]
                 try:
-                    (f,) = spec.run(self.cell([lv], counts=((x, n),)))
+                    (f,) = spec.run(self.cell([lv], sub[sub[col] == lv], counts=((x, n),)))
                     out.append(self.finding_row(metric, split, f, spec, (), kind="interval", groups=lv, n=n,
                                                 n_per_group=f"{x}/{n}"))
                 except StudyctlError as exc:
@@ -393,7 +397,7 @@ class _EntryRunner:
         for a, b in self.pairs(levels):
             (x1, n1), (x2, n2) = counts[a], counts[b]
             try:
-                (f,) = spec.run(self.cell([a, b], counts=((x1, n1), (x2, n2))))
+                (f,) = spec.run(self.cell([a, b], sub[sub[col].isin([a, b])], counts=((x1, n1), (x2, n2))))
                 out.append(self.finding_row(metric, split, f, spec, (), kind="pairwise", groups=f"{a} vs {b}",
                                             n=n1 + n2, n_per_group=f"{x1}/{n1}; {x2}/{n2}"))
             except StudyctlError as exc:

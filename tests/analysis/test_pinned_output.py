@@ -19,6 +19,7 @@ import shutil
 import sqlite3
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from studyctl.analysis import analyze
@@ -28,16 +29,22 @@ PINNED = Path(__file__).parent / "pinned"
 PROTOCOL = "bio_inspired_palpation"
 
 
+def _csv(frame: pd.DataFrame) -> str:
+    # 12 significant digits: more than the report's CSVs carry (10), fewer than the last-bit noise of an
+    # iterative quantile (the studentized range) that differs between processes.
+    return frame.to_csv(index=False, lineterminator="\n", float_format="%.12g")
+
+
 def _outputs(workspace: Path) -> dict[str, str]:
     result = analyze(PROTOCOL, workspace=workspace, figures=True)
     out = {
-        "tests.csv": result.to_frame().to_csv(index=False, lineterminator="\n"),
-        "cells.csv": result.tables["cells"].to_csv(index=False, lineterminator="\n"),
-        "metrics.csv": result.data.frame.to_csv(index=False, lineterminator="\n"),
+        "tests.csv": _csv(result.to_frame()),
+        "cells.csv": _csv(result.tables["cells"]),
+        "metrics.csv": _csv(result.data.frame),
     }
     figures = {}
     for fid, data in sorted(result.figures.items()):
-        text = data.frame.to_csv(index=False, lineterminator="\n") + repr(sorted(data.meta.items())) + data.problem
+        text = _csv(data.frame) + repr(sorted(data.meta.items())) + data.problem
         figures[fid] = {"rows": len(data.frame), "sha256": hashlib.sha256(text.encode()).hexdigest()}
     out["figures.json"] = json.dumps(figures, indent=1, sort_keys=True) + "\n"
     return out

@@ -70,6 +70,7 @@ def test_a_new_test_is_one_registry_entry(monkeypatch, tmp_path):
 
     def median_gap(cell: Cell) -> list[Finding]:
         a, b = (float(np.median(s)) for s in cell.samples)
+        assert cell.units is not None and set(cell.units["group"]) == set(cell.levels)  # the long rows too
         return [Finding(stats.TestSummary("median gap", b - a, method="toy: difference of medians"), None)]
 
     spec = TestSpec("median_gap", catalog.BETWEEN, median_gap, frozenset(), 2, 2, frozenset(), (), "toy", each="pair")

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from studyctl.stats import TestSummary
 
@@ -41,7 +42,10 @@ class Cell:
     value of each level (NaN kept). ``counts``: PROPORTION, (successes, chances) per level.
     ``options`` are the plan entry's options (post-hoc runs get the post-hoc's), ``alpha`` its level,
     ``effect_size`` the effect size it asked for first (None: the test's default), ``reference`` the
-    reference level of a comparison against one level.
+    reference level of a comparison against one level. ``units`` are the cell's rows of the units table
+    (``participant``, ``group``, ``condition``, ``level``, ``value``; for proportions ``successes`` and
+    ``chances``), for tests that need more than one array per level (models with participants as a
+    random factor, aligned-rank transforms over a second factor).
     """
 
     levels: tuple[str, ...]
@@ -51,6 +55,7 @@ class Cell:
     options: Mapping[str, Any] = field(default_factory=dict)
     effect_size: str | None = None
     reference: str | None = None
+    units: pd.DataFrame | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
