@@ -155,7 +155,7 @@ class Controller(ABC):
     #: True when the controller's models integrate with the measured time step between observations, so a
     #: simulated session may run its loop below ``rate_hz`` (``run_session(sim_rate_hz=…)``; the simulated
     #: device still integrates its physics at its own rate). False: the loop always runs at ``rate_hz``
-    #: (e.g. a model whose time step or passivity bounds are tied to its rate).
+    #: (e.g. a model whose time step or damping rules are tied to its rate).
     rate_adjustable: ClassVar[bool] = False
 
     def __init__(self, params: Mapping[str, Any], scene: Scene | None = None) -> None:

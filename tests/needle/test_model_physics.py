@@ -271,7 +271,7 @@ def test_maintain_mode_transition_is_smooth_and_holds(vertical_geometry):
     assert f == pytest.approx([-1.0 * m.params.radial_kp * 1e-3, 0.0, 0.0], abs=1e-3)
 
 
-def test_passivity_bound_is_k_t_over_two():
+def test_damping_rule_is_k_t_over_two():
     p = NeedleParams.from_mapping({"scenario": "ESG"})
     for _spring, damper, k in p.spring_damper_pairs():
         assert getattr(p, damper) >= k / (2 * p.rate_hz)
@@ -341,7 +341,7 @@ def test_unstable_parameters_are_refused_with_the_bound():
     with pytest.raises(ModelParameterError) as err:
         NeedleParams.from_mapping({"scenario": "EG", "radial_kd": 0.1})
     msg = str(err.value)
-    assert "passivity bound" in msg and "0.5 N·s/m" in msg and "radial_kp" in msg and "1000 Hz" in msg
+    assert "damping rule K·T/2" in msg and "0.5 N·s/m" in msg and "radial_kp" in msg and "1000 Hz" in msg
     with pytest.raises(ModelParameterError, match="contact_d"):
         NeedleParams.from_mapping({"scenario": "ES", "contact_d": 0.1})
     with pytest.raises(ModelParameterError, match="unknown parameter 'k_stif'"):
