@@ -15,6 +15,7 @@ from studyctl.errors import StudyctlError
 
 COMMAND_MODULES = (
     "studyctl.cli.bench",
+    "studyctl.cli.calibrate",
     "studyctl.cli.plugins",
     "studyctl.cli.protocol",
     "studyctl.cli.enroll",

@@ -184,7 +184,19 @@ class TraitPopulation:
     def to_yaml(self) -> str:
         import yaml
 
-        return yaml.safe_dump(self.to_dict(), sort_keys=False, allow_unicode=True, width=110)
+        class _Dumper(yaml.SafeDumper):
+            pass
+
+        def short_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
+            flow = len(data) <= 4 and all(isinstance(v, int | float | str) for v in data)
+            return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+        def number(dumper: yaml.SafeDumper, data: float) -> yaml.Node:
+            return dumper.represent_float(float(f"{data:.6g}"))  # fitted values: 6 significant digits
+
+        _Dumper.add_representer(list, short_list)
+        _Dumper.add_representer(float, number)
+        return yaml.dump(self.to_dict(), Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=110)
 
 
 def _plain(value: Any) -> Any:

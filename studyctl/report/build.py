@@ -138,7 +138,7 @@ def write_report(
     if on_step:
         on_step("tables")
     table("tests", result.to_frame())
-    for name in ("cells", "units", "proportions", "percent_change", "likert", "descriptives"):
+    for name in ("cells", "units", "proportions", "percent_change", "likert", "descriptives", "agreement"):
         frame = result.tables.get(name)
         if frame is not None and not frame.empty:
             table(name, frame)

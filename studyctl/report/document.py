@@ -293,6 +293,10 @@ def blocks(result: AnalysisResult, figure_ids: Sequence[str], problems: Sequence
             )
         )
         out.append(("list", list(problems) or ["see rows marked NOT COMPUTED"]))
+    if "agreement_info" in result.tables:  # a simulated study: how it compares with the paper, first
+        from studyctl.report.calibration import agreement_blocks
+
+        out.extend(agreement_blocks(result.tables.get("agreement"), result.tables["agreement_info"]))
     for role in ("paper", "within_subject", "supplementary"):
         entries = [e for e in plan.tests if e.role == role]
         if not entries:
@@ -358,13 +362,18 @@ figcaption{font-size:.9em;color:#555}ul{font-size:.9em}
 
 def html(result: AnalysisResult, figures: Mapping[str, bytes], problems: Sequence[str]) -> str:
     """The self-contained HTML report."""
+    return render_html(result.plan.title, blocks(result, list(figures), problems), figures)
+
+
+def render_html(title: str, content: Sequence[Block], figures: Mapping[str, bytes] | None = None) -> str:
+    """Blocks as a self-contained HTML page (figures embedded as PNG data)."""
     e = _html.escape
     parts = [
         "<!DOCTYPE html>",
         "<html lang='en'><head><meta charset='utf-8'>",
-        f"<title>{e(result.plan.title)}</title><style>{_CSS}</style></head><body>",
+        f"<title>{e(title)}</title><style>{_CSS}</style></head><body>",
     ]
-    for b in blocks(result, list(figures), problems):
+    for b in content:
         kind = b[0]
         if kind == "h":
             parts.append(f"<h{b[1]}>{e(str(b[2]))}</h{b[1]}>")
@@ -379,7 +388,7 @@ def html(result: AnalysisResult, figures: Mapping[str, bytes], problems: Sequenc
             body = "".join("<tr>" + "".join(f"<td>{e(str(c))}</td>" for c in row) + "</tr>" for row in b[2])
             parts.append(f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
         elif kind == "figure":
-            data = base64.b64encode(figures[b[1]]).decode("ascii")
+            data = base64.b64encode((figures or {})[b[1]]).decode("ascii")
             parts.append(
                 f"<figure id='{e(b[1])}'><img alt='{e(b[2])}' src='data:image/png;base64,{data}'>"
                 f"<figcaption>{e(b[2])} [{e(b[1])}]</figcaption></figure>"
@@ -398,8 +407,13 @@ def _md_cell(c: Any) -> str:
 def markdown(result: AnalysisResult, figure_files: Sequence[str], problems: Sequence[str]) -> str:
     """The report as Markdown; figures are linked from ``figures/``."""
     ids = [f.removesuffix(".png") for f in figure_files]
+    return render_markdown(blocks(result, ids, problems))
+
+
+def render_markdown(content: Sequence[Block]) -> str:
+    """Blocks as Markdown (figures linked from ``figures/``)."""
     lines: list[str] = []
-    for b in blocks(result, ids, problems):
+    for b in content:
         kind = b[0]
         if kind == "h":
             lines += ["#" * b[1] + " " + str(b[2]), ""]

@@ -29,17 +29,31 @@ def build_report(
     workspace: str | Path | None = None,
     study: str | None = None,
     on_step: Callable[[str], None] | None = None,
+    targets: str | Path | None = None,
 ) -> ReportRun:
     """Analyse ``plan`` (database or CSV data) and write its report into ``out_dir``.
 
     The output folder is checked for writability before anything is computed. The plan is loaded and
-    the study opened once, by :func:`studyctl.analysis.analyze`, for the tests and the figures' data.
+    the study opened once, by :func:`studyctl.analysis.analyze`, for the tests and the figures' data. A simulated
+    study's report gets a "simulated vs published" section and ``agreement.csv`` (``targets``: a targets file;
+    default: the protocol's shipped one).
     """
     from studyctl.analysis.run import analyze
 
     ensure_writable(out_dir)
     t0 = time.perf_counter()
     result = analyze(plan, db=db, workspace=workspace, study=study, figures=True, on_step=on_step)
+    if result.plan.data.source == "database":
+        from dataclasses import replace
+
+        from studyctl.workflows.agreement import simulated_vs_published
+
+        compared = simulated_vs_published(result.plan, result, db=db, workspace=workspace, study=study,
+                                          targets=targets)
+        if compared is not None:  # a simulated study: its report compares it with the paper
+            frame, info = compared
+            extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
+            result = replace(result, tables={**result.tables, **extra})
     t2 = time.perf_counter()
     files = write_report(result, out_dir, on_step=on_step)
     t3 = time.perf_counter()

@@ -1,0 +1,188 @@
+"""Simulated vs published: per target agreement and the calibration distance (pure computation).
+
+Agreement criteria (issue 17):
+
+* **direction** — a % change vs baseline has the paper's sign; a target with ``direction_vs: OTHER`` has the
+  paper's sign of (this − OTHER); other targets have no direction (blank);
+* **within** — a mean, median, proportion, IQR, count or % change lies in the published band (the printed 95 %
+  interval, ±1.96 SE, or ±1 SD for a mean with a printed SD; see :meth:`Target.interval`); an SD is "within"
+  when simulated/published lies in [1/1.5, 1.5];
+* **verdict** — a verdict or p-value target is significant at alpha exactly when the paper's is.
+
+The calibration distance is the simulated method of moments objective: Σ over fit targets of
+((simulated − published) / σ)², σ² = published SE² + simulation SE² (a p-value on the log10 scale with σ = 0.5;
+a verdict that differs adds 4, i.e. a 2σ miss; a target the simulation cannot compute adds 25).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+
+import pandas as pd
+
+from studyctl.calibration.simulated import SimulatedStats
+from studyctl.populations.targets import Target
+
+SD_FACTOR = 1.5
+MISSING_PENALTY = 25.0
+VERDICT_PENALTY = 4.0
+LOG_P_SD = 0.5
+
+COLUMNS = (
+    "target", "role", "metric", "where", "statistic", "published", "published_low", "published_high", "band",
+    "simulated", "simulated_low", "simulated_high", "same_direction", "within", "sd_ratio", "same_verdict",
+    "agrees", "z", "note",
+)
+
+
+@dataclass(frozen=True)
+class AgreementRow:
+    target: str
+    role: str
+    metric: str
+    where: str
+    statistic: str
+    published: float | bool
+    published_low: float
+    published_high: float
+    band: str
+    simulated: float | bool
+    simulated_low: float
+    simulated_high: float
+    same_direction: bool | None
+    within: bool | None
+    sd_ratio: float
+    same_verdict: bool | None
+    agrees: bool | None
+    z: float
+    note: str
+
+
+@dataclass(frozen=True)
+class Agreement:
+    rows: tuple[AgreementRow, ...]
+    alpha: float
+
+    def to_frame(self) -> pd.DataFrame:
+        return pd.DataFrame([asdict(r) for r in self.rows], columns=list(COLUMNS))
+
+    def summary(self) -> dict[str, dict[str, float | int | None]]:
+        """See :func:`summary_from_frame`."""
+        return summary_from_frame(self.to_frame())
+
+
+def _present(v: object) -> bool:
+    return v is not None and not (isinstance(v, float) and math.isnan(v))
+
+
+def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int | None]]:
+    """Per role (fit, validation, all): fractions of directions right, verdicts reproduced, values within their
+    band (SDs apart), SD ratios within 1.5×, targets that agree on every check, and the counts behind them."""
+    out: dict[str, dict[str, float | int | None]] = {}
+    records = frame.to_dict("records")
+    for role in ("fit", "validation", "all"):
+        rows = [r for r in records if role == "all" or r["role"] == role]
+        figures: dict[str, float | int | None] = {"targets": len(rows)}
+        for name, col in (("direction", "same_direction"), ("verdict", "same_verdict"), ("within", "within"),
+                          ("agree", "agrees")):
+            vals = [bool(r[col]) for r in rows if _present(r[col]) and (col != "within" or r["statistic"] != "sd")]
+            figures[f"{name}_n"] = len(vals)
+            figures[f"{name}_fraction"] = (sum(vals) / len(vals)) if vals else None
+        sds = [r for r in rows if r["statistic"] == "sd" and _present(r["within"])]
+        figures["sd_ratio_n"] = len(sds)
+        figures["sd_ratio_within_fraction"] = (sum(bool(r["within"]) for r in sds) / len(sds)) if sds else None
+        ratios = [float(r["sd_ratio"]) for r in sds if _present(r["sd_ratio"])]
+        figures["sd_ratio_median"] = float(pd.Series(ratios).median()) if ratios else None
+        out[role] = figures
+    return out
+
+
+def _num(v: object) -> float:
+    if isinstance(v, bool):
+        return float(v)
+    try:
+        return float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _sign(x: float) -> int:
+    return 0 if x == 0 else (1 if x > 0 else -1)
+
+
+def z_score(t: Target, sim: object, sim_se: float, alpha: float) -> float:
+    """Signed distance of the simulated value from the published one in σ units (see the module docs)."""
+    if t.statistic == "verdict":
+        if not isinstance(sim, bool):
+            return math.nan
+        return 0.0 if sim == t.value else math.copysign(math.sqrt(VERDICT_PENALTY), 1.0 if sim else -1.0)
+    s = _num(sim)
+    if not math.isfinite(s):
+        return math.nan
+    if t.statistic == "test_p":
+        return (math.log10(max(s, 1e-300)) - math.log10(max(float(t.value), 1e-300))) / LOG_P_SD
+    se_pub = t.published_se()
+    if se_pub is None:
+        se_pub = max(abs(float(t.value)) * 0.1, 1e-6)  # an unstated uncertainty: 10 % of the value
+    var = se_pub**2 + (sim_se**2 if math.isfinite(sim_se) else 0.0)
+    return (s - float(t.value)) / math.sqrt(max(var, 1e-12))
+
+
+def distance(targets: Sequence[Target], sim: SimulatedStats, alpha: float,
+             sim_se: Mapping[str, float] | None = None) -> tuple[float, dict[str, float]]:
+    """The calibration distance over ``targets`` and each target's z (see the module docs).
+
+    ``sim_se`` fixes the simulation SE per target (so the weights stay the same for every candidate);
+    default: each value's own bootstrap SE.
+    """
+    total, zs = 0.0, {}
+    for t in targets:
+        v = sim.get(t.id)
+        z = z_score(t, v.value, (sim_se or {}).get(t.id, v.se), alpha)
+        zs[t.id] = z
+        total += MISSING_PENALTY if not math.isfinite(z) else z * z
+    return total, zs
+
+
+def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> Agreement:
+    """Each target against its simulated value (see the module docs for the criteria)."""
+    pub = {t.id: t for t in targets}
+    rows = []
+    for t in targets:
+        v = sim.get(t.id)
+        s = v.value
+        band = t.interval()
+        lo, hi = band if band else (math.nan, math.nan)
+        direction = within = verdict = None
+        ratio = math.nan
+        sn = _num(s)
+        if t.statistic == "pct_change_vs_baseline" and math.isfinite(sn):
+            direction = _sign(sn) == _sign(float(t.value))
+        if t.direction_vs and t.direction_vs in pub and not t.is_test:
+            other = sim.get(t.direction_vs)
+            on = _num(other.value)
+            if math.isfinite(sn) and math.isfinite(on):
+                direction = _sign(sn - on) == _sign(float(t.value) - float(pub[t.direction_vs].value))
+        if t.statistic == "sd" and math.isfinite(sn) and float(t.value) > 0:
+            ratio = sn / float(t.value)
+            within = 1 / SD_FACTOR <= ratio <= SD_FACTOR
+        elif not t.is_test and band is not None and math.isfinite(sn):
+            within = lo <= sn <= hi
+        elif not t.is_test and band is not None:
+            within = False
+        if t.statistic == "verdict":
+            verdict = (s == t.value) if isinstance(s, bool) else False
+        elif t.statistic == "test_p":
+            verdict = (sn < alpha) == (float(t.value) < alpha) if math.isfinite(sn) else False
+        checks = [c for c in (direction, within, verdict) if c is not None]
+        agrees = all(checks) if checks else None
+        z = z_score(t, s, v.se, alpha)
+        rows.append(AgreementRow(
+            target=t.id, role=t.role, metric=t.metric, where=", ".join(f"{k}={w}" for k, w in t.where.items()),
+            statistic=t.statistic, published=t.value, published_low=lo, published_high=hi, band=t.band(),
+            simulated=s, simulated_low=v.low, simulated_high=v.high, same_direction=direction, within=within,
+            sd_ratio=ratio, same_verdict=verdict, agrees=agrees, z=z, note=v.note,
+        ))
+    return Agreement(tuple(rows), alpha)

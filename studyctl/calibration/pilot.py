@@ -1,0 +1,60 @@
+"""Targets from a pilot study's database (``studyctl calibrate --pilot-db``) instead of a paper."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from studyctl.populations.targets import Target, TargetSet, load_targets_file
+
+
+def _url(db: str) -> str:
+    return db if "://" in db else f"sqlite:///{Path(db).resolve()}"
+
+
+def pilot_targets(db: str, plan: Any, protocol: Any, *, template: str | Path | None = None) -> TargetSet:
+    """The pilot's own numbers as targets.
+
+    With ``template`` (a targets file): the same targets, each value replaced by the pilot's (uncertainty: its
+    bootstrap SE over the pilot's participants), roles kept. Without: every trial metric's mean per condition
+    (role fit) and between-participant SD per condition (role validation).
+    """
+    from studyctl.analysis import compute_metrics, run_plan
+    from studyctl.calibration.simulated import simulated_values
+    from studyctl.errors import NotFoundError
+    from studyctl.store.workspace import open_study
+
+    if "://" not in db and not Path(db).is_file():
+        raise NotFoundError(f"--pilot-db {db!r}: no such database file (give the pilot's study.db or a URL)")
+    with open_study(_url(db), None, None) as opened:
+        table = compute_metrics(plan, opened.store, opened.study)
+        seed = int(opened.study.seed or 0)
+    tests = run_plan(plan, table).to_frame()
+    if template is not None:
+        base = load_targets_file(template, plan=plan, protocol=protocol)
+        targets = list(base.targets)
+    else:
+        targets = []
+        for mid in plan.metrics:
+            if plan.metric_name(mid) == "likert":
+                continue
+            for c in protocol.condition_ids:
+                targets.append(Target(f"{mid}_{c}_mean", mid, "mean", 0.0, "fit", {"condition": c}))
+                targets.append(Target(f"{mid}_{c}_sd", mid, "sd", 0.0, "validation", {"condition": c}))
+        base = None
+    sim = simulated_values(targets, table.frame, tests, alpha=base.alpha if base else plan.alpha,
+                           rng=np.random.default_rng(seed))
+    out = []
+    for t, v in zip(targets, sim.values, strict=True):
+        if isinstance(v.value, float) and not np.isfinite(v.value):
+            continue  # the pilot has no data for it
+        unc = {} if t.is_test else {"se": float(v.se) if np.isfinite(v.se) else abs(float(v.value)) * 0.1,
+                                    "n": max(v.participants, 1)}
+        out.append(Target(t.id, t.metric, t.statistic, v.value, t.role, dict(t.where), unc,
+                          note=f"pilot {db}", test=t.test, baseline=t.baseline, direction_vs=t.direction_vs,
+                          unit=t.unit, location=f"{db} (pilot)"))
+    return TargetSet(protocol=protocol.study.id, source=f"pilot study {db}", targets=tuple(out),
+                     alpha=base.alpha if base else float(plan.alpha), plan=plan.study, path=str(db),
+                     sha256=str(abs(hash(tuple((t.id, str(t.value)) for t in out)))))

@@ -1,0 +1,335 @@
+"""Published targets: a paper's numbers a simulated study is compared with (``format: studyctl-targets/1``).
+
+Each target names a metric of the protocol's analysis plan, optional filters (``where``: condition, group,
+level — aliases nodule, tumour, class, item), a statistic, the published value, its uncertainty as printed
+(``sd`` and ``n``, ``se``, or a 95 % ``interval``) and a role: ``fit`` targets may be used by
+``studyctl calibrate``; ``validation`` targets never are. Every mistake is one error with file:line:column,
+the field, what is allowed and the nearest valid name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from studyctl.errors import NotFoundError, PopulationError
+from studyctl.suggest import did_you_mean
+
+TARGETS_FORMAT = "studyctl-targets/1"
+STATISTICS = (
+    "mean", "sd", "median", "iqr", "proportion", "count_total", "pct_change_vs_baseline", "test_p", "verdict",
+)
+ROLES = ("fit", "validation")
+TOP_KEYS = ("format", "protocol", "source", "plan", "alpha", "targets", "note")
+TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "uncertainty", "role", "note", "test", "baseline",
+               "direction_vs", "unit", "headline")
+WHERE_KEYS = ("condition", "group", "level")
+LEVEL_ALIASES = ("nodule", "tumour", "class", "item")
+UNCERTAINTY_KEYS = ("sd", "n", "se", "interval")
+TEST_STATISTICS = ("test_p", "verdict")
+
+
+@dataclass(frozen=True)
+class Target:
+    """One published number (see the module docs). ``value`` is a bool for verdicts."""
+
+    id: str
+    metric: str
+    statistic: str
+    value: Any
+    role: str
+    where: Mapping[str, str] = field(default_factory=dict)
+    uncertainty: Mapping[str, Any] = field(default_factory=dict)
+    note: str = ""
+    test: str = ""
+    baseline: str = ""
+    direction_vs: str = ""
+    unit: str = "participant"
+    headline: bool = True
+    location: str = ""  # file:line where it is written
+
+    def filters(self) -> dict[str, str]:
+        """``where`` as metric-table columns (nodule/tumour/class/item → level)."""
+        return {("level" if k in LEVEL_ALIASES else k): v for k, v in self.where.items()}
+
+    @property
+    def is_test(self) -> bool:
+        return self.statistic in TEST_STATISTICS
+
+    def interval(self) -> tuple[float, float] | None:
+        """The published band a simulated value should fall in: the printed 95 % interval; else ±1.96 SE when
+        an SE is printed; else ±1 SD for a mean or median with a printed SD; else ±1.96 SE derived from n.
+        Clipped to what the statistic can take (a proportion in [0, 1], counts and spreads ≥ 0)."""
+        band = self._raw_interval()
+        if band is None:
+            return None
+        lo, hi = band
+        if self.statistic in ("proportion", "sd", "iqr", "count_total"):
+            lo = max(lo, 0.0)
+        if self.statistic == "proportion":
+            hi = min(hi, 1.0)
+        return lo, hi
+
+    def _raw_interval(self) -> tuple[float, float] | None:
+        u, v = self.uncertainty, self.value
+        if self.is_test:
+            return None
+        if "interval" in u:
+            lo, hi = u["interval"]
+            return float(lo), float(hi)
+        if "se" in u:
+            return v - 1.96 * float(u["se"]), v + 1.96 * float(u["se"])
+        if "sd" in u and self.statistic in ("mean", "median"):
+            return v - float(u["sd"]), v + float(u["sd"])
+        se = self.published_se()
+        return None if se is None else (v - 1.96 * se, v + 1.96 * se)
+
+    def band(self) -> str:
+        """What :meth:`interval` is, in words (for the report)."""
+        u = self.uncertainty
+        if "interval" in u:
+            return "95% interval"
+        if "se" in u:
+            return "±1.96 SE"
+        if "sd" in u and self.statistic in ("mean", "median"):
+            return "±1 SD"
+        return "±1.96 SE (from n)" if self.published_se() is not None else ""
+
+    def published_se(self) -> float | None:
+        """The standard error of the published number (from what the paper prints), or None."""
+        if self.is_test:
+            return None
+        u = self.uncertainty
+        if "se" in u:
+            return float(u["se"])
+        if "interval" in u:
+            lo, hi = u["interval"]
+            return (float(hi) - float(lo)) / 3.92
+        n = u.get("n")
+        if self.statistic in ("mean", "median") and "sd" in u and n:
+            return float(u["sd"]) / math.sqrt(float(n)) * (1.2533 if self.statistic == "median" else 1.0)
+        if self.statistic == "sd" and n and n > 1:
+            return float(self.value) / math.sqrt(2.0 * (float(n) - 1.0))
+        if self.statistic == "proportion" and n:
+            p = min(max(float(self.value), 0.5 / float(n)), 1 - 0.5 / float(n))
+            return math.sqrt(p * (1 - p) / float(n))
+        if self.statistic == "count_total" and float(self.value) >= 0:
+            return math.sqrt(max(float(self.value), 1.0))  # Poisson
+        return None
+
+
+@dataclass(frozen=True)
+class TargetSet:
+    """A checked targets file."""
+
+    protocol: str
+    source: str
+    targets: tuple[Target, ...]
+    alpha: float = 0.05
+    plan: str = ""
+    path: str = ""
+    sha256: str = ""
+
+    def by_role(self, role: str) -> tuple[Target, ...]:
+        return tuple(t for t in self.targets if t.role == role)
+
+    def get(self, target_id: str) -> Target:
+        for t in self.targets:
+            if t.id == target_id:
+                return t
+        raise KeyError(target_id)
+
+
+def load_targets_file(path: str | Path, *, plan: Any | None = None, protocol: Any | None = None) -> TargetSet:
+    """Read and check a targets file against the protocol's analysis plan (the plan named in the file, else the
+    shipped plan of its protocol) and the protocol's strata."""
+    file = Path(path)
+    if not file.is_file():
+        raise NotFoundError(f"targets file {str(path)!r} does not exist; give a studyctl-targets/1 YAML file "
+                            "(shipped ones: studyctl/populations/<protocol>.targets.yaml)")
+    raw = file.read_bytes()
+    return parse_targets(raw.decode("utf-8"), str(file), plan=plan, protocol=protocol,
+                         sha256=hashlib.sha256(raw).hexdigest())
+
+
+def _fail(m: Any, label: str, path: tuple[Any, ...], message: str, *, value: bool = True) -> PopulationError:
+    mark = m.value_mark(path) if value else m.key_mark(path)
+    dotted = ".".join(str(p) for p in path) or "(top)"
+    return PopulationError(f"{label}:{mark.line}:{mark.column}: {dotted}: {message}")
+
+
+def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: Any | None = None,
+                  sha256: str = "") -> TargetSet:
+    """Check targets YAML ``text`` (see :func:`load_targets_file`)."""
+    from studyctl.protocol.yamlmarks import load_marked
+
+    m = load_marked(text, label, merge_keys=False, text_keys=True)
+    if m.problems:
+        raise PopulationError(str(m.problems[0]))
+    data = m.data
+    if not isinstance(data, Mapping):
+        raise _fail(m, label, (), f"a targets file is a mapping starting with 'format: {TARGETS_FORMAT}'")
+    for key in data:
+        if key not in TOP_KEYS:
+            raise _fail(m, label, (key,), f"unknown key {key!r}{did_you_mean(key, TOP_KEYS)}; allowed: "
+                        f"{', '.join(TOP_KEYS)}", value=False)
+    if data.get("format") != TARGETS_FORMAT:
+        raise _fail(m, label, ("format",), f"format {data.get('format')!r} is not supported; write "
+                    f"'format: {TARGETS_FORMAT}'")
+    pid = data.get("protocol")
+    if not isinstance(pid, str) or not pid:
+        raise _fail(m, label, ("protocol",), "protocol must name the protocol (e.g. data_driven_palpation)")
+    alpha = data.get("alpha", 0.05)
+    if isinstance(alpha, bool) or not isinstance(alpha, int | float) or not 0 < alpha < 1:
+        raise _fail(m, label, ("alpha",), f"alpha {alpha!r} must be a number in (0, 1)")
+    if plan is None:
+        from studyctl.analysis import load_plan
+
+        ref = data.get("plan") or pid
+        near = Path(label).parent / str(ref)
+        try:
+            plan = load_plan(str(near) if near.is_file() else ref)
+        except NotFoundError as exc:
+            raise _fail(m, label, ("plan",) if "plan" in data else ("protocol",),
+                        f"no analysis plan for it ({exc}); name one with plan: FILE") from None
+    if protocol is None:
+        from studyctl.protocol import load_protocol, resolve_protocol
+
+        try:
+            protocol = load_protocol(resolve_protocol(pid))
+        except NotFoundError:
+            protocol = None
+    metrics = list(plan.metrics)
+    conditions = list(protocol.condition_ids) if protocol is not None else list(plan.condition_ids)
+    groups = list(protocol.stratum_ids) if protocol is not None else list(plan.group_ids)
+    tests = {t.id: t for t in plan.tests}
+    test_kinds = sorted({t.test for t in plan.tests})
+    raw_targets = data.get("targets")
+    if not isinstance(raw_targets, list) or not raw_targets:
+        raise _fail(m, label, ("targets",), "targets must be a non-empty list of {id, metric, statistic, value, role}")
+    out: list[Target] = []
+    ids: set[str] = set()
+    for i, t in enumerate(raw_targets):
+        p = ("targets", i)
+        if not isinstance(t, Mapping):
+            raise _fail(m, label, p, "a target is a mapping {id, metric, statistic, value, uncertainty, role}")
+        for key in t:
+            if key not in TARGET_KEYS:
+                raise _fail(m, label, (*p, key), f"unknown key {key!r}{did_you_mean(key, TARGET_KEYS)}; allowed: "
+                            f"{', '.join(TARGET_KEYS)}", value=False)
+        for key in ("id", "metric", "statistic", "value", "role"):
+            if key not in t:
+                raise _fail(m, label, p, f"missing {key!r}; a target has id, metric, statistic, value, role")
+        tid = str(t["id"])
+        if tid in ids:
+            raise _fail(m, label, (*p, "id"), f"target id {tid!r} is used twice; ids must be unique")
+        ids.add(tid)
+        if t["metric"] not in metrics:
+            raise _fail(m, label, (*p, "metric"), f"metric {t['metric']!r} is not in plan {plan.title!r}"
+                        f"{did_you_mean(t['metric'], metrics)}; its metrics: {', '.join(metrics)}")
+        stat = t["statistic"]
+        if stat not in STATISTICS:
+            raise _fail(m, label, (*p, "statistic"), f"unknown statistic {stat!r}{did_you_mean(stat, STATISTICS)}; "
+                        f"allowed: {', '.join(STATISTICS)}")
+        role = t["role"]
+        if role not in ROLES:
+            raise _fail(m, label, (*p, "role"), f"role {role!r} must be fit or validation{did_you_mean(role, ROLES)}")
+        where = t.get("where") or {}
+        if not isinstance(where, Mapping):
+            raise _fail(m, label, (*p, "where"), "where must be a mapping such as {condition: manual}")
+        clean_where: dict[str, str] = {}
+        for key, val in where.items():
+            k = "level" if key in LEVEL_ALIASES else key
+            if k not in WHERE_KEYS:
+                allowed = WHERE_KEYS + LEVEL_ALIASES
+                raise _fail(m, label, (*p, "where", key), f"unknown filter {key!r}{did_you_mean(key, allowed)}; "
+                            f"allowed: {', '.join(allowed)}", value=False)
+            known = conditions if k == "condition" else groups if k == "group" else None
+            if known is not None and str(val) not in known:
+                raise _fail(m, label, (*p, "where", key), f"{key} {val!r} is not in protocol {pid!r}"
+                            f"{did_you_mean(val, known)}; it has {', '.join(known)}")
+            clean_where[str(key)] = str(val)
+        value = t["value"]
+        if stat == "verdict":
+            if not isinstance(value, bool):
+                raise _fail(m, label, (*p, "value"), f"a verdict is true (significant) or false, got {value!r}")
+        else:
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise _fail(m, label, (*p, "value"), f"value {value!r} must be a number")
+            value = float(value)
+            if stat in ("sd", "iqr", "count_total") and value < 0:
+                raise _fail(m, label, (*p, "value"), f"a {stat} cannot be negative ({value:g})")
+            if stat in ("proportion", "test_p") and not 0 <= value <= 1:
+                raise _fail(m, label, (*p, "value"), f"a {'p-value' if stat == 'test_p' else 'proportion'} lies in "
+                            f"[0, 1], got {value:g} (write 83 % as 0.83)")
+        unc = t.get("uncertainty") or {}
+        if not isinstance(unc, Mapping):
+            raise _fail(m, label, (*p, "uncertainty"), "uncertainty is {sd: …, n: …}, {se: …} or {interval: [lo, hi]}")
+        for key, val in unc.items():
+            if key not in UNCERTAINTY_KEYS:
+                raise _fail(m, label, (*p, "uncertainty", key), f"unknown key {key!r}"
+                            f"{did_you_mean(key, UNCERTAINTY_KEYS)}; allowed: {', '.join(UNCERTAINTY_KEYS)}",
+                            value=False)
+            if key == "interval":
+                if (not isinstance(val, list) or len(val) != 2
+                        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in val)
+                        or not val[0] <= val[1]):
+                    raise _fail(m, label, (*p, "uncertainty", key), f"interval must be [low, high] with low ≤ high, "
+                                f"got {val!r}")
+                if stat == "proportion" and not (0 <= val[0] and val[1] <= 1):
+                    raise _fail(m, label, (*p, "uncertainty", key), f"a proportion's interval lies in [0, 1], "
+                                f"got {val!r}")
+            else:
+                if isinstance(val, bool) or not isinstance(val, int | float) or not math.isfinite(val):
+                    raise _fail(m, label, (*p, "uncertainty", key), f"{key} must be a number, got {val!r}")
+                if key in ("sd", "se") and val < 0:
+                    raise _fail(m, label, (*p, "uncertainty", key), f"{key} = {val:g} is negative; a spread is ≥ 0")
+                if key == "n" and (val < 1 or not float(val).is_integer()):
+                    raise _fail(m, label, (*p, "uncertainty", key), f"n = {val!r} must be a whole number ≥ 1")
+        test = str(t.get("test") or "")
+        if stat in TEST_STATISTICS:
+            if not test:
+                raise _fail(m, label, p, f"a {stat} target names the plan's test: test: <test id or kind> (tests: "
+                            f"{', '.join(tests)})")
+            if test not in tests and test not in test_kinds:
+                raise _fail(m, label, (*p, "test"), f"plan {plan.title!r} has no test {test!r}"
+                            f"{did_you_mean(test, list(tests) + test_kinds)}; its tests: {', '.join(tests)}")
+            if test in tests and t["metric"] not in tests[test].metrics:
+                raise _fail(m, label, (*p, "test"), f"test {test!r} does not test metric {t['metric']!r} (it tests "
+                            f"{', '.join(tests[test].metrics)})")
+        baseline = str(t.get("baseline") or "")
+        if stat == "pct_change_vs_baseline":
+            baseline = baseline or conditions[0]
+            if baseline not in conditions:
+                raise _fail(m, label, (*p, "baseline"), f"baseline {baseline!r} is not a condition"
+                            f"{did_you_mean(baseline, conditions)}; it has {', '.join(conditions)}")
+            if "condition" not in clean_where:  # noqa: SIM102
+                raise _fail(m, label, (*p, "where"), "a pct_change_vs_baseline target names its condition: "
+                            "where: {condition: …}")
+        unit = str(t.get("unit") or "participant")
+        if unit not in ("participant", "trial"):
+            raise _fail(m, label, (*p, "unit"), f"unit {unit!r} must be participant (per-person means, the "
+                        "default) or trial")
+        mark = m.key_mark(p)
+        out.append(Target(
+            id=tid, metric=str(t["metric"]), statistic=stat, value=value, role=role, where=clean_where,
+            uncertainty=dict(unc), note=str(t.get("note") or ""), test=test, baseline=baseline,
+            direction_vs=str(t.get("direction_vs") or ""), unit=unit, headline=bool(t.get("headline", True)),
+            location=f"{label}:{mark.line}",
+        ))
+    for i, t in enumerate(out):
+        if t.direction_vs and t.direction_vs not in ids:
+            raise _fail(m, label, ("targets", i, "direction_vs"), f"no target {t.direction_vs!r}"
+                        f"{did_you_mean(t.direction_vs, ids)} to compare the direction with")
+    return TargetSet(protocol=pid, source=str(data.get("source") or ""), targets=tuple(out), alpha=float(alpha),
+                     plan=str(data.get("plan") or pid), path=label, sha256=sha256)
+
+
+def shipped_targets_path(protocol_id: str) -> Path | None:
+    """The targets shipped for a protocol (``studyctl/populations/<id>.targets.yaml``), or None."""
+    here = Path(__file__).resolve().parent / f"{protocol_id}.targets.yaml"
+    return here if here.is_file() else None

@@ -1,0 +1,144 @@
+"""Formatting of the simulated-vs-published comparison and of ``studyctl calibrate``'s fit report."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pandas as pd
+
+from studyctl.report.style import fmt_num
+
+Block = tuple
+
+
+def _yn(v: Any) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return ""
+    return "yes" if bool(v) else "NO"
+
+
+def _val(v: Any) -> str:
+    if isinstance(v, bool):
+        return "significant" if v else "not significant"
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "NOT COMPUTED"
+    return fmt_num(float(v))
+
+
+def _band(lo: Any, hi: Any) -> str:
+    try:
+        lo, hi = float(lo), float(hi)
+    except (TypeError, ValueError):
+        return ""
+    return "" if math.isnan(lo) or math.isnan(hi) else f"[{fmt_num(lo)}, {fmt_num(hi)}]"
+
+
+def _frac(x: Any, n: Any) -> str:
+    return "–" if x is None or not n else f"{x:.0%} ({round(x * n)}/{n})"
+
+
+def summary_rows(summary: dict[str, dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
+    head = ["targets", "n", "direction right", "verdict reproduced", "within published band", "SD within 1.5×",
+            "agree on every check"]
+    body = []
+    for role in ("fit", "validation", "all"):
+        s = summary.get(role) or {}
+        if not s.get("targets"):
+            continue
+        body.append([role, str(s["targets"]), _frac(s["direction_fraction"], s["direction_n"]),
+                     _frac(s["verdict_fraction"], s["verdict_n"]), _frac(s["within_fraction"], s["within_n"]),
+                     _frac(s["sd_ratio_within_fraction"], s["sd_ratio_n"]), _frac(s["agree_fraction"], s["agree_n"])])
+    return head, body
+
+
+def agreement_table(frame: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
+    head = ["target", "role", "metric", "where", "statistic", "published", "published band", "simulated",
+            "simulated 95% interval", "same direction", "within band", "same verdict", "agrees"]
+    body = []
+    for r in frame.to_dict("records"):
+        within = _yn(r["within"])
+        if r["statistic"] == "sd" and r["within"] is not None and not (isinstance(r["sd_ratio"], float)
+                                                                      and math.isnan(r["sd_ratio"])):
+            within = f"{within} (ratio {r['sd_ratio']:.2f})"
+        band = _band(r["published_low"], r["published_high"])
+        body.append([r["target"], r["role"], r["metric"], r["where"] or "all", r["statistic"], _val(r["published"]),
+                     f"{band} {r['band']}".strip(), _val(r["simulated"]),
+                     _band(r["simulated_low"], r["simulated_high"]), _yn(r["same_direction"]), within,
+                     _yn(r["same_verdict"]), _yn(r["agrees"])])
+    return head, body
+
+
+def agreement_blocks(frame: pd.DataFrame | None, info: pd.DataFrame | None, level: int = 2) -> list[Block]:
+    """The "Simulated vs published" section: which population and targets, the fractions, every target."""
+    out: list[Block] = [("h", level, "Simulated vs published")]
+    lines = [] if info is None else [f"{k}: {v}" for k, v in zip(info["item"], info["value"], strict=True)
+                                     if k != "summary"]
+    if lines:
+        out.append(("list", lines))
+    if frame is None or frame.empty:
+        out.append(("p", "No published targets to compare with."))
+        return out
+    from studyctl.calibration.agreement import summary_from_frame
+
+    out.append(("table", *summary_rows(summary_from_frame(frame))))
+    out.append(("p", "Bands: the paper's 95 % interval where printed, else ±1.96 SE, else ±1 SD for a mean with a "
+                "printed SD; an SD agrees when simulated/published lies within 1/1.5 … 1.5. Fit targets were used "
+                "to calibrate the population; validation targets never were."))
+    out.append(("table", *agreement_table(frame)))
+    return out
+
+
+def _fit_blocks(result: Any, pop: Any) -> list[Block]:
+    spec = result.spec
+    from pathlib import Path
+
+    out: list[Block] = [("h", 1, f"Calibration of {pop.name} v{pop.version} to {Path(spec.targets.path).name}")]
+    out.append(("list", [
+        f"protocol: {spec.protocol_id}; participant: {pop.participant}; started from {spec.population.label}",
+        f"targets: {spec.targets.path} ({len(spec.targets.by_role('fit'))} fit, "
+        f"{len(spec.targets.by_role('validation'))} validation); source: {spec.targets.source}",
+        f"free parameters: {', '.join(f.name for f in spec.free)}",
+        f"fit: {result.evaluations} candidate populations, each {spec.replicates} simulated "
+        f"stud{'y' if spec.replicates == 1 else 'ies'} × {spec.participants} people with the same seeds (seed "
+        f"{spec.seed}: common random numbers); optimiser: Optuna {result.optimiser}; {result.reused} evaluation(s) "
+        "taken from the journal of an earlier run",
+        f"distance over the fit targets (Σ z²): start {result.start_distance:.3g}, best {result.best_distance:.3g}",
+        f"the fitted population was then run once at the paper's size ({spec.paper_participants} people) for the "
+        "table below",
+        f"time: {result.seconds:.0f} s wall for this run; {result.cpu_seconds:.0f} s CPU in the simulations of "
+        "all evaluations (journaled ones included) and the paper-size run",
+        f"written: {result.population_file} (sha256 {pop.sha256[:12]})",
+    ]))
+    if result.missed:
+        out.append(("alert", f"The calibration did not reach {len(result.missed)} fit target(s) (more than 2 σ "
+                    "away at the paper's size):"))
+        out.append(("list", list(result.missed)))
+    flat = [e for e in result.estimates if not e.identified]
+    if flat:
+        out.append(("alert", "Not identified by these targets (moving the parameter by ±15 % of its range changes "
+                    "the distance by less than 1): " + ", ".join(f"{e.name} (rise {e.profile_rise:.2g})"
+                                                               for e in flat)))
+    out.append(("h", 2, "Parameter estimates"))
+    head = ["parameter", "start", "estimate", "SE (curvature)", "search range", "scale", "profile rise at ±h",
+            "identified"]
+    body = [[e.name, fmt_num(e.start), fmt_num(e.estimate), fmt_num(e.se) if math.isfinite(e.se) else "∞ (flat)",
+             f"[{fmt_num(e.low)}, {fmt_num(e.high)}]", e.scale, f"{e.profile_rise:.3g}", _yn(e.identified)]
+            for e in result.estimates]
+    out.append(("table", head, body))
+    out.append(("p", "SE from the curvature of the distance along each parameter (others at their estimate); "
+                "the distance is a χ²-like sum, so SE = √(2 / second derivative)."))
+    out.extend(agreement_blocks(result.agreement.to_frame(), None))
+    return out
+
+
+def fit_report_markdown(result: Any, pop: Any) -> str:
+    from studyctl.report.document import render_markdown
+
+    return render_markdown(_fit_blocks(result, pop))
+
+
+def fit_report_html(result: Any, pop: Any) -> str:
+    from studyctl.report.document import render_html
+
+    return render_html(f"Calibration of {pop.name}", _fit_blocks(result, pop))

@@ -1,0 +1,46 @@
+"""The "simulated vs published" comparison of a study's report: a simulated study (every session run by a
+virtual participant) is compared with the published targets shipped for its protocol."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+
+def simulated_vs_published(plan: Any, result: Any, *, db: str | None = None, workspace: str | Path | None = None,
+                           study: str | None = None, targets: str | Path | None = None
+                           ) -> tuple[pd.DataFrame | None, pd.DataFrame] | None:
+    """(agreement table, info lines) for a simulated study, or None for a study of people.
+
+    ``targets``: a targets file (default: ``studyctl/populations/<protocol>.targets.yaml`` when shipped).
+    """
+    from studyctl.calibration import agreement, simulated_values
+    from studyctl.engine.api import study_populations
+    from studyctl.populations.targets import load_targets_file, shipped_targets_path
+    from studyctl.store.workspace import open_study
+
+    with open_study(db, workspace, study) as opened:
+        sessions, virtual, pops = study_populations(opened.store, opened.study.id)
+        seed = int(opened.study.seed or 0)
+    if not sessions or virtual < sessions:
+        return None
+    used = Counter(f"{p.get('name')} v{p.get('version')} (sha256 {str(p.get('sha256'))[:12]})" for p in pops)
+    info = [("sessions", f"{sessions}, all run by virtual participants")]
+    info.append(("population", "; ".join(f"{k}: {n} session(s)" for k, n in used.items()) if used else
+                 "none (the participant's default parameters; no population file)"))
+    path = Path(targets) if targets is not None else shipped_targets_path(plan.study)
+    frame = None
+    if path is None:
+        info.append(("targets", f"none shipped for {plan.study} (studyctl/populations/{plan.study}.targets.yaml)"))
+    else:
+        tset = load_targets_file(path, plan=plan)
+        info.append(("targets", f"{path.name}: {tset.source} ({len(tset.by_role('fit'))} fit, "
+                                f"{len(tset.by_role('validation'))} validation)"))
+        sim = simulated_values(tset.targets, result.data.frame, result.to_frame(), alpha=tset.alpha,
+                               rng=np.random.default_rng(seed))
+        frame = agreement(tset.targets, sim, tset.alpha).to_frame()
+    return frame, pd.DataFrame(info, columns=["item", "value"])

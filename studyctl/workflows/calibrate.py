@@ -1,0 +1,577 @@
+"""``studyctl calibrate``: fit a population's free parameters so simulated studies match published targets.
+
+Simulated method of moments with common random numbers:
+
+1. every candidate population is run as the same ``replicates`` simulated studies of ``participants`` people
+   (the same seeds for every candidate: the same enrolment, placements, session seeds and per-person standard
+   normals — only the population's numbers differ), through the real engine, controllers, devices and scenes
+   (:func:`studyctl.power.replicate.simulate_replicate`), and the plan's metrics and tests are computed;
+2. the distance (:func:`studyctl.calibration.distance`) over the ``fit`` targets — weights from the published
+   uncertainty plus the simulation's own bootstrap SE at the starting values — is minimised by Optuna's TPE
+   sampler (seeded); every evaluation is journaled next to the output (Optuna's journal file), so a rerun of
+   the same command continues where the last one stopped;
+3. around the best point each free parameter is moved by ±h (15 % of its search range): the curvature gives its
+   standard error, and a profile that rises by less than 1 is reported as not identified by the targets;
+4. the fitted population is run once at the paper's sample size (the protocol's ``target_n``) for the fit
+   report: every target, fit and validation, against its simulated value with a bootstrap interval.
+
+Nothing here fits an outcome: the free parameters are perception/behaviour traits of the virtual people.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from studyctl.calibration import agreement, distance, simulated_values
+from studyctl.calibration.simulated import SimulatedStats, stats_from_frame
+from studyctl.errors import PopulationError, UsageError
+
+PROFILE_STEP = 0.15  # ±h as a fraction of each free parameter's search range
+DEFAULT_EVALUATIONS = 24
+DEFAULT_FIT_PARTICIPANTS = 8
+ProgressFn = Callable[[int, int, str], None]
+
+
+@dataclass(frozen=True)
+class CalibrationSpec:
+    """Everything a calibration needs, checked before any simulation (see :func:`prepare_calibration`)."""
+
+    protocol_id: str
+    protocol_text: str
+    plan: Any
+    population: Any  # TraitPopulation (the starting values)
+    targets: Any  # TargetSet
+    free: tuple[Any, ...]  # FreeParam
+    seed: int
+    participants: int
+    paper_participants: int
+    replicates: int
+    evaluations: int
+    out: Path
+    scheduler: str | None = None
+
+    @property
+    def fit_targets(self) -> tuple[Any, ...]:
+        return self.targets.by_role("fit")
+
+    def fingerprint(self) -> str:
+        """What the journal's evaluations depend on (another setting starts a new journal study)."""
+        from studyctl import __version__
+
+        data = {
+            "studyctl": __version__, "protocol": hashlib.sha256(self.protocol_text.encode()).hexdigest(),
+            "population": self.population.sha256, "targets": self.targets.sha256,
+            "free": [(f.name, f.low, f.high) for f in self.free], "seed": self.seed,
+            "participants": self.participants, "replicates": self.replicates,
+        }
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+    @property
+    def journal(self) -> Path:
+        return self.out.with_name(self.out.name + ".journal")
+
+
+def prepare_calibration(
+    protocol: str | Path,
+    targets: str | Path | None,
+    *,
+    population: str | Path | None = None,
+    free: Sequence[str] | str | None = None,
+    seed: int = 1,
+    participants: int | None = None,
+    replicates: int = 1,
+    evaluations: int = DEFAULT_EVALUATIONS,
+    out: str | Path | None = None,
+    scheduler: str | None = None,
+    pilot_db: str | None = None,
+) -> CalibrationSpec:
+    """Check every input (protocol, plan, population, targets, free parameters, sizes) before any work.
+
+    Raises
+    ------
+    PopulationError, UsageError, NotFoundError
+        One line naming what is wrong and how to fix it.
+    """
+    from studyctl.analysis import load_plan
+    from studyctl.populations import free_params, population_for
+    from studyctl.populations.loader import participant_params
+    from studyctl.populations.targets import load_targets_file
+    from studyctl.power.seeds import check_master_seed
+    from studyctl.protocol import load_protocol, resolve_protocol
+
+    path = resolve_protocol(protocol)
+    proto = load_protocol(path)
+    pid = proto.study.id
+    pop = population_for(proto, population if population is not None else "shipped")
+    if pop is None:
+        raise PopulationError(f"protocol {pid!r} has no shipped population to start from; give one with "
+                              "--population FILE (format: studyctl-population/1)")
+    if targets is None and pilot_db is None:
+        from studyctl.populations.targets import shipped_targets_path
+
+        targets = shipped_targets_path(pid)
+        if targets is None:
+            raise UsageError(f"no targets: give --targets FILE (or --pilot-db DB); protocol {pid!r} ships none")
+    plan = load_plan(_plan_ref(targets, pid))
+    if pilot_db is not None:
+        from studyctl.calibration.pilot import pilot_targets
+
+        tset = pilot_targets(pilot_db, plan, proto, template=targets)
+    else:
+        tset = load_targets_file(targets, plan=plan, protocol=proto)
+    if tset.protocol != pid:
+        raise PopulationError(f"targets {tset.path} are for protocol {tset.protocol!r}, not {pid!r}")
+    if not tset.by_role("fit"):
+        raise PopulationError(f"targets {tset.path} have no role: fit target; calibrate fits only on fit targets")
+    names = free if free is not None else list(pop.calibration.get("free") or [])
+    if isinstance(names, str):
+        names = [n for n in names.split(",") if n.strip()]
+    from studyctl.plugins.registry import load_plugin
+
+    declared = participant_params(load_plugin("participant", pop.participant))
+    fps = free_params(pop, list(names), declared=declared)
+    if participants is None:
+        participants = DEFAULT_FIT_PARTICIPANTS
+    strata = max(len(proto.stratum_ids), 1)
+    if isinstance(participants, bool) or not isinstance(participants, int) or participants < max(2, strata):
+        raise UsageError(f"--participants must be a whole number ≥ {max(2, strata)} (people per simulated study "
+                         f"in each evaluation), got {participants!r}")
+    if not isinstance(replicates, int) or not 1 <= replicates <= 100:
+        raise UsageError(f"--replicates must be 1..100, got {replicates!r}")
+    if not isinstance(evaluations, int) or not len(fps) + 1 <= evaluations <= 10000:
+        raise UsageError(f"--evaluations must be at least {len(fps) + 1} (the free parameters + 1), "
+                         f"got {evaluations!r}")
+    paper = int(proto.participants.target_n or participants)
+    out_path = Path(out) if out is not None else Path(f"{pid}.calibrated.yaml")
+    if out_path.suffix not in (".yaml", ".yml"):
+        raise UsageError(f"--out {out_path}: the population file ends in .yaml")
+    if out_path.exists() and out_path.is_dir():
+        raise UsageError(f"--out {out_path} is a folder; give the population file to write (e.g. {pid}.yaml)")
+    return CalibrationSpec(
+        protocol_id=pid, protocol_text=proto.source_text, plan=plan, population=pop, targets=tset, free=fps,
+        seed=check_master_seed(seed), participants=participants, paper_participants=paper, replicates=replicates,
+        evaluations=evaluations, out=out_path, scheduler=scheduler,
+    )
+
+
+def _plan_ref(targets: str | Path | None, pid: str) -> str:
+    """The analysis plan: the targets file's ``plan:`` (relative to that file), else the protocol's shipped one."""
+    if targets is None or not Path(targets).is_file():
+        return pid
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(targets).read_text(encoding="utf-8"))
+    except yaml.YAMLError:
+        return pid  # the targets loader reports the syntax error with its position
+    ref = data.get("plan") if isinstance(data, dict) else None
+    if not isinstance(ref, str) or not ref:
+        return pid
+    near = Path(targets).parent / ref
+    return str(near) if near.is_file() else ref
+
+
+# ------------------------------------------------------------------------------------------ one evaluation
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One candidate population run as the calibration's simulated studies."""
+
+    values: dict[str, float]
+    distance: float
+    z: dict[str, float]
+    stats: pd.DataFrame  # SimulatedStats.to_frame()
+    seconds: float
+    cpu_seconds: float
+    participants: int
+
+
+def _replicate_task(power_spec: Any, participants: int, replicate: int) -> tuple[pd.DataFrame, pd.DataFrame, float]:
+    """One simulated study (a Dask task): its metric frame, test rows and CPU seconds."""
+    from studyctl.power.replicate import simulate_replicate
+
+    tables: list[Any] = []
+    res = simulate_replicate(power_spec, participants, replicate, on_metrics=tables.append)
+    frame = tables[0].frame.copy()
+    frame["participant"] = f"r{replicate}:" + frame["participant"].astype(str)
+    return frame, res.to_frame(), res.cpu_seconds
+
+
+def _power_spec(spec: CalibrationSpec, pop: Any) -> Any:
+    from studyctl.power.population import Population
+    from studyctl.power.spec import PowerSpec
+
+    return PowerSpec(
+        protocol_name=spec.protocol_id, protocol_text=spec.protocol_text,
+        protocol_sha256=hashlib.sha256(spec.protocol_text.encode()).hexdigest(), study_id=spec.protocol_id,
+        plan=spec.plan, plan_sha256="", population=Population(), seed=spec.seed, sizes=(spec.participants,),
+        replicates=spec.replicates, sequences=None, traits=pop,
+    )
+
+
+def evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: int | None = None,
+             targets: Sequence[Any] | None = None, sim_se: dict[str, float] | None = None,
+             client: Any | None = None) -> Evaluation:
+    """Run the candidate ``values`` as the calibration's simulated studies (the same seeds every time)."""
+    from studyctl.populations.free import apply_values
+
+    t0 = time.perf_counter()
+    n = participants or spec.participants
+    pop = apply_values(spec.population, values, spec.free)
+    pspec = _power_spec(spec, pop)
+    if client is not None:
+        futures = [client.submit(_replicate_task, pspec, n, r, pure=False) for r in range(spec.replicates)]
+        parts = client.gather(futures)
+    else:
+        parts = [_replicate_task(pspec, n, r) for r in range(spec.replicates)]
+    metrics = pd.concat([p[0] for p in parts], ignore_index=True)
+    targets = list(targets if targets is not None else spec.targets.targets)
+    descriptive = [t for t in targets if not t.is_test]
+    tests = [t for t in targets if t.is_test]
+    rng = np.random.default_rng(spec.seed)
+    stats = simulated_values(descriptive, metrics, parts[0][1], alpha=spec.targets.alpha, rng=rng)
+    values_all = list(stats.values)
+    for t in tests:  # per replicate: the median p, the majority verdict
+        per = [simulated_values([t], p[0], p[1], alpha=spec.targets.alpha, rng=rng).values[0] for p in parts]
+        ok = [v for v in per if not (isinstance(v.value, float) and math.isnan(v.value))]
+        if not ok:
+            values_all.append(per[0])
+        elif t.statistic == "verdict":
+            share = sum(bool(v.value) for v in ok) / len(ok)
+            values_all.append(replace(ok[0], value=share >= 0.5,
+                                      note=f"significant in {share:.0%} of {len(ok)} simulated studies; {ok[0].note}"))
+        else:
+            values_all.append(replace(ok[0], value=float(np.median([float(v.value) for v in ok]))))
+    order = {t.id: i for i, t in enumerate(targets)}
+    sim = SimulatedStats(tuple(sorted(values_all, key=lambda v: order[v.target])))
+    fit = [t for t in targets if t.role == "fit"]
+    dist, z = distance(fit, sim, spec.targets.alpha, sim_se)
+    return Evaluation(dict(values), dist, z, sim.to_frame(), time.perf_counter() - t0,
+                      float(sum(p[2] for p in parts)), n)
+
+
+# ------------------------------------------------------------------------------------------ the fit
+
+
+@dataclass(frozen=True)
+class ParamEstimate:
+    name: str
+    start: float
+    estimate: float
+    se: float
+    low: float
+    high: float
+    profile_rise: float  # smallest rise of the distance at ±h
+    identified: bool
+    scale: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    spec: CalibrationSpec
+    start_distance: float
+    best_distance: float
+    estimates: tuple[ParamEstimate, ...]
+    final: Evaluation  # the fitted population at the paper's sample size
+    agreement: Any  # studyctl.calibration.Agreement of the final run
+    evaluations: int
+    reused: int  # evaluations (search, profile) taken from the journal instead of run again
+    seconds: float  # wall time of this run
+    cpu_seconds: float  # CPU time of every evaluation, including those in the journal, and the paper-size run
+    population_file: Path
+    optimiser: str = ""
+    files: dict[str, Path] = field(default_factory=dict)
+    missed: tuple[str, ...] = ()
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per target: the agreement table of the final run."""
+        return self.agreement.to_frame()
+
+
+def _journal_storage(path: Path) -> Any:
+    import optuna
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return JournalStorage(JournalFileBackend(str(path)))
+
+
+def _as_search(spec: CalibrationSpec, values: dict[str, float]) -> dict[str, float]:
+    return {f.name: f.to_search(values[f.name]) for f in spec.free}
+
+
+def _from_trial(spec: CalibrationSpec, params: dict[str, float]) -> dict[str, float]:
+    return {f.name: f.from_search(params[f.name]) for f in spec.free}
+
+
+def run_calibration(spec: CalibrationSpec, *, on_progress: ProgressFn | None = None) -> CalibrationResult:
+    """Fit, profile, run the fitted population at paper size, and write the files (see the module docs)."""
+    import optuna
+
+    t0 = time.perf_counter()
+    client = _client(spec.scheduler)
+    spec.out.parent.mkdir(parents=True, exist_ok=True)
+    storage = _journal_storage(spec.journal)
+    distributions = {
+        f.name: optuna.distributions.FloatDistribution(*f.search_bounds) for f in spec.free
+    }
+    study = optuna.create_study(
+        study_name=f"calibrate-{spec.protocol_id}-{spec.fingerprint()}", storage=storage, direction="minimize",
+        load_if_exists=True,
+        sampler=_sampler(spec),
+    )
+    done = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE]
+    reused = len(done)
+    total = spec.evaluations + 2 * len(spec.free) + 1
+    progress = on_progress or (lambda i, n, m: None)
+    cpu = sum(float(t.user_attrs.get("cpu_seconds", 0.0)) for t in done)
+
+    def record(trial: Any, phase: str, ev: Evaluation, dist: float, z: dict[str, float]) -> None:
+        trial.set_user_attr("phase", phase)
+        trial.set_user_attr("values", ev.values)
+        trial.set_user_attr("z", {k: (None if not math.isfinite(v) else v) for k, v in z.items()})
+        trial.set_user_attr("stats", json.loads(ev.stats.to_json(orient="records")))
+        trial.set_user_attr("seconds", ev.seconds)
+        trial.set_user_attr("cpu_seconds", ev.cpu_seconds)
+        study.tell(trial, dist)
+
+    def run_trial(trial: Any, phase: str, sim_se: dict[str, float]) -> Evaluation:
+        ev = evaluate(spec, _from_trial(spec, trial.params), sim_se=sim_se, client=client)
+        record(trial, phase, ev, ev.distance, ev.z)
+        return ev
+
+    start_vals = {f.name: f.value for f in spec.free}
+    first = next((t for t in done if t.user_attrs.get("phase") == "start"), None)
+    if first is None:
+        progress(0, total, "starting values")
+        study.enqueue_trial(_as_search(spec, start_vals))
+        trial = study.ask(distributions)
+        ev = evaluate(spec, _from_trial(spec, trial.params), client=client)
+        # weights: the simulation's own bootstrap SE at the starting values, kept for every candidate
+        sim_se = {r.target: (r.se if math.isfinite(r.se) else 0.0) for r in stats_from_frame(ev.stats).values}
+        start_distance, z = distance(spec.fit_targets, stats_from_frame(ev.stats), spec.targets.alpha, sim_se)
+        trial.set_user_attr("sim_se", sim_se)
+        record(trial, "start", ev, start_distance, z)
+        cpu += ev.cpu_seconds
+    else:
+        sim_se = dict(first.user_attrs["sim_se"])
+        start_distance = float(first.value)
+    complete = optuna.trial.TrialState.COMPLETE
+    n_search = len([t for t in study.get_trials(deepcopy=False)
+                    if t.state == complete and t.user_attrs.get("phase") in ("start", "search")])
+    while n_search < spec.evaluations:
+        progress(n_search, total, f"evaluation {n_search + 1} of {spec.evaluations}")
+        trial = study.ask(distributions)
+        ev = run_trial(trial, "search", sim_se)
+        cpu += ev.cpu_seconds
+        n_search += 1
+    searched = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE
+                and t.user_attrs.get("phase") in ("start", "search")]
+    best = min(searched, key=lambda t: t.value)
+    best_u = dict(best.params)
+
+    # profile: ±h along each free parameter (journaled like the search, so a rerun reuses them)
+    estimates = []
+    k = 0
+    for f in spec.free:
+        lo_u, hi_u = f.search_bounds
+        h = PROFILE_STEP * (hi_u - lo_u)
+        rises, pts = [], {}
+        for sign in (-1, 1):
+            u = dict(best_u)
+            u[f.name] = min(max(best_u[f.name] + sign * h, lo_u), hi_u)
+            k += 1
+            progress(spec.evaluations + k - 1, total, f"profile {f.name} {'-' if sign < 0 else '+'}h")
+            prior = next((t for t in study.get_trials(deepcopy=False)
+                          if t.state == optuna.trial.TrialState.COMPLETE and t.user_attrs.get("phase") == "profile"
+                          and all(abs(t.params[n] - u[n]) < 1e-12 for n in u)), None)
+            if prior is None:
+                study.enqueue_trial(u)
+                trial = study.ask(distributions)
+                ev = run_trial(trial, "profile", sim_se)
+                cpu += ev.cpu_seconds
+                value = ev.distance
+            else:
+                value = float(prior.value)
+            pts[sign] = (u[f.name] - best_u[f.name], value)
+            rises.append(value - best.value)
+        (dm, fm), (dp, fp) = pts[-1], pts[1]
+        se_u = math.inf
+        if dm < 0 < dp:
+            # second derivative of a parabola through the three points
+            curv = 2 * ((fp - best.value) / dp - (fm - best.value) / dm) / (dp - dm)
+            if curv > 0:
+                se_u = math.sqrt(2.0 / curv)
+        est = f.from_search(best_u[f.name])
+        deriv = abs(f.from_search(best_u[f.name] + 1e-6) - est) / 1e-6
+        rise = min(rises)
+        estimates.append(ParamEstimate(f.name, f.value, est, se_u * deriv, f.low, f.high, rise, rise >= 1.0,
+                                       f.scale))
+
+    # the fitted population at the paper's sample size: every target
+    progress(total - 1, total, f"fitted population at the paper's size ({spec.paper_participants} people)")
+    fitted_values = _from_trial(spec, best_u)
+    final = _final_run(spec, fitted_values, client)
+    cpu += final.cpu_seconds
+    agr = agreement(spec.targets.targets, stats_from_frame(final.stats), spec.targets.alpha)
+    missed = _missed(agr)
+    progress(total, total, "writing files")
+    result = CalibrationResult(
+        spec=spec, start_distance=start_distance, best_distance=float(best.value), estimates=tuple(estimates),
+        final=final, agreement=agr, evaluations=len(searched), reused=reused, optimiser=type(study.sampler).__name__,
+        seconds=time.perf_counter() - t0, cpu_seconds=cpu,
+        population_file=spec.out, missed=missed,
+    )
+    files = _write_outputs(result, fitted_values)
+    if client is not None:
+        client.close()
+    return replace(result, files=files)
+
+
+def _sampler(spec: CalibrationSpec) -> Any:
+    """CMA-ES started at the population's values (a local search from the cited/chosen priors, a step of a
+    quarter of the narrowest search range); TPE when the cmaes package is missing. Seeded either way."""
+    import optuna
+
+    x0 = {f.name: f.to_search(f.value) for f in spec.free}
+    sigma0 = min(f.search_bounds[1] - f.search_bounds[0] for f in spec.free) / 4
+    try:
+        import cmaes  # noqa: F401 - optuna's CmaEsSampler needs it
+    except ImportError:
+        return optuna.samplers.TPESampler(seed=spec.seed, multivariate=True,
+                                          n_startup_trials=max(4, min(10, spec.evaluations // 3)))
+    import warnings
+
+    with warnings.catch_warnings():  # x0/sigma0 are deprecated since optuna 4.9 (removal in 6; pinned < 6)
+        warnings.simplefilter("ignore", FutureWarning)
+        return optuna.samplers.CmaEsSampler(x0=x0, sigma0=sigma0, seed=spec.seed, n_startup_trials=0,
+                                            warn_independent_sampling=False)
+
+
+def _missed(agr: Any) -> tuple[str, ...]:
+    out = []
+    for r in agr.rows:
+        if r.role != "fit":
+            continue
+        if not math.isfinite(r.z):
+            out.append(f"{r.target}: not computed from the simulation ({r.note or 'no data'})")
+        elif abs(r.z) > 2:
+            sim = r.simulated if isinstance(r.simulated, bool) else f"{float(r.simulated):.4g}"
+            out.append(f"{r.target}: published {r.published}, simulated {sim} ({r.z:+.1f} σ)")
+    return tuple(out)
+
+
+def _final_run(spec: CalibrationSpec, values: dict[str, float], client: Any) -> Evaluation:
+    """The fitted population at paper size, cached next to the journal (a rerun does not redo it)."""
+    from studyctl.populations.free import apply_values
+
+    pop = apply_values(spec.population, values, spec.free)
+    cache = spec.out.with_name(spec.out.name + ".final.json")
+    key = f"{spec.fingerprint()}:{pop.sha256}:{spec.paper_participants}"
+    if cache.is_file():
+        try:
+            data = json.loads(cache.read_text())
+            if data.get("key") == key:
+                return Evaluation(values, float(data["distance"]), data["z"], pd.DataFrame(data["stats"]),
+                                  float(data["seconds"]), float(data["cpu_seconds"]), spec.paper_participants)
+        except (ValueError, KeyError):
+            pass
+    paper = replace(spec, replicates=1)
+    ev = evaluate(paper, values, participants=spec.paper_participants, client=client)
+    _atomic_text(cache, json.dumps({"key": key, "distance": ev.distance,
+                                    "z": {k: (v if math.isfinite(v) else None) for k, v in ev.z.items()},
+                                    "stats": json.loads(ev.stats.to_json(orient="records")),
+                                    "seconds": ev.seconds, "cpu_seconds": ev.cpu_seconds}))
+    return ev
+
+
+def _client(scheduler: str | None) -> Any:
+    if scheduler is None:
+        return None
+    try:
+        from distributed import Client
+    except ImportError:
+        raise UsageError("--scheduler needs Dask: pip install 'studyctl[power]'") from None
+    try:
+        return Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc}); start one with `dask scheduler` "
+                         "and workers with `dask worker ADDRESS`") from None
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def fitted_population(result: CalibrationResult, values: dict[str, float]) -> Any:
+    """The population file's content: the fitted values, FITTED sources, a bumped version, the calibration."""
+    from studyctl.populations.free import apply_values, mark_fitted
+
+    spec = result.spec
+    pop = apply_values(spec.population, values, spec.free)
+    pop = mark_fitted(pop, spec.free, f"studyctl calibrate to {Path(spec.targets.path).name}")
+    calibration = {
+        "targets": Path(spec.targets.path).name,
+        "free": [f.name for f in spec.free],
+        "used_for_fit": [t.id for t in spec.targets.by_role("fit")],
+        "validation": [t.id for t in spec.targets.by_role("validation")],
+        "seed": spec.seed,
+        "participants": spec.participants,
+        "replicates": spec.replicates,
+        "evaluations": result.evaluations,
+        "objective": {"start": round(result.start_distance, 4), "best": round(result.best_distance, 4)},
+        "estimates": {e.name: {"value": float(f"{e.estimate:.6g}"),
+                               "se": None if not math.isfinite(e.se) else float(f"{e.se:.3g}"),
+                               "identified": e.identified} for e in result.estimates},
+        "missed": list(result.missed),
+    }
+    bounds = spec.population.calibration.get("bounds")
+    if bounds:
+        calibration["bounds"] = bounds
+    return replace(pop, version=spec.population.version + 1, calibration=calibration, sha256="", path="")
+
+
+def _write_outputs(result: CalibrationResult, values: dict[str, float]) -> dict[str, Path]:
+    """The population file, the fit report (Markdown, HTML, CSV) and agreement.csv, each via temp + rename."""
+    from studyctl.report.calibration import fit_report_html, fit_report_markdown
+
+    spec = result.spec
+    pop = fitted_population(result, values)
+    stem = spec.out.with_suffix("")
+    files = {
+        "population": spec.out,
+        "report_md": stem.with_name(stem.name + ".fit.md"),
+        "report_html": stem.with_name(stem.name + ".fit.html"),
+        "report_csv": stem.with_name(stem.name + ".fit.csv"),
+        "agreement": stem.with_name(stem.name + ".agreement.csv"),
+        "journal": spec.journal,
+    }
+    header = (f"# Fitted by studyctl calibrate {spec.protocol_id} --targets {Path(spec.targets.path).name} "
+              f"--free {','.join(f.name for f in spec.free)} --seed {spec.seed} --participants {spec.participants}\n")
+    _atomic_text(files["population"], header + pop.to_yaml())
+    frame = result.agreement.to_frame()
+    est = pd.DataFrame([e.to_dict() for e in result.estimates])
+    _atomic_text(files["report_csv"], pd.concat([frame.assign(kind="target"),
+                                                 est.assign(kind="parameter")], ignore_index=True).to_csv(index=False))
+    _atomic_text(files["agreement"], frame.to_csv(index=False))
+    md = fit_report_markdown(result, pop)
+    _atomic_text(files["report_md"], md)
+    _atomic_text(files["report_html"], fit_report_html(result, pop))
+    return files

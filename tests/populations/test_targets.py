@@ -1,0 +1,120 @@
+"""Targets files: bad input names file:line and the nearest name; simulated statistics and agreement."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from population_testdata import DATA, MINI_PLAN, MINI_PROTOCOL, write_variant
+
+from studyctl.calibration import agreement, distance, simulated_values
+from studyctl.errors import PopulationError
+from studyctl.populations.targets import load_targets_file
+
+TARGETS = DATA / "mini.targets.yaml"
+
+
+def _load(path):
+    from studyctl.analysis import load_plan
+    from studyctl.protocol import load_protocol
+
+    return load_targets_file(path, plan=load_plan(MINI_PLAN), protocol=load_protocol(MINI_PROTOCOL))
+
+
+def test_loads_targets_with_roles_and_bands():
+    ts = _load(TARGETS)
+    assert [t.id for t in ts.by_role("fit")] == ["time_nofb_mean", "time_nofb_sd"]
+    mean = ts.get("time_nofb_mean")
+    assert mean.interval() == (17.0, 23.0) and mean.band() == "±1 SD"  # ±1 published SD
+    assert mean.published_se() == pytest.approx(3.0 / math.sqrt(8))
+    assert ts.get("time_linear_mean").interval() == pytest.approx((22 - 1.96 * 1.2, 22 + 1.96 * 1.2))
+    assert ts.get("accuracy_linear").interval() == (0.4, 0.8)
+    line = next(i for i, x in enumerate(TARGETS.read_text().splitlines(), 1) if "id: kw_time_verdict" in x)
+    assert ts.get("kw_time_verdict").value is False and ts.get("kw_time_verdict").location.endswith(f":{line}")
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("metric: accuracy", "metric: acuracy", r"metric 'acuracy' is not in plan .*did you mean 'accuracy'"),
+        ("where: {condition: linear}\n    statistic: mean\n    value: 22.0",
+         "where: {condition: linaer}\n    statistic: mean\n    value: 22.0", r"did you mean 'linear'"),
+        ("statistic: sd", "statistic: stdev", r"unknown statistic 'stdev'"),
+        ("uncertainty: {sd: 3.0, n: 8}", "uncertainty: {sd: -3.0, n: 8}", r"sd = -3 is negative"),
+        ("value: 0.6", "value: 1.6", r"a proportion|lies in"),
+        ("role: validation\n    direction_vs", "role: check\n    direction_vs", r"role .check. must be fit or"),
+        ("test: control_algorithm", "test: control_algoritm", r"did you mean 'control_algorithm'"),
+        ("value: false", "value: 0.2", r"a verdict is true \(significant\) or false"),
+        ("direction_vs: time_nofb_mean", "direction_vs: time_nofb_men", r"did you mean 'time_nofb_mean'"),
+        ("uncertainty: {interval: [0.4, 0.8]}", "uncertainty: {interval: [0.8, 0.4]}", r"low ≤ high"),
+        ("format: studyctl-targets/1", "format: targets/2", r"format 'targets/2' is not supported"),
+    ],
+)
+def test_bad_targets_name_file_line_and_fix(tmp_path, old, new, message):
+    path = write_variant(tmp_path, old, new, source=TARGETS)
+    with pytest.raises(PopulationError, match=message) as info:
+        _load(path)
+    text = str(info.value)
+    assert text.startswith(f"{path}:") and text.split(":")[1].isdigit()
+    assert "\n" not in text
+
+
+def test_group_filter_must_be_a_stratum(tmp_path):
+    path = write_variant(tmp_path, "where: {condition: no_feedback}\n    statistic: mean",
+                         "where: {condition: no_feedback, group: expret}\n    statistic: mean", source=TARGETS)
+    with pytest.raises(PopulationError, match=r"group 'expret' is not in protocol .*did you mean 'expert'"):
+        _load(path)
+
+
+def _table():
+    # two people per condition: trial values chosen so every statistic is known by hand
+    rows = []
+    for person, cond, value in [("a", "no_feedback", 10.0), ("a", "no_feedback", 14.0), ("b", "no_feedback", 20.0),
+                                ("a", "linear", 30.0), ("b", "linear", 50.0)]:
+        rows.append({"participant": person, "group": "novice", "condition": cond, "trial": "1", "repetition": 1,
+                     "metric": "completion_time", "level": None, "value": value, "denominator": math.nan})
+    for person, hits in [("a", [1, 0]), ("b", [1, 1])]:
+        for h in hits:
+            rows.append({"participant": person, "group": "novice", "condition": "linear", "trial": "1",
+                         "repetition": 1, "metric": "accuracy", "level": None, "value": float(h),
+                         "denominator": 1.0})
+    tests = pd.DataFrame([{"test_id": "control_algorithm", "kind": "omnibus", "metric": "completion_time",
+                           "test": "kruskal_wallis", "split": None, "p": 0.2, "n": 4, "status": "ok",
+                           "groups": "no_feedback, linear"}])
+    return pd.DataFrame(rows), tests
+
+
+def test_simulated_statistics_by_hand():
+    ts = _load(TARGETS)
+    frame, tests = _table()
+    sim = simulated_values(ts.targets, frame, tests, alpha=0.05, rng=np.random.default_rng(0))
+    assert sim.get("time_nofb_mean").value == pytest.approx((12.0 + 20.0) / 2)  # per-person means first
+    assert sim.get("time_nofb_sd").value == pytest.approx(np.std([12.0, 20.0], ddof=1))
+    assert sim.get("time_linear_mean").value == pytest.approx(40.0)
+    assert sim.get("accuracy_linear").value == pytest.approx(0.75)
+    assert sim.get("kw_time_verdict").value is False
+    assert sim.get("time_nofb_mean").low <= 16.0 <= sim.get("time_nofb_mean").high
+
+
+def test_agreement_and_distance():
+    ts = _load(TARGETS)
+    frame, tests = _table()
+    sim = simulated_values(ts.targets, frame, tests, alpha=0.05, rng=np.random.default_rng(0))
+    agr = agreement(ts.targets, sim, 0.05)
+    rows = {r.target: r for r in agr.rows}
+    assert rows["time_nofb_mean"].within is False  # 16 is outside the band [17, 23]
+    assert rows["time_nofb_sd"].sd_ratio == pytest.approx(np.std([12.0, 20.0], ddof=1) / 3.0)
+    assert rows["time_nofb_sd"].within is False  # ratio 1.89 > 1.5
+    assert rows["time_linear_mean"].same_direction is True  # 40 > 16 as 22 > 20
+    assert rows["accuracy_linear"].within is True
+    assert rows["kw_time_verdict"].same_verdict is True
+    summary = agr.summary()
+    assert summary["validation"]["verdict_fraction"] == 1.0 and summary["fit"]["targets"] == 2
+    total, z = distance(ts.by_role("fit"), sim, 0.05, {t.id: 0.0 for t in ts.targets})
+    expected_z = (16.0 - 20.0) / (3.0 / math.sqrt(8))
+    assert z["time_nofb_mean"] == pytest.approx(expected_z)
+    assert total == pytest.approx(sum(v * v for v in z.values()))
+    assert set(agr.to_frame().columns) >= {"published", "simulated", "same_direction", "within", "same_verdict",
+                                          "role", "agrees"}
