@@ -370,23 +370,6 @@ def resume_session(
                    person_params=person_params)
 
 
-def study_populations(store: StudyStore, study_id: int) -> tuple[int, int, list[dict[str, Any]]]:
-    """(sessions, virtual sessions, population events' payloads) of a study: whether it was simulated and from
-    which population(s)."""
-    from studyctl.store.models import Participant as ParticipantRow
-    from studyctl.store.models import Session
-
-    with store.reading() as s:
-        rows = s.execute(
-            select(Event.kind, Event.payload).join(Session, Session.id == Event.session_id)
-            .join(ParticipantRow, ParticipantRow.id == Session.participant_id)
-            .where(ParticipantRow.study_id == study_id, Event.kind.in_(("session_plan", "population")))
-        ).all()
-    plans = [p for k, p in rows if k == "session_plan"]
-    virtual = sum(bool((p or {}).get("virtual")) for p in plans)
-    return len(plans), virtual, [dict(p) for k, p in rows if k == "population" and p]
-
-
 def stored_population(store: StudyStore, session_id: int) -> dict[str, Any] | None:
     """The ``population`` event of a session (which population, this person's traits), or None."""
     with store.reading() as s:

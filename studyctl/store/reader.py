@@ -283,6 +283,19 @@ class StudyReader:
     def participants(self) -> tuple[ParticipantRow, ...]:
         return self.snapshot.participants
 
+    def session_events(self, kinds: tuple[str, ...] | list[str]) -> tuple[EventRow, ...]:
+        """The study's events of the given kinds (e.g. ``session_plan``, ``population``), by session then order."""
+        with self.store.reading() as s:
+            rows = s.execute(
+                select(Event.session_id, Event.trial_id, Event.t_mono, Event.kind, Event.payload)
+                .join(Session, Session.id == Event.session_id)
+                .join(Participant, Participant.id == Session.participant_id)
+                .where(Participant.study_id == self.study.id, Event.kind.in_(tuple(kinds)))
+                .order_by(Event.session_id, Event.seq)
+            ).all()
+        return tuple(EventRow(int(sid), tid, float(t or 0.0), kind, _frozen(payload))
+                     for sid, tid, t, kind, payload in rows)
+
     @property
     def sessions(self) -> tuple[SessionRow, ...]:
         return self.snapshot.sessions

@@ -19,13 +19,15 @@ def simulated_vs_published(plan: Any, result: Any, *, db: str | None = None, wor
     ``targets``: a targets file (default: ``studyctl/populations/<protocol>.targets.yaml`` when shipped).
     """
     from studyctl.calibration import agreement, simulated_values
-    from studyctl.engine.api import study_populations
     from studyctl.populations.targets import load_targets_file, shipped_targets_path
-    from studyctl.store.workspace import open_study
+    from studyctl.store.reader import StudyReader
 
-    with open_study(db, workspace, study) as opened:
-        sessions, virtual, pops = study_populations(opened.store, opened.study.id)
-        seed = int(opened.study.seed or 0)
+    with StudyReader.open(db, workspace, study) as reader:
+        events = reader.session_events(("session_plan", "population"))
+        seed = reader.study.seed
+    plans = [e.payload for e in events if e.kind == "session_plan"]
+    pops = [dict(e.payload) for e in events if e.kind == "population" and e.payload]
+    sessions, virtual = len(plans), sum(bool((p or {}).get("virtual")) for p in plans)
     if not sessions or virtual < sessions:
         return None
     used = Counter(f"{p.get('name')} v{p.get('version')} (sha256 {str(p.get('sha256'))[:12]})" for p in pops)
