@@ -13,4 +13,5 @@ python3 -m venv "$venv"
 . "$venv/bin/activate"
 python -m pip install --quiet --upgrade pip
 python -m pip install --quiet '.[test]'
-pytest "$@"
+# -m "": everything, slow tests included (plain `pytest` in a dev venv deselects them: see pyproject.toml)
+pytest -m "" "$@"

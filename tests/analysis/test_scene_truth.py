@@ -19,6 +19,7 @@ from studyctl.workflows.simulate import simulate_study
     ("protocol", "rate"),
     [("bio_inspired_palpation", None), ("needle_insertion", None), ("data_driven_palpation", 250.0)],
 )
+@pytest.mark.slow
 def test_stored_truth_is_the_scene_truth_and_analysis_uses_it(tmp_path, monkeypatch, protocol, rate):
     simulate_study(protocol, 1, 4, tmp_path / "ws", sim_rate_hz=rate)
     with open_study(workspace=tmp_path / "ws") as opened, opened.store.reading() as s:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pandas as pd
+import pytest
 
 from studyctl.bench.simrate import _compare
 from studyctl.cli.app import main
@@ -27,6 +28,7 @@ def test_compare_counts_gains_losses_and_duration_bias():
     assert got["se_diff_pp"] == 0.0
 
 
+@pytest.mark.slow
 def test_quick_run_prints_speed_and_error(capsys):
     assert main(["bench", "simrate", "--quick", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)

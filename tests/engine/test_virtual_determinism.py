@@ -131,6 +131,7 @@ def _session_digest(out: Path) -> dict[str, str]:
     return digest
 
 
+@pytest.mark.slow
 def test_virtual_needle_session_is_bit_identical_without_fast_paths(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -167,6 +167,7 @@ def test_virtual_operator_reaches_the_tumour_through_the_simulator():
     assert m2 == m
 
 
+@pytest.mark.slow
 def test_realtime_view_needs_no_scans_and_enhanced_sensing_gives_a_cue():
     op = VirtualNeedleOperator({})
     out, m = _trial("RT", op, site=3, seed=5)

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import sqlite3
 
+import pytest
+
 from studyctl.engine.api import resume_session, run_session
 from studyctl.engine.recorder import MEMORY_EVENT
 from studyctl.errors import SessionInterrupted
 from studyctl.store.workspace import open_study
 from studyctl.workflows.simulate import create_cohort
+
+pytestmark = pytest.mark.slow  # spawns processes / runs whole sessions: CI runs it, plain pytest skips it
 
 STOP_AFTER_STEPS = 19  # inside the last scenario, after the operator has learnt what to trust in it
 

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from studyctl.cli.app import main
 
 
+@pytest.mark.slow
 def test_bench_capr_json(capsys):
     assert main(["bench", "capr", "--quick", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)

@@ -67,6 +67,8 @@ from studyctl.engine.trial_loop import run_trial
 from studyctl.plugins.interfaces import TrialInfo
 from studyctl.plugins.registry import load_plugin
 
+pytestmark = pytest.mark.slow  # spawns processes / runs whole sessions: CI runs it, plain pytest skips it
+
 scene = load_plugin("scene", "sponge_phantom").build(
     {}, {"sites": {"soft": 1, "medium": 3, "hard": 5}}, frozenset(), np.random.default_rng(1))
 controller = load_plugin("controller", "half_linear")({}, scene)

@@ -89,6 +89,7 @@ def test_unreachable_scheduler_fails_before_anything_is_written(mini_spec, tmp_p
         run_power(mini_spec, out, scheduler="tcp://nohost")
 
 
+@pytest.mark.slow
 def test_results_of_another_setup_are_not_mixed(mini_spec, serial_run):
     from dataclasses import replace
 

@@ -59,6 +59,7 @@ def test_bad_input_is_one_error_line_and_writes_nothing(extra, message, tmp_path
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_serial_run_states_the_population(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")
     pop = tmp_path / "population.yaml"

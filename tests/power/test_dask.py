@@ -21,6 +21,8 @@ from power_testdata import PLAN, PROTOCOL, SEED
 
 from studyctl.workflows.power import run_power
 
+pytestmark = pytest.mark.slow  # spawns processes / runs whole sessions: CI runs it, plain pytest skips it
+
 START_TIMEOUT_S = 90
 
 

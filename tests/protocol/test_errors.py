@@ -218,6 +218,7 @@ def test_cli_check_exit_codes(write, valid_text, capsys):
 _EDITS = st.sampled_from(["delete", "duplicate", "garble", "indent", "null"])
 
 
+@pytest.mark.slow
 @given(edit=_EDITS, line=st.integers(0, 40), junk=st.text(max_size=12))
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 def test_any_edit_gives_problems_or_a_protocol_never_a_crash(valid_text, edit, line, junk):

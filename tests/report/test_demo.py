@@ -68,6 +68,7 @@ def test_the_cli_default_loop_rate_is_the_library_default():
     assert inspect.signature(run_demo).parameters["sim_rate_hz"].default == DEMO_SIM_RATE_HZ
 
 
+@pytest.mark.slow
 def test_the_index_says_at_which_loop_rate_the_sessions_ran(demo):
     result, _ = demo
     assert result.sim_rate_hz == 250.0

@@ -194,6 +194,7 @@ def test_unwritable_output_folder(tmp_path):
         ensure_writable(blocker)
 
 
+@pytest.mark.slow
 def test_matplotlib_is_imported_only_by_report_figures():
     code = textwrap.dedent("""
         import sys

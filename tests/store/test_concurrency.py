@@ -6,11 +6,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from studyctl.store import StudyStore
 
 WORKER = Path(__file__).parent / "workers" / "enroll.py"
 
 
+@pytest.mark.slow
 def test_concurrent_enrollers_take_distinct_slots(db_url):
     with StudyStore.open(db_url) as store:
         study = store.create_study("s")

@@ -130,6 +130,7 @@ def test_corrupted_database_is_one_clear_line(tmp_path, capsys):
         assert "study.db" in line and "backup" in line
 
 
+@pytest.mark.slow
 def test_damaged_pages_fail_db_check(tmp_path, capsys):
     ws = tmp_path / "w"
     assert run(capsys, "init", str(ws))[0] == 0

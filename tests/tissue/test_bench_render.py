@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from studyctl.cli.app import main
 
 
+@pytest.mark.slow
 def test_bench_render_json_contract(capsys):
     assert main(["bench", "render", "--quick", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)

@@ -115,6 +115,7 @@ def _manual_trials(scene_for, seeds, *, count: int | None = None):
     return out
 
 
+@pytest.mark.slow
 def test_manual_detection_comes_from_touch_not_from_the_truth():
     p_chance = chance_hit_probability(_scene().truth()["nodules"], 10.0, (0.0, 120.0, 0.0, 120.0))
     assert p_chance < 0.1

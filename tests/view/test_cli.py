@@ -38,6 +38,7 @@ def workspace(tmp_path):
     return ws, env
 
 
+@pytest.mark.slow
 def test_run_with_view_prints_url_and_takes_answers_from_the_browser(workspace, browser, shots):
     ws, env = workspace
     proc = PtyProcess([sys.executable, "-m", "studyctl", "run", "--participant", "PTY-AAAAA", "--view"], ws, env)

@@ -206,6 +206,7 @@ def test_view_participant_slots_frames_and_adds_requests():
     assert vp.name == "inner" and vp.virtual is False and inner.seen[1][1] == {"scan": scan}
 
 
+@pytest.mark.slow
 def test_trial_log_rows_scans_one_by_one_frames_in_batches():
     trial = TrialView("realtime", ("finish",), ReportSpec(), 10.0)
     trial.log += [{"seq": i, "source": "view", "state_t": i / 60, "drawn_t": i / 60 + 0.02, "latency_ms": 20.0 + i,
