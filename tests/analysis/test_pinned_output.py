@@ -25,6 +25,8 @@ import pytest
 from studyctl.analysis import analyze
 from studyctl.workflows.simulate import simulate_study
 
+pytestmark = pytest.mark.slow  # whole virtual sessions (run by CI with -m '')
+
 PINNED = Path(__file__).parent / "pinned"
 PROTOCOL = "bio_inspired_palpation"
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -13,7 +14,18 @@ from studyctl.analysis import MetricTable, catalog, load_plan, run_plan
 from studyctl.analysis.figure_data import COLLECTORS
 from studyctl.analysis.procedures import EACH_CELL, REGISTRY, Cell, Finding, TestSpec
 from studyctl.report.compose import _DRAWERS
-from tests.analysis.test_execute import seed000_table
+
+
+def _force_table(rng: np.random.Generator) -> pd.DataFrame:
+    """Mean contact force of 15 novices and 10 experts in two conditions."""
+    rows = [
+        {"participant": f"P{i:02d}", "group": "novice" if i < 15 else "expert", "condition": c, "trial": f"{i}{c}",
+         "repetition": 1, "metric": "mean_contact_force", "level": None, "value": float(rng.normal(3, 0.5)),
+         "denominator": np.nan}
+        for i in range(25)
+        for c in ("no_feedback", "linear")
+    ]
+    return pd.DataFrame(rows)
 
 
 def test_every_registered_test_can_run_and_every_posthoc_is_registered():
@@ -80,7 +92,7 @@ def test_a_new_test_is_one_registry_entry(monkeypatch, tmp_path):
     base["tests"] = [{"id": "gap", "test": "median_gap", "metrics": ["mean_force"], "compare": "group"}]
     path = tmp_path / "plan.yaml"
     path.write_text(yaml.safe_dump(base))
-    table = MetricTable(frame=seed000_table(np.random.default_rng(3)), source="synthetic")
+    table = MetricTable(frame=_force_table(np.random.default_rng(3)), source="synthetic")
     (row,) = run_plan(load_plan(path), table).rows
     f = table.frame
     force = f[f.metric == "mean_contact_force"].groupby(["participant", "group"])["value"].mean().reset_index()
