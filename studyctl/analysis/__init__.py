@@ -5,7 +5,9 @@ Public API:
 * :func:`load_plan`, :func:`check_plan`, :class:`AnalysisPlan` — the plan language.
 * :func:`analyze` — plan → :class:`AnalysisResult` (database or CSV data); :func:`load_data`.
 * :func:`run_plan` — execute a plan on a :class:`MetricTable` you already have.
-* :func:`compute_metrics` — the plan's metrics from an open store; :func:`read_summary_csv`.
+* :func:`compute_metrics` — the plan's metrics from a stored study (a :class:`studyctl.store.StudyReader`
+  or an open store); :func:`read_summary_csv`.
+* ``studyctl.analysis.procedures`` — the tests as a registry (one ``TestSpec`` per test).
 * :class:`AnalysisResult` (``to_frame()`` with :data:`ROW_COLUMNS`), :class:`TestRow`, :class:`MetricTable`.
 """
 
@@ -22,7 +24,7 @@ def compute_metrics(*args, **kwargs):  # noqa: D103 - documented in studyctl.ana
     return _compute(*args, **kwargs)
 
 
-compute_metrics.__doc__ = "Compute a plan's metrics from an open store; see :mod:`studyctl.analysis.metrics`."
+compute_metrics.__doc__ = "Compute a plan's metrics from a stored study; see :mod:`studyctl.analysis.metrics`."
 
 __all__ = [
     "ROW_COLUMNS",
