@@ -21,9 +21,14 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(1, "--seed", "-s", help="Seed of the simulated studies (the same for every "
                                  "candidate: common random numbers)."),
         participants: int = typer.Option(None, "--participants", "-n", help="People per simulated study in each "
-                                         "evaluation (default 8; the fitted population is then run once at the "
+                                         "evaluation (default 4; the fitted population is then run once at the "
                                          "protocol's target_n)."),
-        replicates: int = typer.Option(1, "--replicates", help="Simulated studies per evaluation."),
+        replicates: int = typer.Option(2, "--replicates", help="Simulated studies per evaluation (different "
+                                       "seeds, the same for every candidate)."),
+        workers: int = typer.Option(None, "--workers", help="Local worker processes for the replicate studies "
+                                    "(default: min(replicates, CPU cores))."),
+        sim_rate_hz: float = typer.Option(250.0, "--sim-rate-hz", help="Loop rate of rate-adjustable "
+                                          "controllers (the 1 kHz tissue loops), as `studyctl demo` runs them."),
         evaluations: int = typer.Option(24, "--evaluations", help="Candidate populations to try (the optimiser's "
                                         "budget), besides the ±h profile of each free parameter."),
         scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler address: run each evaluation's "
@@ -44,7 +49,8 @@ def register(app: typer.Typer) -> None:
         console = Console(highlight=False)
         spec = prepare_calibration(protocol, targets, population=population, free=free, seed=seed,
                                    participants=participants, replicates=replicates, evaluations=evaluations,
-                                   out=out, scheduler=scheduler, pilot_db=pilot_db)
+                                   out=out, scheduler=scheduler, pilot_db=pilot_db, workers=workers,
+                                   sim_rate_hz=sim_rate_hz)
         console.print(f"calibrate {spec.protocol_id}: from {spec.population.label}; targets {spec.targets.path} "
                       f"({len(spec.targets.by_role('fit'))} fit, {len(spec.targets.by_role('validation'))} "
                       f"validation); free {', '.join(f.name for f in spec.free)}; {spec.evaluations} evaluations of "

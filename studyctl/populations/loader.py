@@ -25,7 +25,8 @@ TRAIT_KEYS = ("dist", "mean", "sd", "range", "unit", "source", "groups", "note")
 GROUP_KEYS = ("mean", "sd")
 CALIBRATION_KEYS = (
     "targets", "free", "used_for_fit", "validation", "bounds", "seed", "participants", "replicates",
-    "objective", "evaluations", "estimates", "missed", "note", "fitted_at", "studyctl",
+    "objective", "evaluations", "estimates", "missed", "note", "fitted_at", "studyctl", "seconds", "cpu_seconds",
+    "sim_rate_hz",
 )
 
 

@@ -91,6 +91,11 @@ class Population:
             if sd < 0:
                 raise UsageError(f"population between_sd.{param} = {sd:g} must be ≥ 0 (a standard deviation)")
 
+    def __reduce__(self) -> tuple:
+        # mapping proxies do not pickle: rebuild from plain dicts (process pools, Dask workers)
+        d = self.to_dict()
+        return (Population, (d["baseline"], d["condition_effects"], d["group_effects"], d["between_sd"]))
+
     @property
     def is_empty(self) -> bool:
         return not (

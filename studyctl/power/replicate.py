@@ -188,7 +188,7 @@ def simulate_replicate(
             try:
                 result = run_session(store, enrolled.code, study=study.name, virtual=True,
                                      seed=seeds.session_seeds[i], participant=actor, factory=factory,
-                                     population=spec.traits, traits=traits)
+                                     population=spec.traits, traits=traits, sim_rate_hz=spec.sim_rate_hz)
             except SessionInterrupted:
                 # Ctrl-C inside a session: the engine made it resumable, but this study lives in memory and is
                 # dropped; the replicate simply did not finish (a rerun of the power command redoes it).

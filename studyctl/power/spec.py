@@ -49,6 +49,8 @@ class PowerSpec:
     #: The virtual people's between-subject traits (a studyctl.populations.TraitPopulation; the knobs above shift
     #: on top of each person's drawn traits). None: every person starts from the participant's defaults.
     traits: Any = None
+    #: Loop-rate cap of the simulated sessions (engine.api.run_session's sim_rate_hz); None: the protocol's rates.
+    sim_rate_hz: float | None = None
 
     def fingerprint(self) -> dict[str, Any]:
         """What every replicate's result depends on (a results file from other settings cannot be reused)."""
@@ -58,6 +60,7 @@ class PowerSpec:
             "plan_sha256": self.plan_sha256,
             "population": self.population.to_dict(),
             "traits_sha256": None if self.traits is None else self.traits.sha256,
+            "sim_rate_hz": self.sim_rate_hz,
             "seed": self.seed,
         }
 

@@ -39,7 +39,9 @@ from studyctl.errors import PopulationError, UsageError
 
 PROFILE_STEP = 0.15  # ±h as a fraction of each free parameter's search range
 DEFAULT_EVALUATIONS = 24
-DEFAULT_FIT_PARTICIPANTS = 8
+DEFAULT_FIT_PARTICIPANTS = 4  # people per simulated study of an evaluation
+DEFAULT_REPLICATES = 2  # simulated studies per evaluation (run in parallel on the local workers)
+DEFAULT_SIM_RATE_HZ = 250.0  # as `studyctl demo`: the 1 kHz tissue controllers' loops at 250 Hz
 ProgressFn = Callable[[int, int, str], None]
 
 
@@ -60,6 +62,8 @@ class CalibrationSpec:
     evaluations: int
     out: Path
     scheduler: str | None = None
+    workers: int = 1  # local worker processes for the replicate studies of an evaluation (no scheduler)
+    sim_rate_hz: float | None = None  # loop-rate cap of rate-adjustable controllers (as the demo's)
 
     @property
     def fit_targets(self) -> tuple[Any, ...]:
@@ -73,7 +77,7 @@ class CalibrationSpec:
             "studyctl": __version__, "protocol": hashlib.sha256(self.protocol_text.encode()).hexdigest(),
             "population": self.population.sha256, "targets": self.targets.sha256,
             "free": [(f.name, f.low, f.high) for f in self.free], "seed": self.seed,
-            "participants": self.participants, "replicates": self.replicates,
+            "participants": self.participants, "replicates": self.replicates, "sim_rate_hz": self.sim_rate_hz,
         }
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -90,11 +94,13 @@ def prepare_calibration(
     free: Sequence[str] | str | None = None,
     seed: int = 1,
     participants: int | None = None,
-    replicates: int = 1,
+    replicates: int = DEFAULT_REPLICATES,
     evaluations: int = DEFAULT_EVALUATIONS,
     out: str | Path | None = None,
     scheduler: str | None = None,
     pilot_db: str | None = None,
+    workers: int | None = None,
+    sim_rate_hz: float | None = DEFAULT_SIM_RATE_HZ,
 ) -> CalibrationSpec:
     """Check every input (protocol, plan, population, targets, free parameters, sizes) before any work.
 
@@ -152,6 +158,14 @@ def prepare_calibration(
     if not isinstance(evaluations, int) or not len(fps) + 1 <= evaluations <= 10000:
         raise UsageError(f"--evaluations must be at least {len(fps) + 1} (the free parameters + 1), "
                          f"got {evaluations!r}")
+    if sim_rate_hz is not None:
+        from studyctl.engine.api import check_sim_rate
+
+        check_sim_rate(sim_rate_hz)
+    if workers is None:
+        workers = min(replicates, os.cpu_count() or 1)
+    if not isinstance(workers, int) or workers < 1:
+        raise UsageError(f"--workers must be a whole number ≥ 1, got {workers!r}")
     paper = int(proto.participants.target_n or participants)
     out_path = Path(out) if out is not None else Path(f"{pid}.calibrated.yaml")
     if out_path.suffix not in (".yaml", ".yml"):
@@ -161,7 +175,7 @@ def prepare_calibration(
     return CalibrationSpec(
         protocol_id=pid, protocol_text=proto.source_text, plan=plan, population=pop, targets=tset, free=fps,
         seed=check_master_seed(seed), participants=participants, paper_participants=paper, replicates=replicates,
-        evaluations=evaluations, out=out_path, scheduler=scheduler,
+        evaluations=evaluations, out=out_path, scheduler=scheduler, workers=workers, sim_rate_hz=sim_rate_hz,
     )
 
 
@@ -217,7 +231,7 @@ def _power_spec(spec: CalibrationSpec, pop: Any) -> Any:
         protocol_name=spec.protocol_id, protocol_text=spec.protocol_text,
         protocol_sha256=hashlib.sha256(spec.protocol_text.encode()).hexdigest(), study_id=spec.protocol_id,
         plan=spec.plan, plan_sha256="", population=Population(), seed=spec.seed, sizes=(spec.participants,),
-        replicates=spec.replicates, sequences=None, traits=pop,
+        replicates=spec.replicates, sequences=None, traits=pop, sim_rate_hz=spec.sim_rate_hz,
     )
 
 
@@ -234,6 +248,9 @@ def evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: i
     if client is not None:
         futures = [client.submit(_replicate_task, pspec, n, r, pure=False) for r in range(spec.replicates)]
         parts = client.gather(futures)
+    elif spec.workers > 1 and spec.replicates > 1:
+        parts = list(_pool(spec.workers).map(_replicate_task, [pspec] * spec.replicates,
+                                             [n] * spec.replicates, range(spec.replicates)))
     else:
         parts = [_replicate_task(pspec, n, r) for r in range(spec.replicates)]
     metrics = pd.concat([p[0] for p in parts], ignore_index=True)
@@ -440,6 +457,7 @@ def run_calibration(spec: CalibrationSpec, *, on_progress: ProgressFn | None = N
     files = _write_outputs(result, fitted_values)
     if client is not None:
         client.close()
+    _close_pools()
     return replace(result, files=files)
 
 
@@ -500,6 +518,25 @@ def _final_run(spec: CalibrationSpec, values: dict[str, float], client: Any) -> 
     return ev
 
 
+_POOLS: dict[int, Any] = {}
+
+
+def _pool(workers: int) -> Any:
+    """A process pool for the replicate studies of an evaluation (spawned once, reused by every evaluation)."""
+    if workers not in _POOLS:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        _POOLS[workers] = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+    return _POOLS[workers]
+
+
+def _close_pools() -> None:
+    for pool in _POOLS.values():
+        pool.shutdown(cancel_futures=True)
+    _POOLS.clear()
+
+
 def _client(scheduler: str | None) -> Any:
     if scheduler is None:
         return None
@@ -535,8 +572,11 @@ def fitted_population(result: CalibrationResult, values: dict[str, float]) -> An
         "seed": spec.seed,
         "participants": spec.participants,
         "replicates": spec.replicates,
+        "sim_rate_hz": spec.sim_rate_hz,
         "evaluations": result.evaluations,
         "objective": {"start": round(result.start_distance, 4), "best": round(result.best_distance, 4)},
+        # measured by this run (wall: this invocation; CPU: every simulation, journaled ones included)
+        "seconds": round(result.seconds, 1), "cpu_seconds": round(result.cpu_seconds, 1),
         "estimates": {e.name: {"value": float(f"{e.estimate:.6g}"),
                                "se": None if not math.isfinite(e.se) else float(f"{e.se:.3g}"),
                                "identified": e.identified} for e in result.estimates},

@@ -1,0 +1,51 @@
+"""``studyctl bench calibration`` turns each demo study's agreement table into figures per study and role."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+
+@dataclass
+class _Study:
+    study: str
+    report: str
+    error: str = ""
+    population: str = "population: test"
+
+
+def test_figures_from_agreement_tables(tmp_path, monkeypatch):
+    import studyctl.workflows.demo as demo
+    from studyctl.bench.calibration import run
+
+    folder = tmp_path / "bio_inspired_palpation"
+    folder.mkdir()
+    pd.DataFrame([
+        {"target": "a", "role": "fit", "statistic": "mean", "same_direction": True, "within": True,
+         "sd_ratio": float("nan"), "same_verdict": None, "agrees": True},
+        {"target": "b", "role": "fit", "statistic": "sd", "same_direction": None, "within": False,
+         "sd_ratio": 2.0, "same_verdict": None, "agrees": False},
+        {"target": "c", "role": "validation", "statistic": "verdict", "same_direction": None, "within": None,
+         "sd_ratio": float("nan"), "same_verdict": False, "agrees": False},
+        {"target": "d", "role": "validation", "statistic": "pct_change_vs_baseline", "same_direction": True,
+         "within": False, "sd_ratio": float("nan"), "same_verdict": None, "agrees": False},
+    ]).to_csv(folder / "agreement.csv", index=False)
+
+    class _Result:
+        workers = 1
+        studies = [_Study("bio_inspired_palpation", str(folder / "report.html")),
+                   _Study("needle_insertion", "", error="boom")]
+
+    monkeypatch.setattr(demo, "run_demo", lambda out, studies: _Result())
+    res = run(quick=True)
+    f = res.figures
+    assert f["bio_inspired_palpation.fit.within"] == 1.0  # the SD is judged by its ratio, not the band
+    assert f["bio_inspired_palpation.fit.sd_within"] == 0.0 and f["bio_inspired_palpation.fit.sd_ratio_median"] == 2.0
+    assert f["bio_inspired_palpation.validation.verdict"] == 0.0
+    assert f["bio_inspired_palpation.validation.direction"] == 1.0
+    assert f["bio_inspired_palpation.validation.within"] == 0.0
+    assert f["overall.fit.agree"] == 0.5 and "needle_insertion.fit.agree" not in f
+    assert any("needle_insertion: no agreement table (FAILED: boom" in n for n in res.notes)
+    assert Path(folder / "agreement.csv").is_file()
