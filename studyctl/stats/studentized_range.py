@@ -305,10 +305,24 @@ def _ppf_cached(p: float, k: int, df: float) -> float:
     nodes = np.linspace(lo, hi, 7)
     f_nodes = _log_sf(nodes, k, df) - target
     if hi - lo <= 0.05 and np.all(np.diff(f_nodes) < 0) and f_nodes[0] > 0 >= f_nodes[-1]:
-        root = float(interpolate.BarycentricInterpolator(f_nodes, nodes)(0.0))
+        root = _neville_at_zero(f_nodes, nodes)
         if lo <= root <= hi:
             return root
     return float(optimize.brentq(f, lo, hi, xtol=1e-13, rtol=4e-15))
+
+
+def _neville_at_zero(f: np.ndarray, q: np.ndarray) -> float:
+    """Value at f = 0 of the polynomial through the points (f_i, q_i), by Neville's scheme (deterministic: scipy's
+    BarycentricInterpolator permutes its nodes with a random generator, which changed the last bits between
+    processes)."""
+    p = [float(v) for v in q]
+    x = [float(v) for v in f]
+    n = len(p)
+    for level in range(1, n):
+        for i in range(n - level):
+            j = i + level
+            p[i] = (x[j] * p[i] - x[i] * p[i + 1]) / (x[j] - x[i])
+    return p[0]
 
 
 def studentized_range_ppf(p: float, k: int, df: float) -> float:
