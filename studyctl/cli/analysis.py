@@ -95,6 +95,9 @@ def register(app: typer.Typer) -> None:
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
+        targets: Path = typer.Option(None, "--targets", help="Published targets a simulated study is compared "
+                                     "with (default: the protocol's shipped studyctl/populations/<protocol>"
+                                     ".targets.yaml)."),
     ) -> None:
         """Analyse a plan and write tidy CSV tables, figures, an HTML report and Markdown into a folder."""
         from studyctl.workflows.report import build_report
@@ -108,6 +111,7 @@ def register(app: typer.Typer) -> None:
                 workspace=workspace_arg(workspace),
                 study=study,
                 on_step=lambda s: status.update(f"{s}…"),
+                targets=targets,
             )
         files = run.files
         console.print(f"Report: {files.html}", markup=False)
