@@ -5,8 +5,8 @@ Agreement criteria (issue 17):
 * **direction** — a % change vs baseline has the paper's sign; a target with ``direction_vs: OTHER`` has the
   paper's sign of (this − OTHER); other targets have no direction (blank);
 * **within** — a mean, median, proportion, IQR, count or % change lies in the published band (the printed 95 %
-  interval, ±1.96 SE, or ±1 SD for a mean with a printed SD; see :meth:`Target.interval`); an SD is "within"
-  when simulated/published lies in [1/1.5, 1.5];
+  interval, ±1.96 SE, or ±1 SD for a mean with a printed SD; see :meth:`Target.interval`); an SD or CV is
+  "within" when simulated/published lies in [1/1.5, 1.5];
 * **verdict** — a verdict or p-value target is significant at alpha exactly when the paper's is.
 
 The calibration distance is the simulated method of moments objective: Σ over fit targets of
@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 import pandas as pd
 
 from studyctl.calibration.simulated import SimulatedStats
-from studyctl.populations.targets import Target
+from studyctl.populations.targets import SPREADS, Target
 
 SD_FACTOR = 1.5
 MISSING_PENALTY = 25.0
@@ -87,10 +87,11 @@ def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int |
         figures: dict[str, float | int | None] = {"targets": len(rows)}
         for name, col in (("direction", "same_direction"), ("verdict", "same_verdict"), ("within", "within"),
                           ("agree", "agrees")):
-            vals = [bool(r[col]) for r in rows if _present(r[col]) and (col != "within" or r["statistic"] != "sd")]
+            vals = [bool(r[col]) for r in rows
+                    if _present(r[col]) and (col != "within" or r["statistic"] not in SPREADS)]
             figures[f"{name}_n"] = len(vals)
             figures[f"{name}_fraction"] = (sum(vals) / len(vals)) if vals else None
-        sds = [r for r in rows if r["statistic"] == "sd" and _present(r["within"])]
+        sds = [r for r in rows if r["statistic"] in SPREADS and _present(r["within"])]
         figures["sd_ratio_n"] = len(sds)
         figures["sd_ratio_within_fraction"] = (sum(bool(r["within"]) for r in sds) / len(sds)) if sds else None
         ratios = [float(r["sd_ratio"]) for r in sds if _present(r["sd_ratio"])]
@@ -165,7 +166,7 @@ def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> A
             on = _num(other.value)
             if math.isfinite(sn) and math.isfinite(on):
                 direction = _sign(sn - on) == _sign(float(t.value) - float(pub[t.direction_vs].value))
-        if t.statistic == "sd" and math.isfinite(sn) and float(t.value) > 0:
+        if t.statistic in SPREADS and math.isfinite(sn) and float(t.value) > 0:
             ratio = sn / float(t.value)
             within = 1 / SD_FACTOR <= ratio <= SD_FACTOR
         elif not t.is_test and band is not None and math.isfinite(sn):

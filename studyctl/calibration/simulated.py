@@ -3,7 +3,8 @@
 Pure computation: it takes the analysis layer's tidy frames (:class:`~studyctl.analysis.MetricTable` ``frame``
 and :meth:`~studyctl.analysis.AnalysisResult.to_frame`) and returns a frozen result. Statistics are over
 participants (``unit: participant``, the default): each person's trials are averaged first (a proportion
-pools successes over trials), then the mean / SD / median / IQR / pooled proportion is taken across people,
+pools successes over trials), then the mean / SD / CV (SD / mean) / median / IQR / pooled proportion is taken
+across people,
 as the papers report between-subject figures. Intervals are 95 % percentile bootstraps over participants
 (the passed seeded Generator). ``count_total`` is scaled to the paper's n when the target gives one.
 """
@@ -82,6 +83,9 @@ def _stat(num: np.ndarray, den: np.ndarray, statistic: str, scale: float) -> flo
         return float(np.mean(x))
     if statistic == "sd":
         return float(np.std(x, ddof=1)) if len(x) > 1 else math.nan
+    if statistic == "cv":  # between-person SD relative to the mean
+        m = float(np.mean(x))
+        return float(np.std(x, ddof=1)) / abs(m) if len(x) > 1 and m else math.nan
     if statistic == "median":
         return float(np.median(x))
     if statistic == "iqr":

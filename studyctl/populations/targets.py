@@ -21,8 +21,9 @@ from studyctl.suggest import did_you_mean
 
 TARGETS_FORMAT = "studyctl-targets/1"
 STATISTICS = (
-    "mean", "sd", "median", "iqr", "proportion", "count_total", "pct_change_vs_baseline", "test_p", "verdict",
+    "mean", "sd", "cv", "median", "iqr", "proportion", "count_total", "pct_change_vs_baseline", "test_p", "verdict",
 )
+SPREADS = ("sd", "cv")  # between-person spread: judged by the ratio simulated / published (within 1.5×)
 ROLES = ("fit", "validation")
 TOP_KEYS = ("format", "protocol", "source", "plan", "alpha", "targets", "note")
 TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "uncertainty", "role", "note", "test", "baseline",
@@ -68,7 +69,7 @@ class Target:
         if band is None:
             return None
         lo, hi = band
-        if self.statistic in ("proportion", "sd", "iqr", "count_total"):
+        if self.statistic in ("proportion", "sd", "cv", "iqr", "count_total"):
             lo = max(lo, 0.0)
         if self.statistic == "proportion":
             hi = min(hi, 1.0)
@@ -112,7 +113,7 @@ class Target:
         n = u.get("n")
         if self.statistic in ("mean", "median") and "sd" in u and n:
             return float(u["sd"]) / math.sqrt(float(n)) * (1.2533 if self.statistic == "median" else 1.0)
-        if self.statistic == "sd" and n and n > 1:
+        if self.statistic in SPREADS and n and n > 1:
             return float(self.value) / math.sqrt(2.0 * (float(n) - 1.0))
         if self.statistic == "proportion" and n:
             p = min(max(float(self.value), 0.5 / float(n)), 1 - 0.5 / float(n))
@@ -261,7 +262,7 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
             if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
                 raise _fail(m, label, (*p, "value"), f"value {value!r} must be a number")
             value = float(value)
-            if stat in ("sd", "iqr", "count_total") and value < 0:
+            if stat in ("sd", "cv", "iqr", "count_total") and value < 0:
                 raise _fail(m, label, (*p, "value"), f"a {stat} cannot be negative ({value:g})")
             if stat in ("proportion", "test_p") and not 0 <= value <= 1:
                 raise _fail(m, label, (*p, "value"), f"a {'p-value' if stat == 'test_p' else 'proportion'} lies in "

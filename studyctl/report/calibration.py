@@ -58,7 +58,7 @@ def agreement_table(frame: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
     body = []
     for r in frame.to_dict("records"):
         within = _yn(r["within"])
-        if r["statistic"] == "sd" and r["within"] is not None and not (isinstance(r["sd_ratio"], float)
+        if r["statistic"] in ("sd", "cv") and r["within"] is not None and not (isinstance(r["sd_ratio"], float)
                                                                       and math.isnan(r["sd_ratio"])):
             within = f"{within} (ratio {r['sd_ratio']:.2f})"
         band = _band(r["published_low"], r["published_high"])

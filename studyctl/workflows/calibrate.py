@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from studyctl.calibration import agreement, distance, simulated_values
-from studyctl.calibration.simulated import SimulatedStats, stats_from_frame
+from studyctl.calibration.simulated import SimulatedStats, SimulatedValue, stats_from_frame
 from studyctl.errors import PopulationError, UsageError
 
 PROFILE_STEP = 0.15  # ±h as a fraction of each free parameter's search range
@@ -235,10 +235,30 @@ def _power_spec(spec: CalibrationSpec, pop: Any) -> Any:
     )
 
 
+FAILED_DISTANCE = 1e6  # a candidate whose simulated studies fail (a participant refuses its values …)
+
+
 def evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: int | None = None,
              targets: Sequence[Any] | None = None, sim_se: dict[str, float] | None = None,
              client: Any | None = None) -> Evaluation:
-    """Run the candidate ``values`` as the calibration's simulated studies (the same seeds every time)."""
+    """Run the candidate ``values`` as the calibration's simulated studies (the same seeds every time).
+
+    A candidate whose simulation fails with a studyctl error (e.g. the participant refuses a value) gets the
+    distance :data:`FAILED_DISTANCE` and the error as a note, so the search goes on elsewhere."""
+    from studyctl.errors import StudyctlError
+
+    try:
+        return _evaluate(spec, values, participants=participants, targets=targets, sim_se=sim_se, client=client)
+    except StudyctlError as exc:
+        targets = list(targets if targets is not None else spec.targets.targets)
+        stats = SimulatedStats(tuple(SimulatedValue(t.id, t.statistic, math.nan, note=f"simulation failed: {exc}")
+                                     for t in targets))
+        return Evaluation(dict(values), FAILED_DISTANCE, {t.id: math.nan for t in targets}, stats.to_frame(),
+                          0.0, 0.0, participants or spec.participants)
+
+
+def _evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: int | None,
+              targets: Sequence[Any] | None, sim_se: dict[str, float] | None, client: Any | None) -> Evaluation:
     from studyctl.populations.free import apply_values
 
     t0 = time.perf_counter()

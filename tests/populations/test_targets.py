@@ -118,3 +118,16 @@ def test_agreement_and_distance():
     assert total == pytest.approx(sum(v * v for v in z.values()))
     assert set(agr.to_frame().columns) >= {"published", "simulated", "same_direction", "within", "same_verdict",
                                           "role", "agrees"}
+
+
+def test_cv_is_a_spread_judged_by_its_ratio():
+    from studyctl.populations.targets import Target
+
+    frame, tests = _table()
+    cv = Target("cv_nofb", "completion_time", "cv", 0.3, "fit", {"condition": "no_feedback"}, {"n": 12})
+    sim = simulated_values([cv], frame, tests, alpha=0.05, rng=np.random.default_rng(0))
+    expected = np.std([12.0, 20.0], ddof=1) / 16.0
+    assert sim.get("cv_nofb").value == pytest.approx(expected)
+    (row,) = agreement([cv], sim, 0.05).rows
+    assert row.sd_ratio == pytest.approx(expected / 0.3) and row.within is (1 / 1.5 <= expected / 0.3 <= 1.5)
+    assert cv.published_se() == pytest.approx(0.3 / math.sqrt(22))
