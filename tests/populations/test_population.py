@@ -216,3 +216,36 @@ def test_cli_simulate_names_the_population(tmp_path, capsys):
     (line,) = [x for x in out.err.splitlines() if x.startswith("Error:")]
     assert f"{bad}:10:11: traits.press_speed_mm_s.dist: unknown distribution 'gamma'" in line
     assert not (tmp_path / "v").exists()
+
+
+def test_a_resumed_session_rebuilds_the_same_person(tmp_path, monkeypatch, population):
+    from studyctl.engine.api import resume_session, run_session, stored_population
+    from studyctl.errors import SessionInterrupted
+    from studyctl.participants.palpator import VirtualPalpator
+    from studyctl.store.workspace import open_study
+    from studyctl.workflows.simulate import create_cohort
+
+    cohort = create_cohort(MINI_PROTOCOL, 2, 9, tmp_path / "ws", population=population)
+    seen = []
+    real_init = VirtualPalpator.__init__
+
+    def spy(self, params=None):
+        seen.append(dict(params or {}))
+        real_init(self, params)
+
+    monkeypatch.setattr(VirtualPalpator, "__init__", spy)
+
+    def stop(participant, ui, rec):  # the session is stored (with its population event), then interrupted
+        raise SessionInterrupted("stopped by the test")
+
+    with open_study(None, cohort.workspace, cohort.study) as opened:
+        with pytest.raises(SessionInterrupted):
+            run_session(opened.store, cohort.codes[0], study=cohort.study, population=population, frontend=stop)
+        (sess,) = opened.store.list_sessions(opened.store.get_participant(opened.study.id, cohort.codes[0]).id)
+        stored = stored_population(opened.store, sess.id)
+        first = dict(seen[-1])
+        seen.clear()
+        resume_session(opened.store, sess.id)
+    assert stored["sha256"] == population.sha256
+    assert seen and seen[0] == first  # the same person (fixed params and traits), not the plugin's defaults
+    assert all(seen[0][k] == pytest.approx(v) for k, v in stored["traits"].items())
