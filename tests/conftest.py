@@ -34,6 +34,13 @@ matplotlib.use("Agg")
 _counter = itertools.count()
 
 
+@pytest.fixture(autouse=True)
+def _audit_head_dir(tmp_path_factory, monkeypatch):
+    """Each test keeps PostgreSQL audit head files in a folder of its own: the shared test database is
+    emptied between tests, which to a head file kept across tests looks exactly like a rewritten log."""
+    monkeypatch.setenv("STUDYCTL_AUDIT_HEAD_DIR", str(tmp_path_factory.mktemp("audit-heads")))
+
+
 @pytest.fixture(scope="session")
 def pg_server():
     """The session's throwaway PostgreSQL server (a :class:`studyctl.store.pgserver.ThrowawayPostgres`)."""

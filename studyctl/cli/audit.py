@@ -9,6 +9,8 @@ import typer
 
 from studyctl.cli.common import DB_OPTION, WORKSPACE_OPTION, workspace_arg
 from studyctl.errors import IntegrityError
+from studyctl.store.anchor import parse_head
+from studyctl.store.integrity import verify_integrity
 from studyctl.store.repository import StudyStore
 from studyctl.store.workspace import resolve_database
 
@@ -17,18 +19,30 @@ def register(app: typer.Typer) -> None:
     audit_app = typer.Typer(help="Verify and show the append-only, hash-chained audit log.", no_args_is_help=True)
 
     @audit_app.command("verify")
-    def verify(db: str = DB_OPTION, workspace: Path = WORKSPACE_OPTION) -> None:
-        """Recompute the hash chain; name every edited or deleted row and exit non-zero if any."""
+    def verify(
+        db: str = DB_OPTION,
+        workspace: Path = WORKSPACE_OPTION,
+        head: str = typer.Option(None, "--head", help="A head noted earlier (ROWS:SHA256, as printed by run/resume): "
+                                 "also check that the log still holds it."),
+    ) -> None:
+        """Recompute the hash chain and every sealed record (trials, outcomes, events, answers, location reports,
+        sample chunks); name every edited, deleted or inserted one and a truncated tail; exit non-zero if any."""
+        noted = parse_head(head) if head is not None else None
         url, _ = resolve_database(db, workspace_arg(workspace))
         with StudyStore.open(url) as store:
-            report = store.verify_audit()
+            report = verify_integrity(store.db, noted)
+        for note in report.notes:
+            typer.echo(f"note: {note}", err=True)
         if report.ok:
-            typer.echo(f"Audit log intact: {report.rows} rows, head hash {report.head_hash}")
+            checked = ", ".join(f"{n} {k}s" for k, n in report.records.checked.items())
+            rows = report.audit.rows
+            typer.echo(f"Audit log intact: {rows} rows, head {rows}:{report.audit.head_hash}; "
+                       f"records sealed and unchanged: {checked}")
             return
         for problem in report.problems:
             typer.echo(f"  {problem}", err=True)
-        raise IntegrityError(f"the audit log fails verification ({len(report.problems)} problem(s) above); "
-                             "restore the database from a backup and investigate who changed it")
+        raise IntegrityError(f"the study database fails verification ({len(report.problems)} problem(s) above); "
+                             "restore it from a backup and investigate who changed it")
 
     @audit_app.command("show")
     def show(

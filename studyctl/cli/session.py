@@ -15,6 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
 from studyctl.engine.api import resume_session, run_session, session_is_virtual
 from studyctl.engine.export import export_study
+from studyctl.store.anchor import audit_head
 from studyctl.store.workspace import OpenStudy, open_study
 from studyctl.view import open_view
 
@@ -49,10 +50,13 @@ class _Bar:
             self.progress.__exit__(*exc)
 
 
-def _summary(result) -> None:
+def _summary(result, opened: OpenStudy) -> None:
     typer.echo(f"Session {result.session_id} ({result.participant}): {result.status}; "
                f"{result.trials_completed} trials completed, {result.trials_aborted} aborted, "
                f"{result.trials_invalid} invalid, {result.answers} answers, {result.resumes} resume(s)")
+    head = audit_head(opened.store.db)
+    typer.echo(f"Audit head {head.text()} (note it in the lab notebook; `studyctl audit verify --head "
+               f"{head.count}:…` checks the log still holds it)")
 
 
 @contextmanager
@@ -87,7 +91,7 @@ def register(app: typer.Typer) -> None:
         with _live(db, workspace, study, view, view_port, lambda _: unattended) as (opened, hooks):
             result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
                                  script=input_file, speed=speed, **hooks)
-        _summary(result)
+            _summary(result, opened)
 
     @app.command("resume")
     def resume(
@@ -96,6 +100,10 @@ def register(app: typer.Typer) -> None:
                                         "session (person sessions without a terminal)."),
         speed: float = typer.Option(None, "--speed", help="Virtual/scripted sessions: at most this many times real "
                                     "time (default: as fast as possible)."),
+        take_over: bool = typer.Option(False, "--take-over", help="Take the session over from a process that "
+                                       "holds it but cannot be checked (another host) and has stopped sending "
+                                       "heartbeats; audited. A crashed process on this machine is taken over "
+                                       "without it."),
         view: bool = VIEW_OPTION,
         view_port: int = VIEW_PORT_OPTION,
         db: str = DB_OPTION,
@@ -105,8 +113,9 @@ def register(app: typer.Typer) -> None:
         """Continue an interrupted session from its stored plan (crash, kill, Ctrl-C or device fault)."""
         bar_when = lambda opened: input_file is not None or session_is_virtual(opened.store, session)  # noqa: E731
         with _live(db, workspace, study, view, view_port, bar_when) as (opened, hooks):
-            result = resume_session(opened.store, session, script=input_file, speed=speed, **hooks)
-        _summary(result)
+            result = resume_session(opened.store, session, script=input_file, speed=speed, take_over=take_over,
+                                    **hooks)
+            _summary(result, opened)
 
     @app.command("export")
     def export(

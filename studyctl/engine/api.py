@@ -13,8 +13,6 @@ Example: a virtual participant's whole session, deterministic given the seed::
 
 from __future__ import annotations
 
-import os
-import socket
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,16 +27,16 @@ from studyctl.engine.planning import plan_for_participant
 from studyctl.engine.preflight import preflight
 from studyctl.engine.seeding import answer_rng, population_rng, session_seed
 from studyctl.engine.session import SessionResult, SessionRunner, condition_rate
-from studyctl.engine.store_recorder import StoreRecorder
+from studyctl.engine.store_recorder import StoreRecorder, refuse_second_session
 from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
 from studyctl.errors import NotFoundError, PopulationError, SessionError, UsageError
 from studyctl.plugins.interfaces import Participant
 from studyctl.protocol.schedule import Schedule
 from studyctl.store import StudyStore
 from studyctl.store.enrollment import study_protocol
-from studyctl.store.models import Event
+from studyctl.store.lease import take_lease
+from studyctl.store.models import Event, Session
 
-UNFINISHED = ("running", "paused", "interrupted")
 ProgressFn = Callable[[int, int, Step], None]
 # Another front end for the person (the participant view): gets the session's participant, UI and recorder
 # before the first step and returns the pair to use instead (wrappers that mirror prompts and requests).
@@ -133,15 +131,22 @@ def _launch(
     factory = factory or EntryPointFactory()
     setup = _prepare(plan, seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
                      clock=clock or _paced(speed), script=script, log=log, person_params=person_params)
+    rec = None
     try:
         rec = begin()
+        if rec.lease is not None:
+            rec.lease.start_heartbeat()
         if frontend is not None:
             setup.participant, setup.ui = frontend(setup.participant, setup.ui, rec)
         runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock, factory=factory,
                                virtual=rec.state().virtual, progress=progress)
         return runner.run()
     finally:
-        setup.cleanup()
+        try:
+            if rec is not None:
+                rec.close()
+        finally:
+            setup.cleanup()
 
 
 def run_session(
@@ -237,13 +242,9 @@ def run_session(
                             f"{hint}. Enroll one with `studyctl enroll`") from None
     if person.status == "withdrawn":
         raise SessionError(f"participant {participant_code} has withdrawn; their sessions cannot be run")
-    for sess in store.list_sessions(person.id):
-        if sess.status == "completed":
-            raise SessionError(f"participant {participant_code} already completed session {sess.id}; a participant "
-                               "takes part once (see `studyctl status`, `studyctl export DIR`)")
-        if sess.status in UNFINISHED:
-            raise SessionError(f"participant {participant_code} has an unfinished session {sess.id} ({sess.status}); "
-                               f"continue it with `studyctl resume {sess.id}`")
+    # early, readable refusal; StoreRecorder.create checks again inside the transaction that starts the session
+    with store.reading() as s:
+        refuse_second_session(store, s, person)
     if not person.schedule:
         raise SessionError(f"participant {participant_code} has no stored schedule; enroll with `studyctl enroll`")
     protocol = study_protocol(target)
@@ -269,7 +270,7 @@ def run_session(
         person_params = population.params(traits)
     return _launch(plan, seed, virtual,
                    lambda: StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site,
-                                                population=record),
+                                                population=record, lease=True),
                    participant=participant, ui=ui, clock=clock, script=script, factory=factory, progress=progress,
                    speed=speed, log=log, frontend=frontend, person_params=person_params)
 
@@ -304,27 +305,6 @@ def session_is_virtual(store: StudyStore, session_id: int) -> bool:
     return bool(payload and payload.get("virtual", False))
 
 
-def _process_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def session_owner(store: StudyStore, session_id: int) -> tuple[int, str] | None:
-    """(pid, host) of the process that last ran the session, from its ``session_process`` event."""
-    with store.reading() as s:
-        payload = s.scalar(select(Event.payload).where(Event.session_id == session_id,
-                                                       Event.kind == "session_process")
-                           .order_by(Event.seq.desc()).limit(1))
-    if not payload:
-        return None
-    return int(payload.get("pid", 0)), str(payload.get("host", ""))
-
-
 def resume_session(
     store: StudyStore,
     session_id: int,
@@ -338,36 +318,42 @@ def resume_session(
     speed: float | None = None,
     log: Callable[[str], None] | None = None,
     frontend: Frontend | None = None,
+    take_over: bool = False,
 ) -> SessionResult:
     """Continue an interrupted session from its stored plan (see :func:`run_session` for parameters).
 
     Completed steps, trials and answers are kept; a trial interrupted mid-way is handled by the protocol's
     policy (``repeat`` it, or mark it invalid and append a replacement); the resume is audited. The session
     keeps its mode (virtual or person) and seed.
+
+    The session's lease is taken first (one writer per session): while another process runs the session
+    this raises :class:`SessionError` naming its pid, host and start. A lease left by a process that is
+    provably gone is taken over and audited; ``take_over`` also takes one whose owner cannot be checked
+    (another host) once its heartbeat is stale.
     """
-    sess = store.get_session(session_id)
-    if sess.status == "completed":
-        raise SessionError(f"session {session_id} is already complete; nothing to resume")
-    if sess.status == "aborted":
-        raise SessionError(f"session {session_id} was aborted; it cannot be resumed")
-    owner = session_owner(store, session_id)
-    if owner is not None and sess.status == "running":
-        pid, host = owner
-        if host == socket.gethostname() and pid != os.getpid() and _process_alive(pid):
-            raise SessionError(f"session {session_id} is being run by process {pid} on this machine; stop it "
-                               "first (Ctrl-C in its terminal) or wait for it to end")
-    rec = StoreRecorder.load(store, session_id)
+    store.get_session(session_id)  # NotFoundError first
+    with store.in_transaction() as tx:
+        sess = tx.get(Session, session_id)
+        if sess.status == "completed":
+            raise SessionError(f"session {session_id} is already complete; nothing to resume")
+        if sess.status == "aborted":
+            raise SessionError(f"session {session_id} was aborted; it cannot be resumed")
+        lease = take_lease(store.db, tx, session_id, take_over=take_over)
+    try:
+        rec = StoreRecorder.load(store, session_id)
+    except BaseException:
+        lease.release()
+        raise
+    rec.lease = lease
     state = rec.state()
-
-    def begin() -> StoreRecorder:
-        rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=state.last_t)
-        return rec
-
     stored = stored_population(store, session_id) if state.virtual else None
     person_params = {**stored.get("fixed", {}), **stored.get("traits", {})} if stored else None
-    return _launch(state.plan, state.seed, state.virtual, begin, participant=participant, ui=ui, clock=clock,
-                   script=script, factory=factory, progress=progress, speed=speed, log=log, frontend=frontend,
-                   person_params=person_params)
+    try:
+        return _launch(state.plan, state.seed, state.virtual, lambda: rec, participant=participant, ui=ui,
+                       clock=clock, script=script, factory=factory, progress=progress, speed=speed, log=log,
+                       frontend=frontend, person_params=person_params)
+    finally:
+        rec.close()
 
 
 def stored_population(store: StudyStore, session_id: int) -> dict[str, Any] | None:

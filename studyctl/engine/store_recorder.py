@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import math
 import operator
-import os
-import socket
 import time
 from array import array
 from collections.abc import Mapping
@@ -35,7 +33,9 @@ from studyctl.engine.plan import SessionPlan
 from studyctl.engine.recorder import MEMORY_EVENT, SessionState, TrialRecord
 from studyctl.errors import NotFoundError, SessionError
 from studyctl.store import StudyStore
-from studyctl.store.models import Event, Participant, QuestionnaireResponse, Trial, utcnow
+from studyctl.store.lease import SessionLeaseHandle, current_holder, owner_alive, take_lease
+from studyctl.store.models import Event, Participant, QuestionnaireResponse, Session, Trial, utcnow
+from studyctl.store.records import SealMark, load_mark, seal_session
 
 PLAN_EVENTS = ("session_plan", "plan_amended")
 # Events a participant produced (or that mark a fault) are fsynced at once; the rest ride on the next
@@ -138,17 +138,56 @@ def _context(position: int) -> str:
     return f"step:{position}"
 
 
+UNFINISHED = ("running", "paused", "interrupted")
+
+
+def refuse_second_session(store: StudyStore, tx, participant: Participant) -> None:
+    """Raise :class:`SessionError` if the participant already has a session: a participant takes part once.
+
+    Run inside the write transaction that would create the session (SQLite ``BEGIN IMMEDIATE``, PostgreSQL
+    with the participant row locked), so of concurrent starts exactly one passes. A session someone is
+    running is refused with its lease holder (pid, host, since).
+    """
+    sessions = list(tx.scalars(select(Session).where(Session.participant_id == participant.id).order_by(Session.id)))
+    for sess in sessions:
+        if sess.status == "completed":
+            raise SessionError(f"participant {participant.code} already completed session {sess.id}; a participant "
+                               "takes part once (see `studyctl status`, `studyctl export DIR`)")
+    for sess in sessions:
+        if sess.status in UNFINISHED:
+            holder = current_holder(tx, sess.id)
+            if holder is not None and owner_alive(store.db, holder) is not False:
+                raise holder.refusal()
+            raise SessionError(f"participant {participant.code} has an unfinished session {sess.id} ({sess.status}); "
+                               f"continue it with `studyctl resume {sess.id}`")
+
+
 class StoreRecorder:
     """A session's durable record in a :class:`~studyctl.store.StudyStore`.
 
     Create a new session with :meth:`create`, reopen one with :meth:`load`.
     """
 
-    def __init__(self, store: StudyStore, state: SessionState, participant_id: int) -> None:
+    def __init__(self, store: StudyStore, state: SessionState, participant_id: int,
+                 mark: SealMark | None = None) -> None:
         self.store = store
+        # what of this session the audit chain already seals (every transaction here seals what it wrote)
+        self._mark = mark or SealMark()
         self._state = state
         self.participant_id = participant_id
         self._pending: list[tuple[int | None, tuple[float, str, Mapping[str, Any]]]] = []
+        # The session's lease when this process runs it (None for read-only use and internal tools).
+        self.lease: SessionLeaseHandle | None = None
+
+    def close(self) -> None:
+        """Let go of the session's lease (if held)."""
+        if self.lease is not None:
+            lease, self.lease = self.lease, None
+            lease.release()
+
+    def _tx(self, durable: bool = True):
+        """A write transaction of this session; checks first that this process still holds its lease."""
+        return _LeasedTx(self, durable)
 
     @property
     def session_id(self) -> int:
@@ -166,17 +205,26 @@ class StoreRecorder:
         virtual: bool,
         site: str | None = None,
         population: Mapping[str, Any] | None = None,
+        lease: bool = False,
     ) -> StoreRecorder:
         """Start a new session: the session row, its plan and one planned row per trial, in one transaction.
 
         ``population`` (a virtual person's population record: name, version, sha256, traits) is stored as a
-        ``population`` event in the same transaction."""
+        ``population`` event in the same transaction. ``lease``: also refuse a participant who already has a
+        session and take the new session's lease in the same transaction (what ``studyctl run`` does; release
+        it with :meth:`close`).
+        """
+        handle = None
         with store.in_transaction() as tx:
-            participant = tx.get(Participant, participant_id)
+            participant = tx.get(Participant, participant_id, with_for_update=lease)
             if participant is None:
                 raise NotFoundError(f"no participant with id {participant_id}")
             code = participant.code
+            if lease:
+                refuse_second_session(store, tx, participant)
             sess = store.start_session(participant_id, seed=seed, site=site, tx=tx)
+            if lease:
+                handle = take_lease(store.db, tx, sess.id)
             store.append_event(sess.id, "session_plan", {"plan": plan.to_json(), "virtual": bool(virtual)},
                                t_mono=0.0, tx=tx)
             if population is not None:
@@ -187,10 +235,14 @@ class StoreRecorder:
                 trials.append(TrialRecord(row.id, step.position, 1, "planned", condition=step.condition))
             if participant.status == "enrolled":
                 store.set_participant_status(participant_id, "active", tx=tx)
+            mark = SealMark()
+            sealed = seal_session(tx, sess.id, mark)
+        if sealed:
+            mark.fold(sealed)
         state = SessionState(session_id=sess.id, participant=code, seed=seed, status="running", plan=plan,
                              trials=trials, virtual=bool(virtual))
-        rec = cls(store, state, participant_id)
-        rec.event("session_process", {"pid": os.getpid(), "host": socket.gethostname()}, t=0.0)
+        rec = cls(store, state, participant_id, mark)
+        rec.lease = handle
         return rec
 
     @classmethod
@@ -208,6 +260,7 @@ class StoreRecorder:
                 select(QuestionnaireResponse.context, QuestionnaireResponse.item, QuestionnaireResponse.code)
                 .where(QuestionnaireResponse.session_id == session_id).order_by(QuestionnaireResponse.id)
             ).all()
+            mark = load_mark(s, session_id)
         plan_json = None
         virtual = True
         completed: set[int] = set()
@@ -244,7 +297,7 @@ class StoreRecorder:
                      if c and c.startswith("step:")},
             resumes=int(sess.resume_count or 0), last_t=last_t, virtual=virtual, memory=memory,
         )
-        return cls(store, state, participant.id)
+        return cls(store, state, participant.id, mark)
 
     # -- Recorder ----------------------------------------------------------------------------------
     def state(self) -> SessionState:
@@ -283,14 +336,14 @@ class StoreRecorder:
             self._pending.append((trial_id, (float(t if t is not None else 0.0), kind, _jsonable(body))))
             if len(self._pending) < 256:
                 return
-        with self.store.in_transaction(durable=durable) as tx:
+        with self._tx(durable) as tx:
             if commit:
                 self._append(tx, kind, body, t, trial_id)
             else:
                 self._flush_pending(tx)
 
     def set_status(self, status: str, reason: str = "") -> None:
-        with self.store.in_transaction() as tx:
+        with self._tx() as tx:
             fields: dict[str, Any] = {"status": status}
             if status in ("completed", "aborted"):
                 fields["ended_at"] = utcnow()
@@ -306,7 +359,7 @@ class StoreRecorder:
         self._state.started.add(position)
 
     def step_completed(self, position: int, t: float, summary=None) -> None:
-        with self.store.in_transaction() as tx:
+        with self._tx() as tx:
             self._append(tx, "step_done", {**dict(summary or {}), "position": position}, t, None)
         self._state.completed.add(position)
 
@@ -314,7 +367,7 @@ class StoreRecorder:
         step = self._state.plan.step(position)
         planned = [r for r in self._state.trials if r.position == position and r.status == "planned"]
         outcome = {"step": position, "attempt": attempt}
-        with self.store.in_transaction(durable=False) as tx:
+        with self._tx(False) as tx:
             self._append(tx, "step_enter", {"position": position}, t, None)
             if planned:
                 tid = planned[0].trial_id
@@ -331,7 +384,7 @@ class StoreRecorder:
         return tid
 
     def trial_finished(self, trial_id, status, outcome, reports, *, position, t, reason="", complete_step=True):
-        with self.store.in_transaction() as tx:
+        with self._tx() as tx:
             self._flush_pending(tx)
             out = _jsonable(dict(outcome))
             self.store.update_trial(
@@ -349,7 +402,7 @@ class StoreRecorder:
             self._state.completed.add(position)
 
     def mark_trial(self, trial_id: int, status: str, reason: str) -> None:
-        with self.store.in_transaction() as tx:
+        with self._tx() as tx:
             self.store.update_trial(trial_id, status=status, invalid_reason=reason, tx=tx)
             self._append(tx, "trial_marked", {"trial_id": trial_id, "status": status, "reason": reason}, None, None)
         self._state.set_trial(trial_id, status, reason)
@@ -358,7 +411,7 @@ class StoreRecorder:
         return _StoreSamples(self.store, trial_id)
 
     def answer(self, position, instrument, version, item, code, response_time_s) -> None:
-        with self.store.in_transaction() as tx:
+        with self._tx() as tx:
             self.store.record_response(
                 self.participant_id, instrument=instrument, instrument_version=version, item=item, code=int(code),
                 session_id=self.session_id, context=_context(position), tx=tx,
@@ -371,7 +424,7 @@ class StoreRecorder:
     def amend_plan(self, plan: SessionPlan, reason: str) -> None:
         known = {r.position for r in self._state.trials}
         new_rows: list[TrialRecord] = []
-        with self.store.in_transaction() as tx:
+        with self._tx() as tx:
             self._append(tx, "plan_amended", {"plan": plan.to_json(), "reason": reason}, None, None)
             for step in plan.trials():
                 if step.position in known:
@@ -384,13 +437,42 @@ class StoreRecorder:
         self._state.trials.extend(new_rows)
 
     def audit(self, action: str, detail) -> None:
-        with self.store.in_transaction() as tx:
+        with self._tx() as tx:
             self.store.audit(f"session.{action}" if "." not in action else action, entity="session",
                              entity_id=self.session_id, details=_jsonable(dict(detail)), tx=tx)
             if action == "session_resumed":
                 self.store.update_session(self.session_id, resume_count=self._state.resumes + 1, tx=tx)
         if action == "session_resumed":
             self._state.resumes += 1
+
+
+class _LeasedTx:
+    def __init__(self, rec: StoreRecorder, durable: bool) -> None:
+        self._cm = rec.store.in_transaction(durable=durable)
+        self._rec = rec
+
+    def __enter__(self):
+        tx = self._tx = self._cm.__enter__()
+        if self._rec.lease is not None:
+            try:
+                self._rec.lease.verify(tx)
+            except BaseException as exc:
+                self._cm.__exit__(type(exc), exc, exc.__traceback__)
+                raise
+        return tx
+
+    def __exit__(self, exc_type, exc, tb):
+        sealed = None
+        if exc_type is None:
+            try:
+                sealed = seal_session(self._tx, self._rec.session_id, self._rec._mark)
+            except BaseException as err:
+                self._cm.__exit__(type(err), err, err.__traceback__)
+                raise
+        suppress = self._cm.__exit__(exc_type, exc, tb)
+        if sealed:
+            self._rec._mark.fold(sealed)
+        return suppress
 
 
 def _jsonable(value: Any) -> Any:

@@ -23,6 +23,7 @@ from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from studyctl.errors import UsageError
+from studyctl.store.anchor import HEAD_KEY
 from studyctl.store.models import AuditHead, AuditLog
 
 GENESIS_HASH = "0" * 64
@@ -99,6 +100,7 @@ def append_audit(
     session.flush()
     session.execute(update(AuditHead).where(AuditHead.id == 1).values(count=row["id"], hash=digest))
     session.expire(head)
+    session.info[HEAD_KEY] = (row["id"], digest)  # the head file follows once this commits (store.anchor)
     return entry
 
 
@@ -120,6 +122,10 @@ class AuditReport:
         ids: list[int | None] = list(self.bad_ids) + [None] * (len(self.problems) - len(self.bad_ids))
         return pd.DataFrame({"row_id": pd.Series(ids, dtype="Int64"), "problem": list(self.problems)},
                             columns=["row_id", "problem"])
+
+
+def _span(first: int, last: int) -> str:
+    return str(first) if first == last else f"{first}–{last}"
 
 
 def verify_audit(session: Session, *, batch: int = 2000) -> AuditReport:
@@ -152,9 +158,17 @@ def verify_audit(session: Session, *, batch: int = 2000) -> AuditReport:
         if rows:
             problems.append("the audit head row is missing")
     else:
-        if head.count != expected_id - 1 or head.hash != prev:
-            problems.append(f"the audit log ends at row {expected_id - 1} but its head records {head.count} rows: "
-                            "rows at the end were deleted (or the head was edited)")
+        last = expected_id - 1
+        if head.count > last:
+            problems.append(f"the audit log ends at row {last} but its head records {head.count} rows: "
+                            f"audit row(s) {_span(last + 1, head.count)} at the end were deleted (or the head was "
+                            "edited)")
+        elif head.count < last:
+            problems.append(f"audit row(s) {_span(head.count + 1, last)} come after the head ({head.count} rows): "
+                            "they were inserted (or the head was edited)")
+            bad.append(head.count + 1)
+        elif head.hash != prev:
+            problems.append(f"the audit head's hash does not match row {last}: the head or the last row was edited")
     # Keep bad_ids aligned with the row-level problems only.
     return AuditReport(rows=rows, head_hash=prev, problems=tuple(problems), bad_ids=tuple(bad))
 

@@ -10,8 +10,8 @@ import pandas as pd
 from sqlalchemy import func, select
 
 from studyctl.errors import IntegrityError
-from studyctl.store.audit import verify_audit
 from studyctl.store.db import Database, SchemaState, require_head
+from studyctl.store.integrity import verify_session
 from studyctl.store.models import SampleChunk
 
 
@@ -60,9 +60,20 @@ def check_database(url: Any) -> DatabaseCheck:
             checks.append(("sqlite integrity", result == ["ok"], "; ".join(result[:5])))
             checks.append(("foreign keys", not fk, f"{len(fk)} dangling reference(s)" if fk else "ok"))
         with db.reading() as s:
-            report = verify_audit(s)
+            full = verify_session(s, db)
+            report = full.audit
             checks.append(("audit chain", report.ok,
                            f"{report.rows} rows, head {report.head_hash}" if report.ok else "; ".join(report.problems)))
+            checks.append(("audit head file", not full.head_problems,
+                           "; ".join(full.head_problems) or "; ".join(n for n in full.notes if "head" in n) or "ok"))
+            rec_problems = [p.line() for p in full.records.problems if p.kind != "chunk"]
+            checks.append(("sealed records", not rec_problems,
+                           "; ".join(rec_problems) if rec_problems else
+                           ", ".join(f"{n} {k}s" for k, n in full.records.checked.items() if k != "chunk")))
+            chunk_problems = [p.line() for p in full.records.problems if p.kind == "chunk"]
+            checks.append(("sample digests", not chunk_problems,
+                           "; ".join(chunk_problems) if chunk_problems else
+                           f"{full.records.checked['chunk']} chunks match their sealed digests"))
             bad = []
             rows = s.execute(select(SampleChunk.id, SampleChunk.n, SampleChunk.channels, SampleChunk.dtype,
                                     func.length(SampleChunk.t), func.length(SampleChunk.data))).all()

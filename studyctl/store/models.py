@@ -236,6 +236,9 @@ class SampleChunk(Base):
     dtype: Mapped[str] = mapped_column(String(16))
     t: Mapped[bytes] = mapped_column(BlobType)
     data: Mapped[bytes] = mapped_column(BlobType)
+    # sha256 of the chunk's key fields and both blobs (studyctl.store.records.chunk_digest), written with the
+    # chunk; the session's record seals chain it into the audit log, `db check` recomputes it.
+    digest: Mapped[str | None] = mapped_column(String(64))
 
 
 class QuestionnaireResponse(Base):
@@ -287,6 +290,21 @@ class AuditLog(Base):
     hash: Mapped[str] = mapped_column(String(64), unique=True)
 
 
+class SessionLease(Base):
+    """The one process allowed to write a session: taken atomically with the session's start or resume,
+    refreshed by a heartbeat, deleted when the process lets go (a row left behind is a crashed owner)."""
+
+    __tablename__ = "session_lease"
+
+    session_id: Mapped[int] = mapped_column(IdType, ForeignKey("session.id"), primary_key=True,
+                                            autoincrement=False)
+    token: Mapped[str] = mapped_column(String(64))
+    pid: Mapped[int] = mapped_column(Integer)
+    host: Mapped[str] = mapped_column(String(200))
+    acquired_at: Mapped[datetime] = mapped_column()
+    heartbeat_at: Mapped[datetime] = mapped_column()
+
+
 class AuditHead(Base):
     """The single row holding the audit chain's length and last hash (detects a deleted tail)."""
 
@@ -311,6 +329,7 @@ __all__ = [
     "QuestionnaireResponse",
     "SampleChunk",
     "Session",
+    "SessionLease",
     "Study",
     "Trial",
     "utcnow",

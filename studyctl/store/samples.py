@@ -25,6 +25,7 @@ from sqlalchemy import func, insert, select
 from studyctl.errors import IntegrityError, NotFoundError, UsageError
 from studyctl.store.db import Database
 from studyctl.store.models import SampleChunk, Trial
+from studyctl.store.records import chunk_digest
 
 DEFAULT_STREAM = "samples"
 _ALLOWED_DTYPES = ("<f8", "<f4")
@@ -225,6 +226,7 @@ class SampleWriter:
             "t": t.tobytes(),
             "data": v.tobytes(),
         }
+        row["digest"] = chunk_digest(row, row["t"], row["data"])
         with self.db.in_transaction(durable=self.durable_flush) as s:
             s.execute(insert(SampleChunk), [row])
         self._next_index += 1

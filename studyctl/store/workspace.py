@@ -237,6 +237,9 @@ def init_workspace(
             # The store is closed: SQLite has checkpointed and removed the -wal/-shm files.
             _link_new(db_tmp, folder / DB_FILE)
             temps.append(folder / DB_FILE)  # remove it too if the last step fails
+            head_tmp = Path(f"{db_tmp}.head")  # the audit head file follows its database (store.anchor)
+            if head_tmp.exists():
+                os.replace(head_tmp, folder / f"{DB_FILE}.head")
             _link_new(toml_tmp, folder / WORKSPACE_FILE)
             database_desc = str(folder / DB_FILE)
         else:
@@ -254,7 +257,7 @@ def init_workspace(
         temps.clear()
     except BaseException as exc:
         for path in temps:
-            for suffix in ("", "-wal", "-shm", "-journal"):
+            for suffix in ("", "-wal", "-shm", "-journal", ".head"):
                 Path(f"{path}{suffix}").unlink(missing_ok=True)
         if created_dir:
             with contextlib.suppress(OSError):

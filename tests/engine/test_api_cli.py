@@ -183,25 +183,36 @@ def test_manual_condition_outcome_entered_by_the_coordinator(tmp_path, capsys):
 
 
 def test_resume_refuses_a_session_another_live_process_runs(ws, tmp_path):
+    import socket
     import subprocess
     import sys
 
     from studyctl.engine.api import resume_session
+    from studyctl.store.models import SessionLease, utcnow
 
     answers = tmp_path / "answers.yaml"
     answers.write_text(yaml.safe_dump(SCRIPT))
     with open_study(workspace=ws) as o:
         run_session(o.store, "PTY-AAAAA", virtual=False, script=answers)
-        # pretend session 1 is unfinished and owned by a live process on this machine
+        # pretend session 1 is unfinished and its lease held by a live process on this machine
         o.store.update_session(1, status="running")
         sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
         try:
-            import socket
-
-            o.store.append_event(1, "session_process", {"pid": sleeper.pid, "host": socket.gethostname()},
-                                 t_mono=0.0)
-            with pytest.raises(SessionError, match=f"being run by process {sleeper.pid}"):
+            with o.store.in_transaction() as tx:
+                tx.add(SessionLease(session_id=1, token="x" * 32, pid=sleeper.pid, host=socket.gethostname(),
+                                    acquired_at=utcnow(), heartbeat_at=utcnow()))
+            expected = (f"session 1 is being run by pid {sleeper.pid} on {socket.gethostname()} since .*; if that "
+                        "process is gone, studyctl resume 1 --take-over")
+            with pytest.raises(SessionError, match=expected):
                 resume_session(o.store, 1, script=answers)
+            with pytest.raises(SessionError, match=expected):  # a live owner on this machine: no take-over
+                resume_session(o.store, 1, script=answers, take_over=True)
         finally:
             sleeper.kill()
             sleeper.wait()
+        # the owner is gone: the lease left behind is taken over (and audited) without --take-over
+        result = resume_session(o.store, 1, script=answers)
+        assert result.status == "completed"
+        actions = list(o.store.audit_frame()["action"])
+        assert "session.take_over" in actions
+        assert o.store.verify_audit().ok

@@ -82,8 +82,8 @@ def test_deleted_tail_is_detected(store):
     _tamper(store, "DELETE FROM audit_log WHERE id = 6")
     report = store.verify_audit()
     assert report.problems == (
-        "the audit log ends at row 5 but its head records 6 rows: rows at the end were deleted (or the head was "
-        "edited)",)
+        "the audit log ends at row 5 but its head records 6 rows: audit row(s) 6 at the end were deleted (or the "
+        "head was edited)",)
 
 
 def test_cli_verify_exit_codes(store, capsys):
@@ -95,7 +95,7 @@ def test_cli_verify_exit_codes(store, capsys):
     assert main(["audit", "verify", "--db", url]) == 1
     err = capsys.readouterr().err
     assert "audit row 2 (participant.enroll) was edited" in err
-    assert err.strip().splitlines()[-1].startswith("Error: the audit log fails verification")
+    assert err.strip().splitlines()[-1].startswith("Error: the study database fails verification")
 
 
 def test_audit_details_must_be_json(store):

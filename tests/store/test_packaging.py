@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from studyctl.store.db import head_revision
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -66,4 +68,4 @@ def test_wheel_ships_migrations_and_init_finds_them(tmp_path):
     assert init.returncode == 0, init.stderr
     current = subprocess.run([sys.executable, "-m", "studyctl", "db", "current", "-w", str(ws)],
                              capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
-    assert current.returncode == 0 and "revision 0001" in current.stdout, current.stderr
+    assert current.returncode == 0 and f"revision {head_revision()}" in current.stdout, current.stderr

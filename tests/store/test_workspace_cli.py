@@ -15,6 +15,7 @@ import pytest
 from studyctl.cli.app import main
 from studyctl.resources import resource_dir
 from studyctl.store import StudyStore
+from studyctl.store.db import head_revision
 from studyctl.store.identity import IdentityKey, random_code
 from studyctl.store.workspace import init_workspace, load_workspace, open_study
 
@@ -37,8 +38,9 @@ def test_init_creates_private_workspace_at_head(tmp_path, capsys):
     code, out, err = run(capsys, "init", str(ws), "--name", "pilot", "--seed", "42")
     assert code == 0, err
     assert "Created study 'pilot'" in out
-    assert sorted(p.name for p in ws.iterdir()) == ["study.db", "studyctl.toml"]  # no temp or -wal left
-    for name in ("study.db", "studyctl.toml"):
+    # no temp or -wal left; the audit head file sits next to the database
+    assert sorted(p.name for p in ws.iterdir()) == ["study.db", "study.db.head", "studyctl.toml"]
+    for name in ("study.db", "study.db.head", "studyctl.toml"):
         assert stat.S_IMODE((ws / name).stat().st_mode) == 0o600
     assert stat.S_IMODE(ws.stat().st_mode) == 0o700
     assert load_workspace(ws).study == "pilot"
@@ -46,7 +48,7 @@ def test_init_creates_private_workspace_at_head(tmp_path, capsys):
         assert opened.study.seed == 42 and opened.study.protocol_text is None
         assert opened.store.db.schema_state().up_to_date
     code, out, _ = run(capsys, "db", "current", "--workspace", str(ws))
-    assert code == 0 and "revision 0001" in out
+    assert code == 0 and f"revision {head_revision()}" in out
 
 
 def test_init_with_shipped_protocol_snapshots_its_text(tmp_path, capsys):
@@ -204,7 +206,7 @@ def test_db_upgrade_from_empty_and_newer_revision(tmp_path, capsys):
     code, _, err = run(capsys, "db", "current", "--db", str(path))
     assert code != 0 and "no studyctl schema yet; run `studyctl db upgrade`" in one_error_line(err)
     code, out, err = run(capsys, "db", "upgrade", "--db", str(path))
-    assert code == 0 and "Upgraded the schema from empty to 0001" in out
+    assert code == 0 and f"Upgraded the schema from empty to {head_revision()}" in out
     code, out, _ = run(capsys, "db", "upgrade", "--db", str(path))
     assert code == 0 and "Already at the newest" in out
     with sqlite3.connect(path) as conn:

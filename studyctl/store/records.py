@@ -1,0 +1,315 @@
+"""Every stored record of a session is covered by the audit hash chain.
+
+Trials (with their outcome), events, questionnaire answers, location reports and sample chunks are not
+chained row by row; instead the session's writer *seals* them: in the same transaction that writes them,
+a ``records.seal`` audit row lists the digest of every record of the session that is new or changed
+since the previous seal (``{"trial": {id: [fields, outcome]}, "event": {id: digest}, …}``). The audit
+row is hash-chained like every other, so a record can only be changed, removed or added unseen by
+rewriting the chain from that seal on, which the head anchored outside the database
+(:mod:`studyctl.store.anchor`) reveals.
+
+:func:`verify_records` recomputes each record's digest from what is stored and names every record that
+was edited (its digest differs from the sealed one), deleted (sealed but missing) or inserted (never
+sealed). Records written after the last seal of a session that is still unfinished (the trial that was
+running when a process died) are reported as pending, not as tampering: the next resume seals them.
+Sample chunks carry their digest in a column, computed from the raw blobs when the chunk is written,
+so sealing never re-reads the blobs; ``db check`` recomputes it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session as OrmSession
+
+from studyctl.store.audit import append_audit, canonical_json
+from studyctl.store.models import (
+    AuditLog,
+    Event,
+    LocationReport,
+    QuestionnaireResponse,
+    SampleChunk,
+    Session,
+    Trial,
+)
+
+SEAL_ACTION = "records.seal"
+COVERAGE_ACTION = "records.coverage_start"
+UNFINISHED = ("running", "paused", "interrupted")
+# name in seals and messages → model; trials are sealed as [fields digest, outcome digest]
+KINDS = ("trial", "event", "answer", "report", "chunk")
+_LABEL = {"trial": "trial", "event": "event", "answer": "answer", "report": "location report",
+          "chunk": "sample chunk"}
+_TRIAL_FIELDS = ("id", "session_id", "participant_id", "plan_position", "condition", "block", "repetition",
+                 "placement", "time_limit_s", "status", "timed_out", "started_at", "ended_at", "replaces_trial_id",
+                 "invalid_reason")
+_EVENT_FIELDS = ("id", "session_id", "trial_id", "seq", "t_mono", "t_wall", "kind", "payload")
+_ANSWER_FIELDS = ("id", "participant_id", "session_id", "trial_id", "instrument", "instrument_version", "item",
+                  "code", "answered_at", "context")
+_REPORT_FIELDS = ("id", "trial_id", "t", "payload", "correct")
+_CHUNK_FIELDS = ("trial_id", "stream", "chunk_index", "t0", "t1", "n", "channels", "dtype")
+
+
+def _norm(value: Any) -> Any:
+    if isinstance(value, datetime):
+        return value.astimezone(UTC).isoformat(timespec="microseconds")
+    if isinstance(value, float):
+        return repr(value)  # exact; also keeps 1.0 and 1 apart the same way on every backend
+    if isinstance(value, dict):
+        return {str(k): _norm(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_norm(v) for v in value]
+    return value
+
+
+def _digest(values: dict[str, Any]) -> str:
+    return hashlib.sha256(canonical_json(_norm(values)).encode("utf-8")).hexdigest()
+
+
+def _fields(row: Any, names: tuple[str, ...]) -> dict[str, Any]:
+    return {k: getattr(row, k) for k in names}
+
+
+def trial_digest(row: Trial) -> list[str]:
+    """``[digest of the trial's fields, digest of its outcome]`` (kept apart to name an edited outcome)."""
+    return [_digest(_fields(row, _TRIAL_FIELDS)), _digest({"outcome": row.outcome})]
+
+
+def event_digest(row: Event) -> str:
+    return _digest(_fields(row, _EVENT_FIELDS))
+
+
+def answer_digest(row: QuestionnaireResponse) -> str:
+    return _digest(_fields(row, _ANSWER_FIELDS))
+
+
+def report_digest(row: LocationReport) -> str:
+    return _digest(_fields(row, _REPORT_FIELDS))
+
+
+def chunk_digest(header: dict[str, Any], t: bytes, data: bytes) -> str:
+    """sha256 of a sample chunk's key fields (trial, stream, index, t0, t1, n, channels, dtype) and blobs."""
+    h = hashlib.sha256(canonical_json(_norm({k: header[k] for k in _CHUNK_FIELDS})).encode("utf-8"))
+    h.update(b"\0")
+    h.update(bytes(t))
+    h.update(b"\0")
+    h.update(bytes(data))
+    return h.hexdigest()
+
+
+def stored_chunk_digest(row: SampleChunk) -> str:
+    return chunk_digest(_fields(row, _CHUNK_FIELDS), row.t, row.data)
+
+
+# ------------------------------------------------------------------------------------------- sealing
+
+
+@dataclass
+class SealMark:
+    """What of one session is sealed already: the highest sealed id per append-only kind, trial digests."""
+
+    last: dict[str, int] = field(default_factory=lambda: {k: 0 for k in KINDS if k != "trial"})
+    trials: dict[int, list[str]] = field(default_factory=dict)
+
+    def fold(self, details: dict[str, Any]) -> None:
+        for kind in KINDS:
+            for key, digest in (details.get(kind) or {}).items():
+                if kind == "trial":
+                    self.trials[int(key)] = list(digest)
+                else:
+                    self.last[kind] = max(self.last[kind], int(key))
+
+
+def load_mark(tx: OrmSession, session_id: int) -> SealMark:
+    """The seal state of a session, rebuilt from its ``records.seal`` audit rows (for a resume)."""
+    mark = SealMark()
+    for details in tx.scalars(select(AuditLog.details).where(AuditLog.action == SEAL_ACTION,
+                                                             AuditLog.entity == "session",
+                                                             AuditLog.entity_id == str(session_id))
+                              .order_by(AuditLog.id)):
+        mark.fold(json.loads(details))
+    return mark
+
+
+def _session_rows(tx: OrmSession, session_id: int, mark: SealMark) -> dict[str, dict[str, Any]]:
+    """Digests of the session's records that are new or changed since ``mark``."""
+    new: dict[str, dict[str, Any]] = {}
+    trials = {}
+    for row in tx.scalars(select(Trial).where(Trial.session_id == session_id).execution_options(
+            populate_existing=True)):
+        d = trial_digest(row)
+        if mark.trials.get(row.id) != d:
+            trials[str(row.id)] = d
+    if trials:
+        new["trial"] = trials
+    trial_ids = select(Trial.id).where(Trial.session_id == session_id).scalar_subquery()
+    queries = {
+        "event": (Event, Event.session_id == session_id, event_digest),
+        "answer": (QuestionnaireResponse, QuestionnaireResponse.session_id == session_id, answer_digest),
+        "report": (LocationReport, LocationReport.trial_id.in_(trial_ids), report_digest),
+    }
+    for kind, (model, where, fn) in queries.items():
+        rows = {str(r.id): fn(r) for r in tx.scalars(select(model).where(where, model.id > mark.last[kind])
+                                                     .order_by(model.id).execution_options(populate_existing=True))}
+        if rows:
+            new[kind] = rows
+    chunks = {str(i): d for i, d in tx.execute(
+        select(SampleChunk.id, SampleChunk.digest).where(SampleChunk.trial_id.in_(trial_ids),
+                                                         SampleChunk.id > mark.last["chunk"])
+        .order_by(SampleChunk.id)).all()}
+    if chunks:
+        new["chunk"] = chunks
+    return new
+
+
+def seal_session(tx: OrmSession, session_id: int, mark: SealMark) -> dict[str, Any] | None:
+    """Seal the session's records written or changed since ``mark`` in ``tx`` (one audit row; none if nothing
+    changed). Call it in the transaction that wrote them, before it commits; once it has committed, advance
+    the mark with ``mark.fold(returned)``."""
+    tx.flush()
+    new = _session_rows(tx, session_id, mark)
+    if not new:
+        return None
+    append_audit(tx, SEAL_ACTION, entity="session", entity_id=session_id, details=new)
+    return new
+
+
+# ------------------------------------------------------------------------------------------ verifying
+
+
+@dataclass(frozen=True)
+class RecordProblem:
+    kind: str  # trial | event | answer | report | chunk
+    record_id: int
+    change: str  # edited | deleted | inserted
+    detail: str
+
+    def line(self) -> str:
+        return f"{_LABEL[self.kind]} {self.record_id} {self.change}: {self.detail}"
+
+
+@dataclass(frozen=True)
+class RecordsReport:
+    """Result of :func:`verify_records`."""
+
+    checked: dict[str, int]
+    problems: tuple[RecordProblem, ...]
+    notes: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def _sealed(tx: OrmSession) -> tuple[dict[str, dict[int, Any]], dict[int, dict[str, int]], dict[str, int]]:
+    """Folded seals: digest per record, sealed id range per session, and the legacy (pre-coverage) ids."""
+    sealed: dict[str, dict[int, Any]] = {k: {} for k in KINDS}
+    where: dict[str, dict[int, int]] = {k: {} for k in KINDS}
+    per_session: dict[int, dict[str, int]] = {}
+    legacy = {k: 0 for k in KINDS}
+    rows = tx.execute(select(AuditLog.id, AuditLog.action, AuditLog.entity_id, AuditLog.details)
+                      .where(AuditLog.action.in_((SEAL_ACTION, COVERAGE_ACTION))).order_by(AuditLog.id))
+    for audit_id, action, entity_id, details in rows:
+        try:
+            body = json.loads(details)
+        except ValueError:
+            continue  # an edited audit row: verify_audit names it
+        if action == COVERAGE_ACTION:
+            for k in KINDS:
+                legacy[k] = max(legacy[k], int(body.get(k) or 0))
+            continue
+        sid = int(entity_id)
+        last = per_session.setdefault(sid, {k: 0 for k in KINDS})
+        for kind in KINDS:
+            for key, digest in (body.get(kind) or {}).items():
+                sealed[kind][int(key)] = digest
+                where[kind][int(key)] = audit_id
+                last[kind] = max(last[kind], int(key))
+    sealed["_where"] = where  # type: ignore[assignment]
+    return sealed, per_session, legacy
+
+
+def _iter(tx: OrmSession, stmt: Any) -> Iterator[Any]:
+    yield from tx.scalars(stmt.execution_options(yield_per=500))
+
+
+def verify_records(tx: OrmSession) -> RecordsReport:
+    """Recompute every covered record's digest and compare with the sealed ones (see module docstring)."""
+    sealed, per_session, legacy = _sealed(tx)
+    where = sealed.pop("_where")  # type: ignore[arg-type]
+    status = dict(tx.execute(select(Session.id, Session.status)).all())
+    trial_session = dict(tx.execute(select(Trial.id, Trial.session_id)).all())
+    problems: list[RecordProblem] = []
+    pending = 0
+    legacy_seen = 0
+    checked = {k: 0 for k in KINDS}
+
+    def unsealed(kind: str, rid: int, session_id: int | None, what: str) -> None:
+        nonlocal pending, legacy_seen
+        if rid <= legacy[kind]:
+            legacy_seen += 1
+            return
+        if session_id is not None and status.get(session_id) in UNFINISHED and \
+                rid > per_session.get(session_id, {}).get(kind, 0):
+            pending += 1
+            return
+        problems.append(RecordProblem(kind, rid, "inserted", f"{what} was never sealed: it was added outside "
+                                                              "studyctl"))
+
+    def compare(kind: str, rid: int, actual: Any, session_id: int | None, what: str) -> None:
+        checked[kind] += 1
+        expected = sealed[kind].pop(rid, None)
+        if expected is None:
+            unsealed(kind, rid, session_id, what)
+            return
+        if kind == "trial":
+            parts = [name for name, a, e in zip(("fields", "outcome"), actual, expected, strict=True) if a != e]
+            if parts:
+                problems.append(RecordProblem(kind, rid, "edited", f"{what}: its {' and '.join(parts)} changed "
+                                              f"since sealed in audit row {where[kind][rid]}"))
+        elif actual != expected:
+            problems.append(RecordProblem(kind, rid, "edited", f"{what} changed since sealed in audit row "
+                                                               f"{where[kind][rid]}"))
+
+    for t in _iter(tx, select(Trial).order_by(Trial.id)):
+        compare("trial", t.id, trial_digest(t), t.session_id,
+                f"(session {t.session_id}, plan position {t.plan_position}, {t.condition})")
+    for e in _iter(tx, select(Event).order_by(Event.id)):
+        compare("event", e.id, event_digest(e), e.session_id, f"(session {e.session_id} seq {e.seq}, {e.kind})")
+    for a in _iter(tx, select(QuestionnaireResponse).order_by(QuestionnaireResponse.id)):
+        compare("answer", a.id, answer_digest(a), a.session_id, f"({a.instrument} {a.item} = {a.code})")
+    for r in _iter(tx, select(LocationReport).order_by(LocationReport.id)):
+        compare("report", r.id, report_digest(r), trial_session.get(r.trial_id), f"(trial {r.trial_id})")
+    for c in _iter(tx, select(SampleChunk).order_by(SampleChunk.id)):
+        what = f"(trial {c.trial_id}, stream {c.stream}, chunk {c.chunk_index})"
+        recomputed = stored_chunk_digest(c)
+        if c.digest is not None and recomputed != c.digest and c.id in sealed["chunk"]:
+            checked["chunk"] += 1
+            sealed["chunk"].pop(c.id, None)
+            problems.append(RecordProblem("chunk", c.id, "edited", f"{what}: its samples no longer match its digest"))
+            continue
+        compare("chunk", c.id, recomputed if c.digest is not None else None, trial_session.get(c.trial_id), what)
+    for kind in KINDS:
+        for rid in sorted(sealed[kind]):
+            problems.append(RecordProblem(kind, rid, "deleted", f"sealed in audit row {where[kind][rid]} but no "
+                                                                "longer stored"))
+    notes = []
+    if pending:
+        notes.append(f"{pending} record(s) of unfinished sessions written after their last seal (pending: the next "
+                     "resume seals them)")
+    if legacy_seen:
+        notes.append(f"{legacy_seen} record(s) written before this database was upgraded to sealed records "
+                     "(not covered)")
+    problems.sort(key=lambda p: (KINDS.index(p.kind), p.record_id))
+    return RecordsReport(checked=checked, problems=tuple(problems), notes=tuple(notes))
+
+
+__all__ = ["COVERAGE_ACTION", "KINDS", "SEAL_ACTION", "RecordProblem", "RecordsReport", "SealMark",
+           "answer_digest", "chunk_digest", "event_digest", "load_mark", "report_digest", "seal_session",
+           "stored_chunk_digest", "trial_digest", "verify_records"]
