@@ -51,6 +51,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from studyctl.analysis.metric_defs import BUILTIN
 from studyctl.analysis.plan_checks import check_names, dotted
 from studyctl.errors import ProtocolError
+from studyctl.inputs import read_text
 from studyctl.protocol import yamlmarks
 from studyctl.protocol.problems import Problem
 from studyctl.protocol.yamlmarks import MarkedData
@@ -407,16 +408,15 @@ def load_plan_yaml(path: Path | str) -> MarkedData:
         non-name keys.
     """
     source = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ProtocolError(f"{source}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProtocolError(f"{source}: cannot read the file ({exc})") from None
+    if not Path(path).exists():
+        raise ProtocolError(f"{source}: no such file")
+    text = read_text(path, "analysis plan", error=ProtocolError)
     doc = yamlmarks.load_marked(text, source, merge_keys=False, text_keys=True)
-    syntax = [p for p in doc.problems if p.kind == yamlmarks.SYNTAX]
+    syntax = [p for p in doc.problems if p.kind in (yamlmarks.SYNTAX, yamlmarks.TOO_BIG)]
     if syntax:
         p = syntax[0]
+        if p.kind == yamlmarks.TOO_BIG:
+            raise ProtocolError(f"{source}:{p.mark.line}:{p.mark.column}: {p.what}: {p.found}; allowed {p.allowed}")
         detail = p.what if p.what.startswith("YAML syntax error") else f"YAML syntax error: {p.found}"
         raise ProtocolError(f"{source}:{p.mark.line}:{p.mark.column}: {detail}")
     if doc.data is None and not doc.values:

@@ -21,11 +21,12 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-import yaml
 
 from studyctl.engine.clock import Clock
 from studyctl.engine.plan import Instrument, InvalidAnswer, Item, ReportSpec, Step
 from studyctl.errors import UsageError
+from studyctl.inputs import loads_json, read_text
+from studyctl.protocol.yamlmarks import load_plain
 
 
 @dataclass(frozen=True)
@@ -215,16 +216,19 @@ class Script:
         p = Path(path)
         if not p.is_file():
             raise UsageError(f"input file {p} does not exist; pass a YAML or JSON answers file to --input")
-        text = p.read_text(encoding="utf-8")
-        try:
-            data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
-        except json.JSONDecodeError as exc:
-            raise UsageError(f"{p}:{exc.lineno}:{exc.colno}: cannot parse answers file: {exc.msg}") from None
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f"{p}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(p)
-            what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-            raise UsageError(f"{where}: cannot parse answers file: {what}") from None
+        text = read_text(p, "answers file (--input)")
+        if p.suffix.lower() == ".json":
+            try:
+                data = loads_json(text)
+            except json.JSONDecodeError as exc:
+                raise UsageError(f"{p}:{exc.lineno}:{exc.colno}: cannot parse answers file: {exc.msg}") from None
+            except ValueError as exc:
+                raise UsageError(f"{p}: cannot parse answers file: {exc}") from None
+        else:
+            try:
+                data = load_plain(text, str(p))
+            except UsageError as exc:
+                raise UsageError(f"cannot parse answers file: {exc}") from None
         return cls.from_mapping(data or {}, source=str(p))
 
     @classmethod

@@ -438,14 +438,12 @@ def _load_npz(path: Path) -> StiffnessMap:
 
 
 def _read_manifest(path: Path) -> dict[str, Any]:
-    text = path.read_text()
-    try:
-        if path.suffix.lower() == ".json":
-            doc = json.loads(text)
-        else:
-            import yaml
+    from studyctl.inputs import loads_json, read_text
+    from studyctl.protocol.yamlmarks import load_plain
 
-            doc = yaml.safe_load(text)
+    text = read_text(path, "stiffness map manifest", error=ModelParameterError)
+    try:
+        doc = loads_json(text) if path.suffix.lower() == ".json" else load_plain(text, str(path))
     except Exception as exc:  # yaml and json raise many types; all mean "not parseable"
         raise ModelParameterError(f"stiffness map {path}: cannot parse the manifest ({exc})".splitlines()[0]) from None
     if not isinstance(doc, dict):

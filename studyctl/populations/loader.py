@@ -68,9 +68,11 @@ def load_population_file(path: str | Path, *, factory: Any | None = None) -> Tra
     if not file.is_file():
         raise NotFoundError(f"population file {str(path)!r} does not exist; give a studyctl-population/1 YAML file "
                             "(shipped ones: studyctl/populations/<protocol>.yaml)")
-    raw = file.read_bytes()
-    return parse_population(raw.decode("utf-8"), str(file), factory=factory,
-                            sha256=hashlib.sha256(raw).hexdigest())
+    from studyctl.inputs import read_text
+
+    text = read_text(file, "population file", error=PopulationError)
+    return parse_population(text, str(file), factory=factory,
+                            sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
 
 
 def parse_population(text: str, label: str, *, factory: Any | None = None, sha256: str = "") -> TraitPopulation:

@@ -147,19 +147,19 @@ def _numbers(raw: Any, where: str) -> dict[str, float]:
 
 def load_population(path: str | Path) -> Population:
     """Read the ``population:`` section of a YAML file (the whole file may also be just that section)."""
-    import yaml
 
     file = Path(path)
     if not file.is_file():
         raise NotFoundError(
             f"population file {str(path)!r} does not exist; pass a YAML file with a population: section"
         )
+    from studyctl.inputs import read_text
+    from studyctl.protocol.yamlmarks import load_plain
+
     try:
-        data = yaml.safe_load(file.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{file}:{mark.line + 1}:{mark.column + 1}" if mark else str(file)
-        raise ProtocolError(f"{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        data = load_plain(read_text(file, "population file", error=ProtocolError), str(file))
+    except UsageError as exc:
+        raise ProtocolError(f"not valid YAML: {exc}") from None
     if isinstance(data, Mapping) and "population" in data:
         data = data["population"]
     if data is None:

@@ -13,6 +13,7 @@ from importlib import metadata
 from typing import Any
 
 from studyctl.protocol.problems import KeyPath, Problem, one_of, show
+from studyctl.protocol.schema import MAX_BLOCKS, MAX_REPETITIONS, MAX_TRIALS
 from studyctl.protocol.yamlmarks import MarkedData
 from studyctl.suggest import nearest
 
@@ -112,7 +113,34 @@ class _Checker:
         self.check_trial()
         self.check_participants()
         self.check_plugins()
+        self.check_size()
+        self.check_finite(self.d, ())
         return self.problems
+
+    def check_size(self) -> None:
+        conditions = _get(self.d, "conditions")
+        reps = _get(self.d, "design", "repetitions")
+        blocks = _get(self.d, "design", "blocks")
+        reps = reps if isinstance(reps, int) and not isinstance(reps, bool) and reps >= 1 else 1
+        blocks = blocks if isinstance(blocks, int) and not isinstance(blocks, bool) and blocks >= 1 else 1
+        if isinstance(conditions, list) and reps <= MAX_REPETITIONS and blocks <= MAX_BLOCKS:
+            total = len(conditions) * reps * blocks
+            if total > MAX_TRIALS:
+                self.add(("design", "repetitions"), "too many trials in one session",
+                         f"{len(conditions)} conditions × {reps} repetitions × {blocks} blocks = {total}",
+                         f"at most {MAX_TRIALS} trials per session")
+
+    def check_finite(self, node: Any, path: KeyPath) -> None:
+        """Every number anywhere (plugin params too) must be finite: .inf/.nan never reach a session."""
+        if isinstance(node, float) and not math.isfinite(node):
+            self.add(path, "number must be finite", show(node), "a finite number (not .inf or .nan)")
+        elif isinstance(node, dict):
+            for key, value in node.items():
+                if not (path == () and isinstance(key, str) and key.startswith("x-")):
+                    self.check_finite(value, (*path, key))
+        elif isinstance(node, list):
+            for index, value in enumerate(node):
+                self.check_finite(value, (*path, index))
 
     def check_conditions(self) -> None:
         for index, cond in _items(self.d, "conditions"):

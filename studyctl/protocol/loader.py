@@ -9,6 +9,7 @@ from typing import NoReturn
 from pydantic import ValidationError
 
 from studyctl.errors import NotFoundError, ProtocolError
+from studyctl.inputs import MAX_TEXT_BYTES
 from studyctl.protocol.checks import cross_check
 from studyctl.protocol.problems import Mark, Problem
 from studyctl.protocol.schema import Protocol
@@ -70,6 +71,10 @@ def read_protocol_text(path: str | Path) -> tuple[str, str]:
     file = Path(path)
     if not file.is_file():
         raise NotFoundError(f"protocol file {str(path)!r} does not exist; pass an existing .yaml file")
+    size = file.stat().st_size
+    if size > MAX_TEXT_BYTES:
+        raise ProtocolError(f"{path}:1:1: <root>: file too large: {size:,} bytes, allowed at most "
+                            f"{MAX_TEXT_BYTES:,} (a protocol is a few KB of YAML)")
     try:
         return file.read_text(encoding="utf-8"), str(path)
     except UnicodeDecodeError as exc:

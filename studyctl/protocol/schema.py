@@ -20,8 +20,21 @@ from studyctl.errors import ProtocolError
 FORMAT_VERSION = 1
 ID_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]*$"
 
+# Limits on sizes and counts: a protocol is checked against them by `protocol check` (file:line errors), so
+# a typo such as `repetitions: 1000000000000` or a 1e8 × 1e8 grid never reaches enrollment or a session.
+MAX_SECONDS = 24 * 3600.0  # any duration: time limits, breaks, familiarisation
+MAX_REPETITIONS = 1_000
+MAX_BLOCKS = 100
+MAX_GRID = 1_000  # columns or rows of a report grid
+MAX_SITES = 1_000
+MAX_LIST = 1_000  # conditions, strata, items, instruments, orders, choices …
+MAX_SCALE_POINTS = 101
+MAX_TRIALS = 10_000  # trials in one session: conditions × repetitions × blocks (checked in checks.py)
+MAX_COUNT = 1_000_000  # target sample sizes, report counts
+
 Id = Annotated[str, Field(pattern=ID_PATTERN, max_length=64)]
-Seconds = Annotated[float, Field(gt=0)]
+Seconds = Annotated[float, Field(gt=0, le=MAX_SECONDS, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
 VisualMode = Literal["none", "on_request", "realtime"]
 Scheme = Literal["williams", "cyclic_latin", "explicit", "random", "all_permutations"]
 Allocation = Literal["alternating", "blocked", "shuffled"]
@@ -43,7 +56,7 @@ class StudyMeta(StrictModel):
     description: str = ""
     reference: str | None = None
     ethics: str | None = None
-    seed: int | None = Field(None, ge=0)
+    seed: int | None = Field(None, ge=0, lt=2**63)
 
 
 class PluginRef(StrictModel):
@@ -65,14 +78,14 @@ class Stratum(StrictModel):
 
     id: Id
     label: str = ""
-    target_n: int | None = Field(None, ge=1)
+    target_n: int | None = Field(None, ge=1, le=MAX_COUNT)
 
 
 class ParticipantsSpec(StrictModel):
     """Strata, target sample size, pseudonym prefix, withdrawal policy and the virtual participant."""
 
-    strata: list[Stratum] = Field(default_factory=lambda: [Stratum(id="all")], min_length=1)
-    target_n: int | None = Field(None, ge=1)
+    strata: list[Stratum] = Field(default_factory=lambda: [Stratum(id="all")], min_length=1, max_length=MAX_LIST)
+    target_n: int | None = Field(None, ge=1, le=MAX_COUNT)
     replace_withdrawn: bool = False
     code_prefix: str = Field("P", pattern=r"^[A-Z][A-Z0-9]{0,7}$")
     virtual: PluginRef | None = None
@@ -104,11 +117,11 @@ class Counterbalance(StrictModel):
     """
 
     scheme: Scheme
-    conditions: list[Id] | None = None
-    fixed_first: list[Id] = Field(default_factory=list)
-    orders: list[list[Id]] | None = None
+    conditions: list[Id] | None = Field(None, max_length=MAX_LIST)
+    fixed_first: list[Id] = Field(default_factory=list, max_length=MAX_LIST)
+    orders: list[Annotated[list[Id], Field(max_length=MAX_LIST)]] | None = Field(None, max_length=MAX_LIST)
     allocation: Allocation = "alternating"
-    block_size: int | None = Field(None, ge=1)
+    block_size: int | None = Field(None, ge=1, le=MAX_COUNT)
     within_strata: bool = True
 
 
@@ -116,8 +129,8 @@ class Design(StrictModel):
     """Blocks and repetitions: each condition runs ``repetitions`` consecutive trials; the whole
     condition sequence runs ``blocks`` times (in the same or the reverse order)."""
 
-    repetitions: int = Field(1, ge=1)
-    blocks: int = Field(1, ge=1)
+    repetitions: int = Field(1, ge=1, le=MAX_REPETITIONS)
+    blocks: int = Field(1, ge=1, le=MAX_BLOCKS)
     block_order: Literal["same", "reverse"] = "same"
 
 
@@ -133,9 +146,9 @@ class Familiarisation(StrictModel):
 class Grid(StrictModel):
     """The coordinate map a participant reports on (columns × rows, optional cell size)."""
 
-    columns: int = Field(ge=1)
-    rows: int = Field(ge=1)
-    cell_mm: float | None = Field(None, gt=0)
+    columns: int = Field(ge=1, le=MAX_GRID)
+    rows: int = Field(ge=1, le=MAX_GRID)
+    cell_mm: float | None = Field(None, gt=0, le=10_000, allow_inf_nan=False)
 
 
 class ReportSpec(StrictModel):
@@ -148,9 +161,9 @@ class ReportSpec(StrictModel):
 
     kind: Literal["grid_cell", "position", "none"]
     grid: Grid | None = None
-    hit_radius: float | None = Field(None, ge=0)
+    hit_radius: float | None = Field(None, ge=0, le=100_000, allow_inf_nan=False)
     count_known: bool = False
-    max_reports: int | None = Field(None, ge=1)
+    max_reports: int | None = Field(None, ge=1, le=MAX_COUNT)
 
 
 class TrialTemplate(StrictModel):
@@ -158,7 +171,7 @@ class TrialTemplate(StrictModel):
 
     time_limit_s: Seconds | None = None
     familiarisation: Familiarisation | None = None
-    break_s: float = Field(0.0, ge=0)
+    break_s: float = Field(0.0, ge=0, le=MAX_SECONDS, allow_inf_nan=False)
     break_between: Literal["trials", "conditions"] = "trials"
     report: ReportSpec
     requests: list[Literal["scan", "report", "finish"]] = Field(default_factory=lambda: ["report", "finish"])
@@ -172,15 +185,16 @@ class Placement(StrictModel):
     ``every_item`` (every item moves to another site) or ``none``.
     """
 
-    sites: int = Field(ge=1)
-    items: list[Id] = Field(min_length=1)
+    sites: int = Field(ge=1, le=MAX_SITES)
+    items: list[Id] = Field(min_length=1, max_length=MAX_LIST)
     differ_from_previous: Literal["none", "assignment", "every_item"] = "assignment"
 
 
 class Orientation(StrictModel):
     """A random orientation of the phantom/model, drawn from ``choices_deg`` per condition, block or trial."""
 
-    choices_deg: list[float] = Field(default_factory=lambda: [0.0, 90.0, 180.0, 270.0], min_length=1)
+    choices_deg: list[Finite] = Field(default_factory=lambda: [0.0, 90.0, 180.0, 270.0], min_length=1,
+                                      max_length=MAX_LIST)
     per: Literal["condition", "block", "trial"] = "condition"
     differ_from_previous: bool = False
 
@@ -197,8 +211,8 @@ class SceneSpec(StrictModel):
 class Scale(StrictModel):
     """A rating scale: ``points`` codes starting at ``start`` (1..5 by default), labelled anchors by code."""
 
-    points: int = Field(ge=2)
-    start: int = 1
+    points: int = Field(ge=2, le=MAX_SCALE_POINTS)
+    start: int = Field(1, ge=-MAX_COUNT, le=MAX_COUNT)
     anchors: dict[int, str] = Field(default_factory=dict)
 
     @property
@@ -224,7 +238,7 @@ class Instrument(StrictModel):
     title: str = ""
     reference: str | None = None
     scale: Scale | None = None
-    items: list[Item] = Field(min_length=1)
+    items: list[Item] = Field(min_length=1, max_length=MAX_LIST)
 
     def scale_of(self, item: Item) -> Scale:
         """The scale an item is answered on (its own, else the instrument's)."""
@@ -263,13 +277,13 @@ class Protocol(StrictModel):
     study: StudyMeta
     devices: Devices
     participants: ParticipantsSpec = Field(default_factory=ParticipantsSpec)
-    conditions: list[Condition] = Field(min_length=1)
+    conditions: list[Condition] = Field(min_length=1, max_length=MAX_LIST)
     counterbalance: Counterbalance
     design: Design = Field(default_factory=Design)
     trial: TrialTemplate
     scene: SceneSpec
-    instruments: list[Instrument] = Field(default_factory=list)
-    questionnaires: list[Administration] = Field(default_factory=list)
+    instruments: list[Instrument] = Field(default_factory=list, max_length=MAX_LIST)
+    questionnaires: list[Administration] = Field(default_factory=list, max_length=MAX_LIST)
     resume: ResumePolicy = Field(default_factory=ResumePolicy)
 
     _source_text: str = PrivateAttr(default="")

@@ -38,8 +38,8 @@ _RANGE_WHAT = {
     "max_s": "familiarisation time must be positive",
     "points": "a scale needs at least 2 points",
     "break_s": "break must not be negative",
-    "repetitions": "repetitions must be at least 1",
-    "blocks": "blocks must be at least 1",
+    "repetitions": "repetitions out of range",
+    "blocks": "blocks out of range",
     "sites": "there must be at least 1 site",
 }
 
@@ -179,6 +179,13 @@ def problems_from_validation(exc: ValidationError, marked: MarkedData, filename:
             noun = "an integer" if integer else "a number"
             bound_text = f"{bound:g}" if isinstance(bound, float) else str(bound)
             problems.append(Problem(filename, mark, path, what, show(value), f"{noun} {sign} {bound_text}"))
+        elif kind == "finite_number":
+            problems.append(Problem(filename, mark, path, "number must be finite", show(value),
+                                    "a finite number (not .inf or .nan)"))
+        elif kind == "too_long":
+            most = ctx.get("max_length")
+            problems.append(Problem(filename, mark, path, "too many entries", f"{ctx.get('actual_length')} entries",
+                                    f"at most {most}"))
         elif kind == "too_short":
             need = ctx.get("min_length", 1)
             problems.append(Problem(filename, mark, path, "too few entries", show(value),

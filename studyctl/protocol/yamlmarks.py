@@ -24,6 +24,15 @@ except AttributeError:  # pragma: no cover - libyaml missing
 
 _MERGE_TAG = "tag:yaml.org,2002:merge"
 
+# Bounds checked before anything is built, so a hostile file fails in milliseconds with one problem instead
+# of expanding aliases into gigabytes ("billion laughs") or recursing past the stack. Real protocols and plans
+# are a few KB with a handful of anchors; these are generous.
+MAX_BYTES = 2_000_000
+MAX_DEPTH = 64
+MAX_ALIASES = 1_000
+MAX_VALUES = 20_000  # values after alias expansion (a real protocol or plan has a few hundred)
+TOO_BIG = "too_big"
+
 # Problem kinds (Problem.kind) of the problems found while loading.
 SYNTAX = "syntax"
 DUPLICATE_KEY = "duplicate_key"
@@ -72,6 +81,11 @@ def _mark(node: yaml.Node) -> Mark:
     return Mark(node.start_mark.line + 1, node.start_mark.column + 1)
 
 
+class _TooBig(Exception):
+    def __init__(self, node: yaml.Node) -> None:
+        self.node = node
+
+
 class _Builder:
     def __init__(self, filename: str, merge_keys: bool, text_keys: bool) -> None:
         self.filename = filename
@@ -79,8 +93,12 @@ class _Builder:
         self.text_keys = text_keys
         self.out = MarkedData(data=None, source=filename)
         self._constructor = yaml.constructor.SafeConstructor()
+        self._built = 0
 
     def build(self, node: yaml.Node, path: KeyPath) -> Any:
+        self._built += 1
+        if self._built > MAX_VALUES:
+            raise _TooBig(node)
         self.out.values.setdefault(path, _mark(node))
         if isinstance(node, yaml.MappingNode):
             return self._mapping(node, path)
@@ -167,6 +185,34 @@ def _text_at(text: str, mark: yaml.Mark | None) -> str:
     return repr(rest if len(rest) <= 30 else rest[:27] + "...")
 
 
+def _bounds_problem(text: str, filename: str) -> Problem | None:
+    """A problem if the YAML is too large, too deeply nested or uses too many aliases (checked on the event
+    stream, which costs time linear in the text and never expands an alias)."""
+    if len(text) > MAX_BYTES:
+        return Problem(filename, Mark(1, 1), (), "file too large", f"{len(text):,} characters",
+                       f"at most {MAX_BYTES:,} characters (protocols and plans are a few KB)", kind=TOO_BIG)
+    depth = aliases = 0
+    try:
+        for ev in yaml.parse(text, Loader=_Loader):
+            if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+                depth += 1
+                if depth > MAX_DEPTH:
+                    return Problem(filename, Mark(ev.start_mark.line + 1, ev.start_mark.column + 1), (),
+                                   "nested too deeply", f"more than {MAX_DEPTH} levels",
+                                   f"at most {MAX_DEPTH} nested mappings/lists", kind=TOO_BIG)
+            elif isinstance(ev, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+                depth -= 1
+            elif isinstance(ev, yaml.AliasEvent):
+                aliases += 1
+                if aliases > MAX_ALIASES:
+                    return Problem(filename, Mark(ev.start_mark.line + 1, ev.start_mark.column + 1), (),
+                                   "too many aliases (*name)", f"more than {MAX_ALIASES}",
+                                   f"at most {MAX_ALIASES} aliases; write the values out", kind=TOO_BIG)
+    except yaml.YAMLError:
+        return None  # compose reports the syntax error with its position
+    return None
+
+
 def load_marked(text: str, filename: str, *, merge_keys: bool = True, text_keys: bool = False) -> MarkedData:
     """Parse YAML ``text`` into data plus the position of every key path.
 
@@ -183,6 +229,9 @@ def load_marked(text: str, filename: str, *, merge_keys: bool = True, text_keys:
         Turn scalar keys into text (``1:`` is the key ``'1'``); a null or other non-name key is a
         ``BAD_KEY`` problem. When False, keys are kept as YAML typed them.
     """
+    bounds = _bounds_problem(text, filename)
+    if bounds is not None:
+        return MarkedData(data=None, problems=[bounds], source=filename)
     try:
         root = yaml.compose(text, Loader=_Loader)
     except yaml.MarkedYAMLError as exc:
@@ -199,5 +248,23 @@ def load_marked(text: str, filename: str, *, merge_keys: bool = True, text_keys:
     if root is None:
         return MarkedData(data=None, source=filename)
     builder = _Builder(filename, merge_keys, text_keys)
-    builder.out.data = builder.build(root, ())
+    try:
+        builder.out.data = builder.build(root, ())
+    except _TooBig as big:
+        problem = Problem(filename, _mark(big.node), (), "aliases expand to too many values",
+                          f"more than {MAX_VALUES:,} values", "a document that is not an alias bomb; write the "
+                          "values out instead of nesting aliases", kind=TOO_BIG)
+        return MarkedData(data=None, problems=[problem], source=filename)
     return builder.out
+
+
+def load_plain(text: str, filename: str) -> Any:
+    """Bounded ``yaml.safe_load``: the data of ``text`` (keys as YAML typed them, merge keys expanded), or
+    :class:`~studyctl.errors.UsageError` naming ``filename:line`` for a syntax error or a hostile document."""
+    from studyctl.errors import UsageError
+
+    marked = load_marked(text, filename)
+    fatal = [p for p in marked.problems if p.kind in (SYNTAX, TOO_BIG, MERGE_KEY)]
+    if fatal:
+        raise UsageError(str(fatal[0]))
+    return marked.data

@@ -81,7 +81,12 @@ def resolve_database(
 ) -> tuple[URL, Workspace | None]:
     """Which database a command uses: ``db`` (``--db``), then ``$STUDYCTL_DB``, then the workspace."""
     ws = load_workspace(workspace) if workspace is not None else None
-    if db:
+    if db is not None:
+        if not str(db).strip():
+            # an empty --db (e.g. an unset shell variable) must not silently fall back to the workspace
+            raise ConfigError("--db is empty; give a database URL (sqlite:///PATH, a file path or "
+                              f"postgresql://USER@HOST:PORT/DBNAME), or leave --db out to use {ENV_DB} or the "
+                              "workspace")
         return parse_url(db), ws
     env = os.environ.get(ENV_DB, "").strip()
     if env:

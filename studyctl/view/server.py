@@ -34,6 +34,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from studyctl.errors import UsageError
+from studyctl.inputs import loads_json
 from studyctl.view.hub import FRAME_HZ, ViewHub
 
 POLL_S = 0.004
@@ -175,10 +176,10 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, b"too large\n", "text/plain; charset=utf-8")
             return
         try:
-            body = json.loads(self.rfile.read(length) or b"{}")
+            body = loads_json(self.rfile.read(length) or b"{}")
             if not isinstance(body, dict):
                 raise ValueError("not an object")
-        except ValueError:
+        except ValueError:  # also too deep (inputs.loads_json) and not UTF-8
             self._send(HTTPStatus.BAD_REQUEST, _json_bytes({"ok": False, "error": "bad JSON"}), "application/json")
             return
         hub = self.server.view.hub

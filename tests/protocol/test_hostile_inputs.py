@@ -1,0 +1,174 @@
+"""Hostile input (issue 19): every case → exit non-zero with exactly one `Error:` line (no traceback), within
+5 s of CPU time and 200 MB of memory, measured on the real `studyctl` process (os.wait4's rusage).
+
+CPU seconds rather than wall seconds: the test machine is shared and loaded, and the interpreter's own
+start-up already takes seconds of wall time there; an alias bomb or a 1e12-repetition plan costs minutes
+of CPU and gigabytes, so the bound still separates fixed from broken by orders of magnitude.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from studyctl.store.enrollment import enroll
+from studyctl.store.workspace import init_workspace, open_study
+
+BASE = (Path(__file__).parents[1] / "engine" / "data" / "pty_protocol.yaml").read_text()
+CPU_S = 5.0
+RSS_MB = 200.0
+
+LAUGHS = 'a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]\n' + "".join(
+    f"{chr(98 + i)}: &{chr(98 + i)} [{','.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(8)
+) + "studyctl_protocol: *i\n"
+
+
+def _run(argv: list[str], cwd: Path) -> tuple[int, str, str, float, float]:
+    """(exit code, stdout, stderr, CPU seconds, max RSS MB) of one real studyctl process."""
+    env = dict(os.environ)
+    env.pop("STUDYCTL_DB", None)
+    out_path, err_path = cwd / ".out", cwd / ".err"
+    with open(out_path, "w") as out, open(err_path, "w") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "studyctl", *argv], cwd=cwd, env=env, stdout=out, stderr=err)
+        deadline = time.monotonic() + 120
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.monotonic() > deadline:
+                proc.kill()
+                pytest.fail(f"studyctl {' '.join(argv)} still running after 120 s")
+            time.sleep(0.02)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    return (proc.returncode, out_path.read_text(), err_path.read_text(), usage.ru_utime + usage.ru_stime,
+            usage.ru_maxrss / 1024)
+
+
+def _expect_one_error(result, *patterns: str) -> None:
+    code, out, err, cpu, rss = result
+    assert code != 0, (out, err)
+    assert "Traceback" not in err, err
+    errors = [line for line in err.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1, err
+    for pattern in patterns:
+        assert re.search(pattern, err), f"{pattern!r} not in {err!r}"
+    assert cpu < CPU_S, f"{cpu:.1f} s of CPU"
+    assert rss < RSS_MB, f"{rss:.0f} MB"
+
+
+def _protocol(tmp_path: Path, text: str, name: str = "p.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+PROTOCOL_CASES = {
+    "alias_bomb": (LAUGHS, [r"p\.yaml:\d+:\d+", r"aliases expand to too many values"]),
+    "deep_nesting": ("x: " + "[" * 100 + "]" * 100 + "\n", [r"p\.yaml:1:\d+", r"nested too deeply"]),
+    "very_deep_nesting": ("x: " + "[" * 50_000 + "]" * 50_000 + "\n",
+                          [r"p\.yaml:1:\d+", r"nested too deeply|maximum nesting depth"]),
+    "huge_file": ("# " + "x" * 3_000_000 + "\n", [r"p\.yaml", r"file too large"]),
+    "repetitions_1e12": (BASE.replace("counterbalance:", "design: {repetitions: 1000000000000}\ncounterbalance:"),
+                         [r"p\.yaml:\d+:\d+: design\.repetitions", r"<= 1000"]),
+    "grid_1e8": (BASE.replace("{columns: 7, rows: 7, cell_mm: 20}", "{columns: 100000000, rows: 100000000}"),
+                 [r"p\.yaml:\d+:\d+: trial\.report\.grid\.columns", r"<= 1000"]),
+    "break_inf": (BASE.replace("break_s: 1", "break_s: .inf"),
+                  [r"p\.yaml:28:\d+: trial\.break_s", r"finite"]),
+    "time_limit_nan": (BASE.replace("time_limit_s: 20", "time_limit_s: .nan"),
+                       [r"p\.yaml:27:\d+: trial\.time_limit_s", r"finite"]),
+    "param_inf": (BASE.replace("controller: linear}", "controller: linear, params: {gain: -.inf}}"),
+                  [r"p\.yaml:\d+:\d+: conditions\[1\]\.params\.gain", r"finite"]),
+    "too_many_trials": (BASE.replace("counterbalance:", "design: {repetitions: 1000, blocks: 100}\ncounterbalance:"),
+                        [r"p\.yaml:\d+:\d+: design\.repetitions", r"too many trials"]),
+    "duration_year": (BASE.replace("time_limit_s: 20", "time_limit_s: 31536000"),
+                      [r"trial\.time_limit_s", r"<= 86400"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PROTOCOL_CASES))
+def test_hostile_protocol_is_one_error_from_protocol_check(case, tmp_path):
+    text, patterns = PROTOCOL_CASES[case]
+    path = _protocol(tmp_path, text)
+    _expect_one_error(_run(["protocol", "check", str(path)], tmp_path), *patterns)
+
+
+def test_binary_protocol_is_one_error(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 10)
+    _expect_one_error(_run(["protocol", "check", str(path)], tmp_path), r"not UTF-8")
+
+
+def test_alias_bomb_analysis_plan_is_one_error(tmp_path):
+    path = _protocol(tmp_path, LAUGHS, "plan.yaml")
+    _expect_one_error(_run(["analyze", str(path), "--check"], tmp_path), r"plan\.yaml:\d+:\d+", r"aliases")
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory):
+    root = tmp_path_factory.mktemp("hostile") / "ws"
+    protocol = tmp_path_factory.mktemp("hostile-protocol") / "pty.yaml"
+    protocol.write_text(BASE)
+    init_workspace(root, protocol=str(protocol))
+    with open_study(workspace=root) as o:
+        enroll(o.store, code="PTY-AAAAA")
+    return root
+
+
+INPUT_CASES = {
+    "binary": (b"\x00\xff\xfe" + os.urandom(2000), "answers.yaml", [r"answers\.yaml:\d+: answers file .* not UTF-8"]),
+    "alias_bomb": (LAUGHS.encode(), "answers.yaml", [r"answers\.yaml:\d+:\d+", r"aliases"]),
+    "deep_json": (("[" * 50_000 + "]" * 50_000).encode(), "answers.json", [r"answers\.json", r"nested more than"]),
+    "nan_json": (json.dumps({"default_likert": 3}).replace("3", "NaN").encode(), "answers.json",
+                 [r"answers\.json", r"finite"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(INPUT_CASES))
+def test_hostile_answers_file_is_one_error_and_writes_nothing(case, ws, tmp_path):
+    data, name, patterns = INPUT_CASES[case]
+    path = tmp_path / name
+    path.write_bytes(data)
+    _expect_one_error(_run(["run", "-p", "PTY-AAAAA", "--input", str(path)], ws), *patterns)
+    with open_study(workspace=ws) as o:
+        assert o.store.list_sessions(o.store.list_participants(o.study.id)[0].id) == []  # nothing half-written
+
+
+def test_empty_db_option_is_refused_not_the_workspace(ws):
+    _expect_one_error(_run(["status", "--db", ""], ws), r"--db is empty")
+    _expect_one_error(_run(["audit", "verify", "--db", "  "], ws), r"--db is empty")
+
+
+def test_deep_json_body_to_the_view_is_a_400_not_a_traceback(capfd):
+    import http.client
+
+    from studyctl.view import ParticipantView
+
+    with ParticipantView() as view:
+        body = ("[" * 30_000 + "]" * 30_000).encode()  # 60 KB, under the body limit
+        for payload in (body, b'{"kind": "finish", "x": NaN}', b"\xff\xfe" * 10):
+            conn = http.client.HTTPConnection("127.0.0.1", view.server.port, timeout=10)
+            conn.request("POST", f"/v/{view.server.token}/input", body=payload,
+                         headers={"Host": f"127.0.0.1:{view.server.port}", "Content-Type": "application/json",
+                                  "Origin": f"http://127.0.0.1:{view.server.port}"})
+            resp = conn.getresponse()
+            assert resp.status == 400 and b"bad JSON" in resp.read()
+            conn.close()
+    captured = capfd.readouterr()
+    assert "Traceback" not in captured.err and "RecursionError" not in captured.err
+
+
+def test_bounded_yaml_loader_keeps_real_anchors():
+    """The limits do not get in the way of ordinary anchors and merge keys."""
+    from studyctl.protocol.yamlmarks import load_plain
+
+    data = load_plain("base: &b {x: 1, y: [1, 2]}\nuse: {<<: *b, z: 3}\nagain: *b\n", "t.yaml")
+    assert data["use"] == {"x": 1, "y": [1, 2], "z": 3} and data["again"] == {"x": 1, "y": [1, 2]}
+    assert yaml.safe_load("a: 1") == {"a": 1}
