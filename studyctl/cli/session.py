@@ -121,13 +121,16 @@ def register(app: typer.Typer) -> None:
     def export(
         folder: Path = typer.Argument(..., help="New or empty folder for the CSV files and data_dictionary.json."),
         samples: bool = typer.Option(True, "--samples/--no-samples", help="Also write samples.csv (large)."),
+        process_info: bool = typer.Option(False, "--process-info", help="Keep host names and process ids (where "
+                                          "each session ran) in events.csv; left out by default."),
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
         """Export trials, events, responses, reports and samples as tidy CSV with a data dictionary."""
         with open_study(db, workspace_arg(workspace), study) as opened:
-            result = export_study(opened.store, folder, study=opened.study.name, samples=samples)
+            result = export_study(opened.store, folder, study=opened.study.name, samples=samples,
+                                  process_info=process_info)
         for name, n in sorted(result.rows.items()):
             typer.echo(f"{folder / name}: {n} rows")
         typer.echo(f"{folder / 'data_dictionary.json'}: every column with its unit")

@@ -33,16 +33,27 @@ from studyctl.scenes.sponge import SpongePhantomScene
 FAULT_KINDS = ("stale", "adc_out_of_range", "nan")
 
 
-def palpation_limits(ramp_up_s: float = 0.2, sensor_stale_s: float = 0.1) -> DeviceLimits:
+BALLOON_CEILING_PSI = 20.0  # seed 000: "maximum pressure ... set to 20 PSI"
+
+
+def palpation_limits(ramp_up_s: float = 0.2, sensor_stale_s: float = 0.1,
+                     max_balloon_psi: float = BALLOON_CEILING_PSI) -> DeviceLimits:
     """Output limits of the palpation driver board: control amounts 0-100, safe value 0 (both off).
 
-    The balloon's 20 psi ceiling is the regulator's (physical, in :class:`BalloonModel`); the control
-    range is the paper's 0-100. No rate limit: the valve array and the motor driver switch within a
+    The balloon's pressure ceiling is a safety limit, not only the regulator's physics: ``balloon_pct`` is
+    capped at the control amount that gives ``max_balloon_psi`` on the balloon's static curve (seed 000:
+    20 psi, reached at 116, so the paper's 0-100 range is unchanged; a lower ceiling, e.g. for a pilot with
+    sensitive fingers, lowers the cap). No rate limit: the valve array and the motor driver switch within a
     50 Hz tick (the piecewise controller's steps are part of the design).
     """
+    if not (0.0 < max_balloon_psi <= BALLOON_CEILING_PSI):
+        raise ModelParameterError(f"max_balloon_psi must be in (0, {BALLOON_CEILING_PSI:g}] psi (the regulator's "
+                                  f"ceiling), got {max_balloon_psi!r}")
+    balloon = BalloonModel()
+    high = min(100.0, balloon.dead_zone + max_balloon_psi / balloon.slope_psi)
     return DeviceLimits(
         outputs=(
-            ChannelLimit("balloon_pct", 0.0, 100.0, safe=0.0, unit="%"),
+            ChannelLimit("balloon_pct", 0.0, high, safe=0.0, unit="%"),
             ChannelLimit("vibration_pct", 0.0, 100.0, safe=0.0, unit="%"),
         ),
         sensor_stale_s=sensor_stale_s,
@@ -61,6 +72,8 @@ class SimulatedPalpationDevice(Device):
         Param("sensor_stale_s", 0.1, 0.001, 10.0, unit="s", source="CHOSEN: 5 missed 50 Hz samples"),
         Param("balloon_tau_s", BalloonModel.tau_s, 0.0, 5.0, unit="s", source="see BalloonModel"),
         Param("motor_tau_s", VibrationMotorModel.tau_s, 0.0, 5.0, unit="s", source="see VibrationMotorModel"),
+        Param("max_balloon_psi", BALLOON_CEILING_PSI, 0.1, BALLOON_CEILING_PSI, unit="psi",
+              source="CITED: seed 000, balloon regulator set to 20 psi; a safety limit (palpation_limits)"),
         Param("faults", (), kind=tuple, source="studyctl: fault injection for tests and rehearsals"),
     )
 
@@ -73,7 +86,7 @@ class SimulatedPalpationDevice(Device):
         checked = validate_params("sim_palpation device", params, self.PARAMS)
         super().__init__(checked, scene, rng)
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.limits = palpation_limits(checked["ramp_up_s"], checked["sensor_stale_s"])
+        self.limits = palpation_limits(checked["ramp_up_s"], checked["sensor_stale_s"], checked["max_balloon_psi"])
         self.sensor = A201
         self.balloon = BalloonModel(tau_s=checked["balloon_tau_s"])
         self.motor = VibrationMotorModel(tau_s=checked["motor_tau_s"])

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -121,8 +122,25 @@ def _json(value: Any) -> str:
     return "" if value is None else json.dumps(value, sort_keys=True, ensure_ascii=False)
 
 
+def _private(path: Path):
+    """A new text file readable by its owner only (0600), like the study database: exports hold study data."""
+    fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
+    return os.fdopen(fd, "w", newline="", encoding="utf-8")
+
+
+# Where a session ran (host name, process id) is operational, not study data: left out unless asked for.
+PROCESS_EVENTS = frozenset({"session_process"})
+PROCESS_KEYS = frozenset({"host", "pid", "hostname"})
+
+
+def _without_process(payload: Any) -> Any:
+    if isinstance(payload, dict):
+        return {k: v for k, v in payload.items() if k not in PROCESS_KEYS}
+    return payload
+
+
 def _write(path: Path, columns: list[str], rows: list[list[Any]]) -> int:
-    with path.open("w", newline="", encoding="utf-8") as fh:
+    with _private(path) as fh:
         w = csv.writer(fh)
         w.writerow(columns)
         for r in rows:
@@ -130,9 +148,12 @@ def _write(path: Path, columns: list[str], rows: list[list[Any]]) -> int:
     return len(rows)
 
 
-def export_study(store: StudyStore, directory: str | Path, *, study: str | None = None, samples: bool = True
-                 ) -> ExportResult:
+def export_study(store: StudyStore, directory: str | Path, *, study: str | None = None, samples: bool = True,
+                 process_info: bool = False) -> ExportResult:
     """Write a study's trials, events, responses, reports (and samples) as tidy CSV plus a data dictionary.
+
+    Files are created 0600 (a new folder 0700), like the database. Host names and process ids (where a
+    session ran) are left out of ``events.csv`` unless ``process_info``.
 
     Raises :class:`UsageError` when ``directory`` exists and is not an empty folder (nothing is overwritten).
     """
@@ -140,7 +161,7 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UsageError(f"{out} exists and is not an empty folder; export into a new or empty folder")
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        out.mkdir(parents=True, exist_ok=True, mode=0o700)
     except OSError as exc:
         raise UsageError(f"cannot create {out}: {exc.strerror}; choose a writable folder") from None
     target = store.get_study(study)
@@ -173,8 +194,9 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
             t.invalid_reason, _json(t.placement), _iso(t.started_at), _iso(t.ended_at),
         ])
     event_rows = [
-        [code[e.session_id], e.session_id, e.seq, e.trial_id, e.t_mono, _iso(e.t_wall), e.kind, _json(e.payload)]
-        for e in events
+        [code[e.session_id], e.session_id, e.seq, e.trial_id, e.t_mono, _iso(e.t_wall), e.kind,
+         _json(e.payload if process_info else _without_process(e.payload))]
+        for e in events if process_info or e.kind not in PROCESS_EVENTS
     ]
     resp_rows = []
     for r in responses:
@@ -228,7 +250,8 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
             frames.append(df)
         cols = ["participant", "trial_id", "t", *channels]
         if frames:
-            pd.concat(frames, ignore_index=True).reindex(columns=cols).to_csv(out / "samples.csv", index=False)
+            with _private(out / "samples.csv") as fh:
+                pd.concat(frames, ignore_index=True).reindex(columns=cols).to_csv(fh, index=False)
             rows["samples.csv"] = int(sum(len(f) for f in frames))
         else:
             _write(out / "samples.csv", cols, [])
@@ -243,8 +266,8 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
             sample_cols[c] = (f"Channel {c} (sensor reading, or command written to the device after the safety "
                               "layer)", unit, "number")
         dictionary["files"]["samples.csv"] = _describe(sample_cols)
-    (out / "data_dictionary.json").write_text(json.dumps(dictionary, indent=2, ensure_ascii=False) + "\n",
-                                              encoding="utf-8")
+    with _private(out / "data_dictionary.json") as fh:
+        fh.write(json.dumps(dictionary, indent=2, ensure_ascii=False) + "\n")
     return ExportResult(out, rows)
 
 

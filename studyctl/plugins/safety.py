@@ -2,8 +2,9 @@
 
 Whatever a controller commands, :meth:`SafetyLayer.filter` writes only values the device may take:
 
-1. **Watchdog.** A tick that arrives more than ``deadline_factor`` periods after the previous one (the
-   loop missed its deadline), a sensor sample older than the device's ``sensor_stale_s``, a fault the
+1. **Watchdog.** A tick whose time is not finite or earlier than the previous tick's, a tick that arrives
+   more than ``deadline_factor`` periods after the previous one (the loop missed its deadline; measured
+   from the last tick with a good time), a sensor sample older than the device's ``sensor_stale_s``, a fault the
    device reported while reading (``Observation.faults``, e.g. an ADC value outside its range) or a
    non-finite sensor value each put the device in its safe state and raise a ``device_fault`` event.
    When the cause clears, a ``device_recovered`` event is raised and the outputs ramp up again.
@@ -162,7 +163,9 @@ class SafetyLayer:
         if self.period_s is not None and self._last_t is not None:
             gap = t - self._last_t
             if gap > self.deadline_factor * self.period_s:
-                causes["missed_deadline"] = {"gap_s": gap, "period_s": self.period_s}
+                causes["missed_deadline"] = {"gap_s": gap, "period_s": self.period_s,
+                                             "missed": max(round(gap / self.period_s) - 1, 1)}
+                self.counts["missed_deadline"] = self.counts.get("missed_deadline", 0) + 1
         if obs is not None:
             if obs.sample_t is not None and t - obs.sample_t > self.limits.sensor_stale_s:
                 causes["stale_sensor"] = {"age_s": t - obs.sample_t, "limit_s": self.limits.sensor_stale_s}
@@ -200,6 +203,15 @@ class SafetyLayer:
         Never raises for bad commands or sensor data: it returns the safe state and logs why.
         """
         last_t = self._last_t
+        # Time itself is input: a non-finite tick time or one earlier than the last tick puts the device in its
+        # safe state for that tick (a device_fault), and a NaN tick is not remembered, so the gap from the last
+        # good tick to the next is still measured (and counted as a missed deadline when it is one).
+        try:
+            bad_time = not (t - t == 0.0) or (last_t is not None and t < last_t)
+        except TypeError:
+            bad_time = True
+        if bad_time:
+            return self._time_fault(t, last_t)
         if last_t is None and self._enabled_at is None and self.auto_enable:
             self.enable(t)
         # Watchdog: the usual tick has no cause, so its conditions are tested inline here and
@@ -305,6 +317,20 @@ class SafetyLayer:
 
         self._last_out = values
         return dict(values)
+
+    def _time_fault(self, t: Any, last_t: float | None) -> dict[str, float]:
+        finite = _finite_number(t)
+        cause = "time_backwards" if finite else "time_non_finite"
+        at = float(t) if finite else (last_t if last_t is not None else 0.0)
+        self.counts[cause] = self.counts.get(cause, 0) + 1
+        if cause not in self._fault_causes:
+            self._fault_causes[cause] = at
+            self._event(at, "device_fault", cause, tick_t=repr(t), last_t=last_t)
+        if finite:
+            self._last_t = float(t)  # the clock went back: measure the next gaps from here
+        out = self.safe_command()
+        self._last_out = dict(out)
+        return out
 
     def _check_channel(self, t: float, name: str, limit: Any, raw: Any) -> float:
         """One channel's command made finite and clamped to its bounds, with its start/end bookkeeping."""

@@ -13,7 +13,6 @@ import os
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -31,25 +30,25 @@ LAUGHS = 'a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]\n' + "".
 ) + "studyctl_protocol: *i\n"
 
 
+# Measures its one child: started from this small process, the child's peak RSS is its own (a child forked
+# straight from pytest would inherit pytest's peak in ru_maxrss, which survives exec).
+_MEASURE = """
+import json, os, subprocess, sys
+proc = subprocess.Popen(sys.argv[3:], stdout=open(sys.argv[1], "w"), stderr=open(sys.argv[2], "w"))
+_, status, usage = os.wait4(proc.pid, 0)
+print(json.dumps([os.waitstatus_to_exitcode(status), usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024]))
+"""
+
+
 def _run(argv: list[str], cwd: Path) -> tuple[int, str, str, float, float]:
     """(exit code, stdout, stderr, CPU seconds, max RSS MB) of one real studyctl process."""
     env = dict(os.environ)
     env.pop("STUDYCTL_DB", None)
     out_path, err_path = cwd / ".out", cwd / ".err"
-    with open(out_path, "w") as out, open(err_path, "w") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "studyctl", *argv], cwd=cwd, env=env, stdout=out, stderr=err)
-        deadline = time.monotonic() + 120
-        while True:
-            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.monotonic() > deadline:
-                proc.kill()
-                pytest.fail(f"studyctl {' '.join(argv)} still running after 120 s")
-            time.sleep(0.02)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    return (proc.returncode, out_path.read_text(), err_path.read_text(), usage.ru_utime + usage.ru_stime,
-            usage.ru_maxrss / 1024)
+    measured = subprocess.run([sys.executable, "-c", _MEASURE, str(out_path), str(err_path), sys.executable, "-m",
+                               "studyctl", *argv], cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
+    code, cpu, rss = json.loads(measured.stdout)
+    return code, out_path.read_text(), err_path.read_text(), cpu, rss
 
 
 def _expect_one_error(result, *patterns: str) -> None:

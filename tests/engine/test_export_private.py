@@ -1,0 +1,42 @@
+"""Exports are private like the database (0600 files, 0700 folder) and carry no host or pid unless asked."""
+
+from __future__ import annotations
+
+import socket
+import stat
+from pathlib import Path
+
+import yaml
+
+from studyctl.cli.app import main
+from studyctl.engine.api import run_session
+from studyctl.store.enrollment import enroll
+from studyctl.store.workspace import init_workspace, open_study
+
+PROTOCOL = Path(__file__).parent / "data" / "pty_protocol.yaml"
+SCRIPT = {"likert": {"easy": [4, 5], "prefer_feedback": [4]},
+          "trials": {1: [{"t": 2.0, "request": "finish"}], 2: [{"t": 2.5, "request": "finish"}]}}
+
+
+def test_export_files_are_private_and_anonymous(tmp_path, capsys):
+    ws = tmp_path / "ws"
+    init_workspace(ws, protocol=str(PROTOCOL))
+    answers = tmp_path / "answers.yaml"
+    answers.write_text(yaml.safe_dump(SCRIPT))
+    with open_study(workspace=ws) as o:
+        enroll(o.store, code="PTY-AAAAA")
+        run_session(o.store, "PTY-AAAAA", virtual=False, script=answers)
+        # what older studyctl versions stored with every session start and resume
+        o.store.append_event(1, "session_process", {"pid": 4242, "host": socket.gethostname()}, t_mono=0.0)
+    out = tmp_path / "export"
+    assert main(["export", str(out), "-w", str(ws)]) == 0
+    assert stat.S_IMODE(out.stat().st_mode) == 0o700
+    files = sorted(out.iterdir())
+    assert {f.name for f in files} >= {"trials.csv", "events.csv", "samples.csv", "data_dictionary.json"}
+    for f in files:
+        assert stat.S_IMODE(f.stat().st_mode) == 0o600, f
+    events = (out / "events.csv").read_text()
+    assert socket.gethostname() not in events and "4242" not in events and "session_process" not in events
+    with_info = tmp_path / "with-info"
+    assert main(["export", str(with_info), "-w", str(ws), "--process-info", "--no-samples"]) == 0
+    assert socket.gethostname() in (with_info / "events.csv").read_text()
