@@ -34,7 +34,7 @@ def register(app: typer.Typer) -> None:
         for note in report.notes:
             typer.echo(f"note: {note}", err=True)
         if report.ok:
-            checked = ", ".join(f"{n} {k}s" for k, n in report.records.checked.items())
+            checked = report.records.summary()
             rows = report.audit.rows
             typer.echo(f"Audit log intact: {rows} rows, head {rows}:{report.audit.head_hash}; "
                        f"records sealed and unchanged: {checked}")

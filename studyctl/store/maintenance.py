@@ -69,7 +69,7 @@ def check_database(url: Any) -> DatabaseCheck:
             rec_problems = [p.line() for p in full.records.problems if p.kind != "chunk"]
             checks.append(("sealed records", not rec_problems,
                            "; ".join(rec_problems) if rec_problems else
-                           ", ".join(f"{n} {k}s" for k, n in full.records.checked.items() if k != "chunk")))
+                           full.records.summary(("trial", "event", "answer", "report"))))
             chunk_problems = [p.line() for p in full.records.problems if p.kind == "chunk"]
             checks.append(("sample digests", not chunk_problems,
                            "; ".join(chunk_problems) if chunk_problems else

@@ -206,6 +206,10 @@ class RecordsReport:
     def ok(self) -> bool:
         return not self.problems
 
+    def summary(self, kinds: tuple[str, ...] = KINDS) -> str:
+        """``2 trials, 42 events, 3 answers, 1 location report, 8 sample chunks`` (the records checked)."""
+        return ", ".join(f"{n} {_LABEL[k]}{'' if n == 1 else 's'}" for k, n in self.checked.items() if k in kinds)
+
 
 def _sealed(tx: OrmSession) -> tuple[dict[str, dict[int, Any]], dict[int, dict[str, int]], dict[str, int]]:
     """Folded seals: digest per record, sealed id range per session, and the legacy (pre-coverage) ids."""
