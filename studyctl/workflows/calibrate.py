@@ -38,6 +38,8 @@ from studyctl.calibration.simulated import SimulatedStats, SimulatedValue, stats
 from studyctl.errors import PopulationError, UsageError
 
 PROFILE_STEP = 0.15  # ±h as a fraction of each free parameter's search range
+SIGMA0 = 0.25  # CMA-ES initial step, as a fraction of each free parameter's search range
+SAMPLER = f"cmaes(x0=population, sigma0={SIGMA0})"  # part of the journal's fingerprint
 DEFAULT_EVALUATIONS = 24
 DEFAULT_FIT_PARTICIPANTS = 4  # people per simulated study of an evaluation
 DEFAULT_REPLICATES = 2  # simulated studies per evaluation (run in parallel on the local workers)
@@ -78,6 +80,7 @@ class CalibrationSpec:
             "population": self.population.sha256, "targets": self.targets.sha256,
             "free": [(f.name, f.low, f.high) for f in self.free], "seed": self.seed,
             "participants": self.participants, "replicates": self.replicates, "sim_rate_hz": self.sim_rate_hz,
+            "sampler": SAMPLER,
         }
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -358,10 +361,20 @@ def _from_trial(spec: CalibrationSpec, params: dict[str, float]) -> dict[str, fl
 
 def run_calibration(spec: CalibrationSpec, *, on_progress: ProgressFn | None = None) -> CalibrationResult:
     """Fit, profile, run the fitted population at paper size, and write the files (see the module docs)."""
+
+    client = _client(spec.scheduler)
+    try:
+        return _run(spec, client, on_progress)
+    finally:
+        if client is not None:
+            client.close()
+        _close_pools()
+
+
+def _run(spec: CalibrationSpec, client: Any, on_progress: ProgressFn | None) -> CalibrationResult:
     import optuna
 
     t0 = time.perf_counter()
-    client = _client(spec.scheduler)
     spec.out.parent.mkdir(parents=True, exist_ok=True)
     storage = _journal_storage(spec.journal)
     distributions = {
@@ -475,19 +488,16 @@ def run_calibration(spec: CalibrationSpec, *, on_progress: ProgressFn | None = N
         population_file=spec.out, missed=missed,
     )
     files = _write_outputs(result, fitted_values)
-    if client is not None:
-        client.close()
-    _close_pools()
     return replace(result, files=files)
 
 
 def _sampler(spec: CalibrationSpec) -> Any:
-    """CMA-ES started at the population's values (a local search from the cited/chosen priors, a step of a
-    quarter of the narrowest search range); TPE when the cmaes package is missing. Seeded either way."""
+    """CMA-ES started at the population's values (a local search from the cited/chosen priors, first steps of
+    a quarter of each parameter's search range); TPE when the cmaes package is missing. Seeded either way."""
     import optuna
 
     x0 = {f.name: f.to_search(f.value) for f in spec.free}
-    sigma0 = min(f.search_bounds[1] - f.search_bounds[0] for f in spec.free) / 4
+    sigma0 = SIGMA0  # optuna's CMA-ES works on the search space scaled to [0, 1] per parameter
     try:
         import cmaes  # noqa: F401 - optuna's CmaEsSampler needs it
     except ImportError:
