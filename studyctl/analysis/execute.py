@@ -101,6 +101,7 @@ class _EntryRunner:
             statistic_name=s.statistic_name,
             statistic=s.statistic,
             df=s.df,
+            df2=s.df2,
             z=s.z,
             p=s.p,
             p_adj=s.p_adj,

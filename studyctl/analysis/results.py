@@ -31,6 +31,7 @@ ROW_COLUMNS = (
     "statistic_name",
     "statistic",
     "df",
+    "df2",
     "z",
     "p",
     "p_adj",
@@ -71,6 +72,7 @@ class TestRow:
     statistic_name: str = ""
     statistic: float = NAN
     df: float = NAN
+    df2: float = NAN
     z: float = NAN
     p: float = NAN
     p_adj: float = NAN

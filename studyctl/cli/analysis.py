@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
@@ -39,19 +40,25 @@ def _print_result(result, console: Console) -> None:  # noqa: ANN001 - AnalysisR
         if rows.empty:
             continue
         table = Table(title=f"{entry.id}: {entry.title or entry.test}", title_justify="left", box=None, pad_edge=False)
+        # The split (e.g. the nodule of a per-nodule interval) gets its own column so blocks are told apart.
+        splits = any(rows["split"].astype(bool))
+        if splits:
+            table.add_column(", ".join(entry.by) or "split", overflow="fold")
         table.add_column("comparison", overflow="fold", min_width=22)
         table.add_column("result", overflow="fold", min_width=30)
         table.add_column("p (adj.)", no_wrap=True)
         table.add_column("sig.", no_wrap=True)
         table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=40)
         for r in rows.itertuples(index=False):
-            what = " ".join(x for x in (r.metric, f"[{r.split}]" if r.split else "", r.groups) if x)
+            what = " ".join(x for x in (r.metric, r.groups) if x)
             if r.kind == "posthoc":
                 what = f"  post-hoc {r.groups}"
+            split = ", ".join(part.partition("=")[2] for part in r.split.split(", ")) if r.split else ""
             p = fmt_p(r.p) + (f" ({fmt_p(r.p_adj)})" if r.p_adj == r.p_adj else "")
             sig = "" if r.significant is None else ("yes" if r.significant else "no")
             note = ("NOT COMPUTED: " if r.status != "ok" else "") + (r.warnings or "")
-            table.add_row(what, _row_result(r), p, sig, note)
+            cells = [what, _row_result(r), p, sig, note]
+            table.add_row(*(escape(c) for c in ([split, *cells] if splits else cells)))
         console.print(table)
         console.print()
 

@@ -167,9 +167,11 @@ def write_report(
     t2 = time.perf_counter()
     if on_step:
         on_step("documents")
-    html = _atomic_write(out / "report.html", document.html(result, figures, problems))
-    md = _atomic_write(out / "report.md", document.markdown(result, [p.name for p in figure_paths], problems))
-    summary = document.summary(result, problems)
+    html = _atomic_write(out / "report.html", document.html(result, figures, problems, base=out))
+    md = _atomic_write(
+        out / "report.md", document.markdown(result, [p.name for p in figure_paths], problems, base=out)
+    )
+    summary = document.summary(result, problems, base=out)
     _atomic_write(out / "summary.json", json.dumps(summary, indent=2, default=_json_default) + "\n")
     timings["documents_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0

@@ -1,12 +1,21 @@
-"""The report documents: self-contained HTML (figures embedded as base64 PNG), Markdown, and a summary."""
+"""The report's content as neutral blocks, laid out for an analyst who pastes from it.
+
+Order: title block, table of contents, summary of findings (the headline of every analysis and the
+simulated-vs-published agreement), statistical methods (generated from the plan), descriptives, each
+analysis (APA line, then a tidy table), figures, simulated vs published, missing data, notes.
+The blocks are rendered to HTML and Markdown by the Jinja2 templates of :mod:`studyctl.report.render`.
+"""
 
 from __future__ import annotations
 
-import base64
 import datetime as _dt
-import html as _html
 import math
-from collections.abc import Mapping, Sequence
+import os
+import platform
+import re
+from collections.abc import Sequence
+from importlib import metadata
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -14,10 +23,14 @@ import pandas as pd
 
 from studyctl import __version__
 from studyctl.analysis import catalog
+from studyctl.report import apa
 from studyctl.report.compose import likert_items_table
-from studyctl.report.style import fmt_num, fmt_p
+from studyctl.report.render import Block, render_html, render_markdown
+from studyctl.report.style import fmt_num
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from studyctl.analysis.plan import PlanTest
     from studyctl.analysis.results import AnalysisResult
 
@@ -27,9 +40,7 @@ ROLE_TITLES = {
     "supplementary": "Supplementary tables",
 }
 
-# A section is a list of blocks: ("h", level, text) | ("p", text) | ("table", headers, rows) |
-# ("figure", id, caption) | ("alert", text) | ("list", items)
-Block = tuple
+__all__ = ["blocks", "html", "markdown", "render_html", "render_markdown", "summary"]
 
 
 def _isnan(x: Any) -> bool:
@@ -37,111 +48,128 @@ def _isnan(x: Any) -> bool:
 
 
 def _sig(v: Any) -> str:
-    return "–" if v is None or _isnan(v) else ("yes" if bool(v) else "no")
+    return "" if v is None or _isnan(v) else ("yes" if bool(v) else "no")
 
 
-def _test_table(entry: PlanTest, rows: pd.DataFrame, result: AnalysisResult) -> tuple[list[str], list[list[str]]]:
-    name = catalog.ALIASES.get(entry.test, entry.test)
+def _p_cell(p: float) -> str:
+    """p as a table cell: ``.023``, ``< .001`` (the column header says p)."""
+    return apa.p_text(p, name="").strip().removeprefix("= ")
+
+
+def relative_source(source: str, base: Path | str | None) -> str:
+    """The data source with its local path made relative to ``base`` (the report's folder), never absolute."""
+    if not source:
+        return "in-memory table"
+    path, sep, rest = source.partition(" (")
+    if not os.path.isabs(path):
+        return source
+    rel = os.path.relpath(path, base) if base is not None else Path(path).name
+    return rel + sep + rest
+
+
+def _splits(split: str) -> dict[str, str]:
+    out = {}
+    for part in filter(None, (s.strip() for s in str(split or "").split(", "))):
+        key, _, value = part.partition("=")
+        out[key] = value
+    return out
+
+
+# ------------------------------------------------------------------------------------------ tidy tables
+
+
+def tidy(head: list[str], body: list[list[str]], *, keep: Sequence[str] = ()) -> tuple[list[str], list[list[str]],
+                                                                                          str]:
+    """Drop empty columns and columns repeating another, and lift columns with one value into a caption.
+
+    Returns (head, body, caption). ``keep`` are headers never lifted (the first column of a table).
+    """
+    cols = list(range(len(head)))
+    empty = {"", "–", "nan", "None"}
+    cols = [c for c in cols if any(str(r[c]) not in empty for r in body)]
+    seen: dict[tuple[str, ...], int] = {}
+    unique = []
+    for c in cols:
+        values = tuple(str(r[c]) for r in body)
+        if values in seen:
+            continue
+        seen[values] = c
+        unique.append(c)
+    cols = unique
+    caption = []
+    if len(body) > 1:
+        for c in list(cols):
+            values = {str(r[c]) for r in body}
+            if len(values) == 1 and head[c] not in keep and len(cols) > 2 and head[c] in _LIFTABLE:
+                caption.append(f"{head[c]}: {values.pop()}")
+                cols.remove(c)
+    return [head[c] for c in cols], [[r[c] for c in cols] for r in body], "; ".join(caption)
+
+
+# Columns whose single value is said once under the table instead of in every row.
+_LIFTABLE = {"metric", "method", "test", "adjustment", "alpha", "n", "n per level"}
+
+
+def _n_cells(r: pd.Series) -> tuple[str, str]:
+    per = str(r["n_per_group"] or "")
+    parts = [p.strip() for p in per.split(";") if p.strip()]
+    return str(r["n"]), ("" if len(set(parts)) <= 1 else per)
+
+
+def _test_rows_table(entry: PlanTest, rows: pd.DataFrame, result: AnalysisResult) -> tuple[list[str], list, str]:
+    """One tidy table of an entry's rows (omnibus, two-sample, post-hoc pairs or intervals)."""
     label = result.plan.metric_label
-
-    def warn(r: pd.Series) -> str:
-        text = str(r["warnings"] or "")
-        return ("NOT COMPUTED: " + text) if r["status"] != "ok" else text
-
-    if name == "wilson":
-        head = ["metric", "split", "level", "x / n", "estimate", "95% CI", "method", "notes"]
-        body = [
-            [
-                label(r["metric"]),
-                r["split"],
-                r["groups"],
-                r["n_per_group"],
-                fmt_num(r["estimate"]),
-                f"{fmt_num(r['ci_low'])} – {fmt_num(r['ci_high'])}",
-                r["method"],
-                warn(r),
-            ]
-            for _, r in rows.iterrows()
-        ]
-        return head, body
-    if name == "newcombe":
-        head = ["metric", "pair", "x / n", "Δp", "margin (CI)", "interval of Δp", "significant", "notes"]
-        body = [
-            [
-                label(r["metric"]),
-                r["groups"],
-                r["n_per_group"],
-                fmt_num(r["estimate"]),
-                fmt_num(r["statistic"]),
-                f"{fmt_num(r['ci_low'])} – {fmt_num(r['ci_high'])}",
-                _sig(r["significant"]),
-                warn(r),
-            ]
-            for _, r in rows.iterrows()
-        ]
-        return head, body
-    if name == "signed_rank" and entry.options.get("critical_value"):
-        head = ["metric", "split", "pair", "n_r", "W", "W_critical", "significant (W ≤ W_crit)", "p", "method", "notes"]
-        body = [
-            [
-                label(r["metric"]),
-                r["split"],
-                r["groups"],
-                fmt_num(r["df"]),
-                fmt_num(r["statistic"]),
-                fmt_num(r["critical_value"]),
-                _sig(r["significant"]),
-                fmt_p(r["p"]),
-                r["method"],
-                warn(r),
-            ]
-            for _, r in rows.iterrows()
-        ]
-        return head, body
-    head = [
-        "metric",
-        "split",
-        "kind",
-        "groups",
-        "n",
-        "statistic",
-        "df",
-        "p",
-        "p adj.",
-        "effect size",
-        "CI",
-        "significant",
-        "method",
-        "notes",
-    ]
+    factors = list(entry.by)
+    stat_names = {str(s) for s in rows["statistic_name"] if s}
+    es_names = {str(s) for s in rows["effect_size_name"] if s}
+    adjust = {str(s) for s in rows["p_adjust"] if s and s != "none"}
+    head = ["metric", *factors, "comparison", "n", "n per level"]
+    kinds = set(rows["kind"])
+    intervals = kinds == {"interval"} or set(rows["test"]) == {"newcombe"}
+    if intervals:
+        head += ["x / n", "estimate", "95% CI", "significant"]
+    else:
+        stat_head = apa.STAT_SYMBOLS.get(next(iter(stat_names)), next(iter(stat_names))) if len(stat_names) == 1 \
+            else "statistic"
+        if stat_head.startswith("diff"):
+            stat_head = "Δ (second − first)"
+        es_head = apa.EFFECT_SYMBOLS.get(next(iter(es_names)), "effect size") if len(es_names) == 1 else "effect size"
+        p_adj_head = f"p ({next(iter(adjust))})" if len(adjust) == 1 else "p adj."
+        head += [stat_head, "df", "z", "W critical", "p", p_adj_head, es_head, "95% CI", "significant"]
+    head += ["method", "notes"]
     body = []
     for _, r in rows.iterrows():
-        stat = f"{r['statistic_name']} = {fmt_num(r['statistic'])}" if r["statistic_name"] else "–"
-        es = f"{r['effect_size_name']} = {fmt_num(r['effect_size'])}" if r["effect_size_name"] else "–"
-        ci = "–" if _isnan(r["ci_low"]) else f"{fmt_num(r['ci_low'])} – {fmt_num(r['ci_high'])}"
-        p_adj = "–" if _isnan(r["p_adj"]) else f"{fmt_p(r['p_adj'])} ({r['p_adjust']})"
-        body.append(
-            [
-                label(r["metric"]),
-                r["split"],
-                r["kind"],
-                r["groups"],
-                f"{r['n']} ({r['n_per_group']})",
-                stat,
-                fmt_num(r["df"]),
-                fmt_p(r["p"]),
-                p_adj,
-                es,
-                ci,
-                _sig(r["significant"]),
-                r["method"],
-                warn(r),
-            ]
-        )
-    return head, body
+        split = _splits(r["split"])
+        n, per = _n_cells(r)
+        groups = str(r["groups"])
+        cells = [label(r["metric"]), *[split.get(f, "") for f in factors], groups, n, per]
+        ci = apa.ci_text(r["ci_low"], r["ci_high"], r["ci_level"]).split("CI ", 1)[-1] if not _isnan(r["ci_low"]) \
+            else ""
+        if intervals:
+            est = r["estimate"]
+            cells += [r["n_per_group"] if r["kind"] == "interval" else r["n_per_group"],
+                      "" if _isnan(est) else fmt_num(est), ci, _sig(r["significant"])]
+        else:
+            stat = "" if _isnan(r["statistic"]) else apa.number(r["statistic"])
+            if len(stat_names) > 1 and r["statistic_name"]:
+                stat = f"{apa.STAT_SYMBOLS.get(r['statistic_name'], r['statistic_name'])} = {stat}"
+            df = apa.df_text(r["df"]) + (f", {apa.df_text(r['df2'])}" if not _isnan(r.get("df2")) else "")
+            if r["critical_value"] == r["critical_value"]:  # W against its critical value: df is n_r
+                df = ""
+            es = "" if _isnan(r["effect_size"]) else (
+                apa.effect_text(r["effect_size_name"], r["effect_size"]).split(" = ", 1)[1] if len(es_names) == 1
+                else apa.effect_text(r["effect_size_name"], r["effect_size"]))
+            p_adj = _p_cell(r["p_adj"]) if len(adjust) <= 1 else apa.p_text(r["p_adj"], name=f"p_{r['p_adjust']}")
+            cells += [stat, df, "" if _isnan(r["z"]) else apa.number(r["z"]),
+                      "" if _isnan(r["critical_value"]) else apa.number(r["critical_value"]), _p_cell(r["p"]), p_adj,
+                      es, ci, _sig(r["significant"])]
+        note = str(r["warnings"] or "")
+        cells += [str(r["method"] or ""), ("NOT COMPUTED: " + note) if r["status"] != "ok" else note]
+        body.append(cells)
+    return tidy(head, body, keep=("metric", "comparison"))
 
 
-def _descriptive_table(frame: pd.DataFrame, result: AnalysisResult, level_name: str) -> tuple[list[str], list]:
+def _descriptive_table(frame: pd.DataFrame, result: AnalysisResult, level_name: str) -> tuple[list[str], list, str]:
     head = ["metric", "split", level_name, "n", "mean", "SD", "SE", "median", "IQR", "min – max"]
     body = [
         [
@@ -158,14 +186,80 @@ def _descriptive_table(frame: pd.DataFrame, result: AnalysisResult, level_name: 
         ]
         for _, r in frame.iterrows()
     ]
-    return head, body
+    return tidy(head, body, keep=("metric",))
 
 
-def _published(entry: PlanTest) -> Block | None:
-    if not entry.published:
+# ------------------------------------------------------------------------------------------- headlines
+
+
+def _where(r: Any, result: AnalysisResult, with_metric: bool = True) -> str:
+    bits = [result.plan.metric_label(r.metric)] if with_metric else []
+    if r.split:
+        bits.append(", ".join(f"{k} {v}" for k, v in _splits(r.split).items()))
+    if r.kind in ("two_sample", "posthoc") and r.groups:
+        bits.append(str(r.groups))
+    return ", ".join(bits)
+
+
+def headline_lines(entry: PlanTest, result: AnalysisResult) -> list[str]:
+    """The entry's headline: one APA line per test (up to four), else the count significant and the strongest."""
+    frame = result.to_frame()
+    rows = frame[(frame["test_id"] == entry.id) & (frame["kind"].isin(["omnibus", "two_sample"]))]
+    name = catalog.ALIASES.get(entry.test, entry.test)
+    if name in ("percent_change", "likert_table", "descriptive"):  # tables, not tests: read in their section
+        return []
+    if rows.empty:
+        intervals = frame[(frame["test_id"] == entry.id) & (frame["kind"] == "interval") & frame["estimate"].notna()]
+        if not intervals.empty:
+            lo, hi = intervals.loc[intervals["estimate"].idxmin()], intervals.loc[intervals["estimate"].idxmax()]
+            return [f"{len(intervals)} intervals; lowest {_where(lo, result)}: {apa.line(lo.to_dict())}; highest "
+                    f"{_where(hi, result)}: {apa.line(hi.to_dict())}"]
+        return []
+    ok = rows[rows["status"] == "ok"]
+    lines = []
+    if len(rows) <= 4:
+        for r in rows.itertuples(index=False):
+            lines.append(f"{_where(r, result)}: {apa.line(r._asdict())}")
+        return lines
+    sig = ok[ok["significant"] == True]  # noqa: E712
+    lines.append(f"{len(sig)} of {len(rows)} tests significant at α = {apa.bounded(float(rows['alpha'].iloc[0]))}"
+                 + (f" ({len(rows) - len(ok)} not computed)" if len(ok) < len(rows) else ""))
+    if not ok.empty and ok["p"].notna().any():
+        best = ok.loc[ok["p"].idxmin()]
+        lines.append(f"strongest: {_where(best, result)}: {apa.line(best.to_dict())}")
+    return lines
+
+
+def _agreement_headline(result: AnalysisResult) -> str | None:
+    frame = result.tables.get("agreement")
+    if frame is None or frame.empty:
         return None
-    text = ", ".join(f"{k} = {v}" for k, v in entry.published.items())
-    return ("p", f"Published values (the paper): {text}.")
+    from studyctl.calibration.agreement import summary_from_frame
+
+    s = summary_from_frame(frame).get("all") or {}
+    if not s.get("targets"):
+        return None
+
+    def frac(key: str) -> str:
+        f, n = s.get(f"{key}_fraction"), s.get(f"{key}_n")
+        return "–" if f is None or not n else f"{round(f * n)}/{n} ({f:.0%})"
+
+    return (f"{frac('agree')} published targets agree on every check; directions right {frac('direction')}; "
+            f"verdicts reproduced {frac('verdict')}; within the published band {frac('within')}")
+
+
+# --------------------------------------------------------------------------------------------- methods
+
+
+def _versions() -> str:
+    names = ("numpy", "scipy", "pandas", "statsmodels")
+    found = []
+    for n in names:
+        try:
+            found.append(f"{n} {metadata.version(n)}")
+        except metadata.PackageNotFoundError:
+            continue
+    return f"studyctl {__version__} (Python {platform.python_version()}; {', '.join(found)})"
 
 
 def _posthoc_text(entry: PlanTest) -> str:
@@ -173,27 +267,46 @@ def _posthoc_text(entry: PlanTest) -> str:
     if ph.test == "multcompare":
         how = "MATLAB multcompare: studentized range on mean ranks"
     elif ph.test == "tukey_hsd":
-        how = "studentized range"
+        how = "Tukey HSD, studentized range"
     else:
-        how = f"{ph.p_adjust}-adjusted"
+        how = f"{ph.test.replace('_', ' ')}, {ph.p_adjust}-adjusted"
     when = "after a significant omnibus test" if ph.when == "significant" else "always"
-    return f"{ph.test} ({how}, {when})"
+    return f"{how}, {when}"
+
+
+def methods_text(result: AnalysisResult) -> list[str]:
+    """The statistical-analysis paragraph(s), generated from the plan."""
+    plan = result.plan
+    agg = {"mean": "averaged", "median": "summarised by their median", "none": "kept as separate rows"}.get(
+        plan.aggregate, f"aggregated by {plan.aggregate}")
+    paras = [f"Repeated trials of a participant in one condition were {agg}, giving one value per participant and "
+             f"cell. Missing values: {plan.missing} (every missing value is listed under Missing data). Tests were "
+             f"two-sided unless stated, at α = {apa.bounded(plan.alpha)}."]
+    for entry in plan.tests:
+        name = catalog.ALIASES.get(entry.test, entry.test)
+        spec = catalog.TESTS[name]
+        if spec.design == catalog.DESCRIPTIVE:
+            continue
+        text = f"{entry.title or entry.id}: {spec.summary}, comparing the levels of {entry.compare.replace('_', ' ')}"
+        if entry.by:
+            text += f" separately for each {' × '.join(b.replace('_', ' ') for b in entry.by)}"
+        if entry.posthoc:
+            text += f"; post-hoc pairs: {_posthoc_text(entry)}"
+        if entry.correction != "none":
+            text += f"; p-values adjusted across rows ({entry.correction})"
+        if entry.effect_size:
+            text += f"; effect size: {', '.join(apa.EFFECT_SYMBOLS.get(e, e) for e in entry.effect_size)}"
+        paras.append(text + ".")
+    paras.append(f"Computed with {_versions()}.")
+    return paras
+
+
+# ------------------------------------------------------------------------------------------- sections
 
 
 def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
     name = catalog.ALIASES.get(entry.test, entry.test)
-    blocks: list[Block] = [("h", 3, entry.title or entry.id)]
-    spec = catalog.TESTS[name]
-    blocks.append(
-        (
-            "p",
-            f"{spec.summary}. Compared: {entry.compare}"
-            + (f"; separately for each {', '.join(entry.by)}" if entry.by else "")
-            + (f"; post-hoc: {_posthoc_text(entry)}" if entry.posthoc else "")
-            + (f"; correction across rows: {entry.correction}" if entry.correction != "none" else "")
-            + f"; alpha = {entry.alpha if entry.alpha is not None else result.plan.alpha}.",
-        )
-    )
+    blocks: list[Block] = [("h", 3, entry.title or entry.id, entry.id)]
     if entry.description:
         blocks.append(("p", entry.description))
     frame = result.to_frame()
@@ -217,7 +330,7 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
                     if lv != entry.reference
                 ]
                 body.append([result.plan.metric_label(mid), *means, *pcts])
-            blocks.append(("table", head, body))
+            blocks.append(("table", head, body, ""))
     elif name == "likert_table":
         for mid in entry.metrics:
             table = likert_items_table(result, mid)
@@ -243,7 +356,7 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
                             "–" if row.empty else f"{float(row['mean'].iloc[0]):.2f} (n={int(row['n'].iloc[0])})"
                         )
                     body.append([item.replace("_", " "), *cells])
-            blocks.append(("table", head, body))
+            blocks.append(("table", head, body, ""))
     elif name == "descriptive":
         desc = result.tables.get("descriptives", pd.DataFrame())
         desc = desc[desc["test_id"] == entry.id] if not desc.empty else desc
@@ -252,16 +365,26 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
     elif rows.empty:
         blocks.append(("alert", "no rows: nothing could be computed for this entry"))
     else:
-        blocks.append(("table", *_test_table(entry, rows, result)))
-    pub = _published(entry)
-    if pub:
-        blocks.append(pub)
+        main = rows[rows["kind"] != "posthoc"]
+        lines = [f"{_where(r, result)}: {apa.line(r._asdict())}" for r in main.itertuples(index=False)
+                 if r.kind in ("omnibus", "two_sample")]
+        if lines:
+            blocks.append(("apa", lines))
+        if not main.empty:
+            blocks.append(("table", *_test_rows_table(entry, main, result)))
+        post = rows[rows["kind"] == "posthoc"]
+        if not post.empty:
+            blocks.append(("p", f"Post-hoc pairs ({_posthoc_text(entry)}):"))
+            blocks.append(("table", *_test_rows_table(entry, post, result)))
+    if entry.published:
+        text = ", ".join(f"{k} = {v}" for k, v in entry.published.items())
+        blocks.append(("p", f"Published values (the paper): {text}."))
     return blocks
 
 
-def _source_line(result: AnalysisResult) -> str:
+def _source_line(result: AnalysisResult, base: Path | str | None) -> str:
     info = result.data.info
-    bits = [f"data: {result.data.source or 'in-memory table'}"]
+    bits = [f"data: {relative_source(result.data.source, base)}"]
     for key in ("participants", "trials_completed", "kind"):
         if key in info:
             bits.append(f"{key.replace('_', ' ')}: {info[key]}")
@@ -271,65 +394,89 @@ def _source_line(result: AnalysisResult) -> str:
     return "; ".join(bits)
 
 
-def blocks(result: AnalysisResult, figure_ids: Sequence[str], problems: Sequence[str]) -> list[Block]:
-    """The report's content as neutral blocks (rendered to HTML or Markdown)."""
+def _cells_table(result: AnalysisResult) -> tuple[list[str], list, str]:
     plan = result.plan
-    out: list[Block] = [("h", 1, plan.title)]
+    cells = result.tables.get("cells", pd.DataFrame())
+    head = ["metric", "condition", "group", "level", "n", "mean", "SD", "median", "IQR", "successes / chances"]
+    body = [
+        [
+            plan.metric_label(r["metric"]),
+            r["condition"],
+            "" if _isnan(r["group"]) else r["group"],
+            "" if _isnan(r["level"]) else r["level"],
+            str(int(r["n"])),
+            fmt_num(r["mean"]),
+            fmt_num(r["sd"]),
+            fmt_num(r["median"]),
+            f"{fmt_num(r['q1'])} – {fmt_num(r['q3'])}",
+            "" if _isnan(r["chances"]) else f"{int(r['successes'])} / {int(r['chances'])}",
+        ]
+        for _, r in cells.iterrows()
+    ]
+    return tidy(head, body, keep=("metric",))
+
+
+def blocks(
+    result: AnalysisResult, figure_ids: Sequence[str], problems: Sequence[str], *, base: Path | str | None = None
+) -> list[Block]:
+    """The report's content as neutral blocks (rendered to HTML or Markdown); paths relative to ``base``."""
+    plan = result.plan
+    out: list[Block] = [("h", 1, plan.title, "top")]
     meta = [
         f"study (protocol): {plan.study}",
-        _source_line(result),
+        _source_line(result, base),
         f"generated by studyctl {__version__} on {_dt.datetime.now(_dt.UTC):%Y-%m-%d %H:%M} UTC",
-        f"alpha = {plan.alpha}; missing data: {plan.missing}; repetitions aggregated by: {plan.aggregate}",
     ]
     if plan.paper:
         meta.insert(0, f"paper: {plan.paper}")
-    out.append(("list", meta))
-    if problems or result.partial:
-        out.append(
-            (
-                "alert",
-                "PARTIAL RESULTS: some of what the plan asks for could not be computed. "
-                "Every gap is listed here and marked NOT COMPUTED in the tables.",
-            )
-        )
-        out.append(("list", list(problems) or ["see rows marked NOT COMPUTED"]))
-    if "agreement_info" in result.tables:  # a simulated study: how it compares with the paper, first
-        from studyctl.report.calibration import agreement_blocks
+    out.append(("meta", meta))
+    out.append(("toc",))
 
-        out.extend(agreement_blocks(result.tables.get("agreement"), result.tables["agreement_info"]))
+    # Summary of findings: what an analyst reads first.
+    out.append(("h", 2, "Summary of findings", "summary"))
+    if problems or result.partial:
+        out.append(("alert", "PARTIAL RESULTS: some of what the plan asks for could not be computed "
+                    "(listed under Missing data and marked NOT COMPUTED in the tables)."))
+    findings = []
+    for entry in plan.tests:
+        if entry.role == "supplementary":
+            continue
+        lines = headline_lines(entry, result)
+        if lines:
+            findings.append((entry.title or entry.id, entry.id, lines))
+    agreement = _agreement_headline(result)
+    if agreement:
+        findings.append(("Simulated vs published", "simulated-vs-published", [agreement]))
+    out.append(("findings", findings))
+
+    out.append(("h", 2, "Statistical methods", "methods"))
+    out.extend(("p", t) for t in methods_text(result))
+
+    if not result.tables.get("cells", pd.DataFrame()).empty:
+        out.append(("h", 2, "Descriptive statistics per condition and group", "descriptives"))
+        out.append(("table", *_cells_table(result)))
+
     for role in ("paper", "within_subject", "supplementary"):
         entries = [e for e in plan.tests if e.role == role]
         if not entries:
             continue
-        out.append(("h", 2, ROLE_TITLES[role]))
+        out.append(("h", 2, ROLE_TITLES[role], role.replace("_", "-")))
         for entry in entries:
             out.extend(_entry_blocks(entry, result))
     if figure_ids:
-        out.append(("h", 2, "Figures"))
+        out.append(("h", 2, "Figures", "figures"))
+        letter = 0
         for spec in plan.figures:
             if spec.id in figure_ids:
-                out.append(("figure", spec.id, spec.title or spec.id))
-    cells = result.tables.get("cells", pd.DataFrame())
-    if not cells.empty:
-        out.append(("h", 2, "Values per condition and group"))
-        head = ["metric", "condition", "group", "level", "n", "mean", "SD", "median", "IQR", "successes / chances"]
-        body = [
-            [
-                plan.metric_label(r["metric"]),
-                r["condition"],
-                r["group"],
-                "" if _isnan(r["level"]) else r["level"],
-                str(int(r["n"])),
-                fmt_num(r["mean"]),
-                fmt_num(r["sd"]),
-                fmt_num(r["median"]),
-                f"{fmt_num(r['q1'])} – {fmt_num(r['q3'])}",
-                "" if _isnan(r["chances"]) else f"{int(r['successes'])} / {int(r['chances'])}",
-            ]
-            for _, r in cells.iterrows()
-        ]
-        out.append(("table", head, body))
-    out.append(("h", 2, "Missing data"))
+                letter += 1
+                out.append(("figure", spec.id, f"Figure {letter}. {spec.title or spec.id}", spec.title or spec.id))
+    if "agreement_info" in result.tables:  # a simulated study: how it compares with the paper
+        from studyctl.report.calibration import agreement_blocks
+
+        out.extend(agreement_blocks(result.tables.get("agreement"), result.tables["agreement_info"]))
+    out.append(("h", 2, "Missing data", "missing"))
+    if problems:
+        out.append(("list", list(problems)))
     if result.missing.empty:
         out.append(("p", "No value is missing."))
     else:
@@ -338,109 +485,37 @@ def blocks(result: AnalysisResult, figure_ids: Sequence[str], problems: Sequence
         )
         head = list(result.missing.columns)
         body = [["" if _isnan(v) else str(v) for v in row] for row in result.missing.itertuples(index=False)]
-        out.append(("table", head, body))
+        out.append(("table", head, body, ""))
     notes = result.tables.get("notes")
     if notes is not None and not notes.empty:
-        out.append(("h", 2, "Notes"))
+        out.append(("h", 2, "Notes", "notes"))
         out.append(("list", list(notes["note"])))
     return out
 
 
-# ----------------------------------------------------------------------------------------------- HTML
-
-_CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1200px;
-color:#222;line-height:1.4;padding:0 1em}
-h1{font-size:1.6em;border-bottom:2px solid #0072B2}h2{font-size:1.3em;margin-top:1.6em;border-bottom:1px solid #ccc}
-h3{font-size:1.05em;margin-top:1.3em}table{border-collapse:collapse;font-size:.82em;margin:.5em 0;display:block;
-overflow-x:auto}th,td{border:1px solid #ddd;padding:3px 6px;text-align:left;vertical-align:top}
-th{background:#f3f6fa}tr:nth-child(even) td{background:#fafafa}.alert{background:#fff3cd;border:1px solid #e0b000;
-padding:.6em 1em;font-weight:600}figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}
-figcaption{font-size:.9em;color:#555}ul{font-size:.9em}
-"""
-
-
-def html(result: AnalysisResult, figures: Mapping[str, bytes], problems: Sequence[str]) -> str:
+def html(
+    result: AnalysisResult, figures: Mapping[str, bytes], problems: Sequence[str], *, base: Path | str | None = None
+) -> str:
     """The self-contained HTML report."""
-    return render_html(result.plan.title, blocks(result, list(figures), problems), figures)
+    return render_html(result.plan.title, blocks(result, list(figures), problems, base=base), figures)
 
 
-def render_html(title: str, content: Sequence[Block], figures: Mapping[str, bytes] | None = None) -> str:
-    """Blocks as a self-contained HTML page (figures embedded as PNG data)."""
-    e = _html.escape
-    parts = [
-        "<!DOCTYPE html>",
-        "<html lang='en'><head><meta charset='utf-8'>",
-        f"<title>{e(title)}</title><style>{_CSS}</style></head><body>",
-    ]
-    for b in content:
-        kind = b[0]
-        if kind == "h":
-            parts.append(f"<h{b[1]}>{e(str(b[2]))}</h{b[1]}>")
-        elif kind == "p":
-            parts.append(f"<p>{e(str(b[1]))}</p>")
-        elif kind == "alert":
-            parts.append(f"<p class='alert'>{e(str(b[1]))}</p>")
-        elif kind == "list":
-            parts.append("<ul>" + "".join(f"<li>{e(str(i))}</li>" for i in b[1]) + "</ul>")
-        elif kind == "table":
-            head = "".join(f"<th>{e(str(h))}</th>" for h in b[1])
-            body = "".join("<tr>" + "".join(f"<td>{e(str(c))}</td>" for c in row) + "</tr>" for row in b[2])
-            parts.append(f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
-        elif kind == "figure":
-            data = base64.b64encode((figures or {})[b[1]]).decode("ascii")
-            parts.append(
-                f"<figure id='{e(b[1])}'><img alt='{e(b[2])}' src='data:image/png;base64,{data}'>"
-                f"<figcaption>{e(b[2])} [{e(b[1])}]</figcaption></figure>"
-            )
-    parts.append("</body></html>")
-    return "\n".join(parts) + "\n"
-
-
-# ------------------------------------------------------------------------------------------- Markdown
-
-
-def _md_cell(c: Any) -> str:
-    return str(c).replace("|", "\\|").replace("\n", " ")
-
-
-def markdown(result: AnalysisResult, figure_files: Sequence[str], problems: Sequence[str]) -> str:
+def markdown(
+    result: AnalysisResult, figure_files: Sequence[str], problems: Sequence[str], *, base: Path | str | None = None
+) -> str:
     """The report as Markdown; figures are linked from ``figures/``."""
-    ids = [f.removesuffix(".png") for f in figure_files]
-    return render_markdown(blocks(result, ids, problems))
+    ids = [re.sub(r"\.(png|svg|pdf)$", "", f) for f in figure_files]
+    return render_markdown(blocks(result, list(dict.fromkeys(ids)), problems, base=base))
 
 
-def render_markdown(content: Sequence[Block]) -> str:
-    """Blocks as Markdown (figures linked from ``figures/``)."""
-    lines: list[str] = []
-    for b in content:
-        kind = b[0]
-        if kind == "h":
-            lines += ["#" * b[1] + " " + str(b[2]), ""]
-        elif kind == "p":
-            lines += [str(b[1]), ""]
-        elif kind == "alert":
-            lines += [f"> **{b[1]}**", ""]
-        elif kind == "list":
-            lines += [f"- {i}" for i in b[1]] + [""]
-        elif kind == "table":
-            lines.append("| " + " | ".join(_md_cell(h) for h in b[1]) + " |")
-            lines.append("|" + "---|" * len(b[1]))
-            lines += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in b[2]]
-            lines.append("")
-        elif kind == "figure":
-            lines += [f"![{b[2]}](figures/{b[1]}.png)", "", f"*{b[2]}*", ""]
-    return "\n".join(lines)
-
-
-def summary(result: AnalysisResult, problems: Sequence[str]) -> dict[str, Any]:
+def summary(result: AnalysisResult, problems: Sequence[str], *, base: Path | str | None = None) -> dict[str, Any]:
     """Headline facts for scripts and the demo: counts, partial flag, problems, significant findings."""
     frame = result.to_frame()
     significant = frame[(frame["status"] == "ok") & (frame["significant"] == True)]  # noqa: E712
     return {
         "study": result.plan.study,
         "title": result.plan.title,
-        "source": result.data.source,
+        "source": relative_source(result.data.source, base) if base is not None else result.data.source,
         "data": dict(result.data.info),
         "partial": bool(result.partial or problems),
         "problems": list(problems),
@@ -449,6 +524,7 @@ def summary(result: AnalysisResult, problems: Sequence[str]) -> dict[str, Any]:
         "significant": [
             f"{r.test_id}/{r.metric}{f' [{r.split}]' if r.split else ''} {r.groups}" for r in significant.itertuples()
         ],
+        "headlines": {e.id: headline_lines(e, result) for e in result.plan.tests if e.role != "supplementary"},
         "missing_values": int(len(result.missing)),
         "timings_s": dict(result.timings),
     }

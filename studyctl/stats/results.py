@@ -123,8 +123,8 @@ class AnovaResult(_OneRow):
         """``effect_size``: ``eta_squared`` (default) or ``omega_squared``."""
         sizes = {"eta_squared": self.eta_squared, "omega_squared": self.omega_squared}
         return TestSummary("F", float(self.statistic), p=float(self.pvalue), df=float(self.df_between),
-                           effect_size_name=effect_size, effect_size=float(sizes[effect_size]),
-                           method=f"one-way ANOVA F({float(self.df_between):g}, {float(self.df_within):g})",
+                           df2=float(self.df_within), effect_size_name=effect_size,
+                           effect_size=float(sizes[effect_size]), method="one-way ANOVA (independent samples)",
                            warnings=self.warnings)
 
 
@@ -169,8 +169,9 @@ class RepeatedAnovaResult(_OneRow):
         """``p`` is the Greenhouse-Geisser corrected p-value (the uncorrected one is in ``method``)."""
         return TestSummary(
             "F", float(self.statistic), p=float(self.pvalue_gg), df=float(self.df_effect),
-            effect_size_name="partial_eta_squared", effect_size=float(self.partial_eta_squared),
-            method=f"repeated-measures ANOVA F({float(self.df_effect):g}, {float(self.df_error):g}), participants "
+            df2=float(self.df_error), effect_size_name="partial_eta_squared",
+            effect_size=float(self.partial_eta_squared),
+            method="repeated-measures ANOVA, participants "
             f"as blocks; p with the Greenhouse-Geisser correction (epsilon = {float(self.epsilon_gg):.3f}; "
             f"uncorrected p = {float(self.pvalue):.3g})",
             warnings=self.warnings,

@@ -17,17 +17,18 @@ NAN = math.nan
 class TestSummary:
     """What a results table shows of one test or interval.
 
-    ``statistic_name`` names ``statistic`` as it is printed (H, F, U, V (R+), …); ``df`` is NaN where
-    the statistic has none; ``p`` is the test's own p-value (NaN for intervals and for procedures that
-    only give adjusted values) and ``p_adj`` an adjusted one with its ``p_adjust`` method ('' when not
-    adjusted); ``estimate`` with ``ci_low``/``ci_high`` at ``ci_level`` for interval results; ``method``
-    says how it was computed.
+    ``statistic_name`` names ``statistic`` as it is printed (H, F, U, V (R+), …); ``df`` is NaN where the
+    statistic has none (``df2``: the denominator df of an F, NaN otherwise); ``p`` is the test's own p-value (NaN
+    for intervals and for procedures that only give adjusted values) and ``p_adj`` an adjusted one with its
+    ``p_adjust`` method ('' when not adjusted); ``estimate`` with ``ci_low``/``ci_high`` at ``ci_level`` for
+    interval results; ``method`` says how it was computed.
     """
 
     statistic_name: str
     statistic: float
     p: float = NAN
     df: float = NAN
+    df2: float = NAN
     z: float = NAN
     p_adj: float = NAN
     p_adjust: str = ""

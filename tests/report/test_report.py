@@ -167,7 +167,7 @@ def test_html_is_self_contained(written):
 def test_markdown_links_figures_and_has_tables(written):
     md = written.markdown.read_text()
     assert "![Times](figures/box.png)" in md
-    assert "| metric | split | kind | groups |" in md
+    assert "| metric | condition | comparison | U | p | r_rb | significant |" in md  # split as its own column
     assert "| item | A | B | C |" in md  # the Likert table: items × conditions
 
 
@@ -203,3 +203,78 @@ def test_matplotlib_is_imported_only_by_report_figures():
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _html_tables(html: str) -> list[list[str]]:
+    import re
+
+    return [re.findall(r"<th>(.*?)</th>", head) for head in re.findall(r"<thead><tr>(.*?)</tr></thead>", html)]
+
+
+def test_layout_title_toc_summary_then_tables(written):
+    html = written.html.read_text()
+    toc, summary, first_table = html.index("Contents"), html.index('id="summary"'), html.index("<table>")
+    assert toc < summary < first_table
+    # The headline of the Kruskal-Wallis entry is an APA line in the summary, before any table.
+    assert html.index("H(2) = ") < first_table
+    for anchor in ("summary", "methods", "descriptives", "kw", "figures", "missing"):
+        assert f'href="#{anchor}"' in html and f'id="{anchor}"' in html
+
+
+def test_tables_are_tidy(written):
+    html = written.html.read_text()
+    for head in _html_tables(html):
+        assert len(head) == len(set(head)), head  # no column twice
+        assert "split" not in head and "kind" not in head  # the split is named by its factor
+    # p-values as journals print them: never in scientific notation
+    import re
+
+    cells = re.findall(r"<td>(.*?)</td>", html)
+    assert not [c for c in cells if re.fullmatch(r"-?[0-9.]+e-?[0-9]+", c)]
+    assert "&lt; .001" in html
+
+
+def test_methods_paragraph_names_the_tests_and_software(written):
+    md = written.markdown.read_text()
+    methods = md[md.index("## Statistical methods"):md.index("## Descriptive")]
+    assert "Kruskal-Wallis" in methods and "holm" in methods and "scipy " in methods and "statsmodels " in methods
+
+
+def test_no_absolute_path_in_the_documents(tmp_path):
+    from studyctl.report.document import relative_source
+
+    src = str(tmp_path / "ws" / "study.db") + " (study 'x')"
+    assert relative_source(src, tmp_path / "report") == "../ws/study.db (study 'x')"
+    assert relative_source(src, None) == "study.db (study 'x')"
+    assert relative_source("toy table", tmp_path) == "toy table"
+
+
+def test_apa_lines():
+    from studyctl.report import apa
+
+    row = {"kind": "omnibus", "test": "anova_oneway", "statistic_name": "F", "statistic": 174.2, "df": 4.0,
+           "df2": 55.0, "p": 2.17e-31, "p_adj": float("nan"), "p_adjust": "none", "effect_size_name": "eta_squared",
+           "effect_size": 0.927, "z": float("nan"), "critical_value": float("nan")}
+    assert apa.line(row) == "F(4, 55) = 174.2, p < .001, η² = .93"
+    assert apa.p_text(0.0234) == "p = .023" and apa.p_text(0.9999) == "p > .999" and apa.p_text(float("nan")) == ""
+    assert apa.bounded(-0.414) == "−.41"
+    tukey = {"kind": "posthoc", "statistic_name": "diff (second − first)", "statistic": -3.75, "p_adj": 0.003,
+             "p_adjust": "tukey", "effect_size_name": "mean_difference", "effect_size": -3.75, "ci_low": -4.2,
+             "ci_high": -3.3, "ci_level": 0.95}
+    assert apa.line(tukey) == "Δ = −3.75, 95% CI [−4.20, −3.30], p_tukey = .003"
+    assert apa.line({"status": "not_computed"}) == "not computed"
+
+
+def test_cli_text_output_shows_the_split(result):
+    import io
+
+    from rich.console import Console
+
+    from studyctl.cli.analysis import _print_result
+
+    buf = io.StringIO()
+    _print_result(result, Console(file=buf, width=160, highlight=False))
+    text = buf.getvalue()
+    block = text[text.index("groups:"):text.index("kw:")]
+    for level in ("A", "B", "C"):  # the condition of each rank-sum row (rich once swallowed "[condition=A]")
+        assert f"\n{level} " in block.replace(" ", " ") or f"\n{level}  " in block
