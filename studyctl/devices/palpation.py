@@ -8,7 +8,13 @@ they deliver (balloon pressure, vibration frequency and acceleration) after thei
 Channels
 --------
 read: ``adc`` (counts), ``force_n`` (calibrated), ``pressure_kpa`` (over the sensing area), and the probe
-pose ``probe_x_mm``, ``probe_y_mm``, ``depth_mm`` (simulation only; for contact metrics).
+pose ``probe_x_mm``, ``probe_y_mm``, ``depth_mm`` (simulation only; for contact metrics and the camera view).
+
+The instrument is not rigid: the forceps' cable-driven wrist yields under load
+(``instrument_compliance_mm_per_n``), so the tip sinks less far into the sponge than the surgeon's hand
+commands, and less where a stiffer tumour pushes back. ``depth_mm`` is where the tip really is (what the
+endoscope shows); with the sponge's force linear in depth the tip depth is ``d_cmd / (1 + c·K)``, K the
+local stiffness. That difference is the only stiffness cue a person has without haptic feedback.
 write: ``balloon_pct``, ``vibration_pct`` (0-100).
 feedback: ``balloon_psi``, ``vibration_hz``, ``vibration_ms2``.
 
@@ -75,6 +81,9 @@ class SimulatedPalpationDevice(Device):
         Param("max_balloon_psi", BALLOON_CEILING_PSI, 0.1, BALLOON_CEILING_PSI, unit="psi",
               source="CITED: seed 000, balloon regulator set to 20 psi; a safety limit (palpation_limits)"),
         Param("faults", (), kind=tuple, source="studyctl: fault injection for tests and rehearsals"),
+        Param("instrument_compliance_mm_per_n", 0.5, 0.0, 10.0, unit="mm/N",
+              source="CHOSEN: cable-driven EndoWrist forceps holding the sensor, ~2 N/mm at the tip (no source "
+                     "gives it); the visible yield is the no-feedback stiffness cue"),
     )
 
     def __init__(
@@ -126,10 +135,12 @@ class SimulatedPalpationDevice(Device):
         x, y, depth = inputs.get("x_mm", -1.0), inputs.get("y_mm", -1.0), inputs.get("depth_mm", 0.0)
         force = 0.0
         if self.scene is not None:
-            if isinstance(self.scene, SpongePhantomScene):  # its direct path skips two dicts per tick
-                force = self.scene.force_n(x, y, depth)
-            else:
-                force = float(self.scene.sense({"x_mm": x, "y_mm": y, "depth_mm": depth}).get("force_n", 0.0))
+            force = self._force(x, y, depth)
+            compliance = self.params["instrument_compliance_mm_per_n"]
+            if compliance > 0 and force > 0 and depth > 0:
+                # The wrist yields until tip force and deflection agree: d = d_cmd − c·F(d), F linear in d.
+                depth = depth / (1.0 + compliance * force / depth)
+                force = self._force(x, y, depth)
         noise = self.params["sensor_noise_lsb"]
         counts = self.sensor.count_of_force(force)
         if noise > 0:
@@ -149,6 +160,11 @@ class SimulatedPalpationDevice(Device):
                   "probe_x_mm": x, "probe_y_mm": y, "depth_mm": depth}
         self._last_sample = (t, values)
         return Observation(t, values, sample_t=t, faults=faults)
+
+    def _force(self, x: float, y: float, depth: float) -> float:
+        if isinstance(self.scene, SpongePhantomScene):  # its direct path skips two dicts per tick
+            return self.scene.force_n(x, y, depth)
+        return float(self.scene.sense({"x_mm": x, "y_mm": y, "depth_mm": depth}).get("force_n", 0.0))
 
     def write(self, command: Channels) -> None:
         for name in self._command:

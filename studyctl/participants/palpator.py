@@ -1,28 +1,33 @@
 """A virtual participant who palpates the sponge phantom cell by cell and reports where tumours feel different.
 
-It knows only what a participant knows (the grid, from ``TrialInfo.public``) and what the actuators
-deliver (``balloon_psi`` and ``vibration_ms2`` from the device's feedback), felt through a noisy Weber
-observer (:class:`studyctl.models.perception.Sense`). It never sees the scene or the tumour sites, so
-whether it finds a tumour depends on the controller turning a stiffer spot into a feelable difference.
+It knows only what a participant knows (the grid, from ``TrialInfo.public``), what the actuators deliver
+(``balloon_psi`` and ``vibration_ms2`` from the device's feedback) and, when the condition shows the camera
+view, how far the probe tip really sank into the sponge (``view.depth_mm``). Each is sensed through a noisy
+Weber observer (:class:`studyctl.models.perception.Sense`). It never sees the scene or the tumour sites, so
+whether it finds a tumour depends on the controller turning a stiffer spot into a feelable difference — or,
+without haptic feedback, on seeing the instrument yield more over a stiffer spot.
 
 Behaviour (the paper's instructions: "follow the grid, checking each location one by one", least force,
 as quickly as possible):
 
-1. **Sweep**: for every cell in raster order, move above the cell centre (aim noise), press to the target
-   depth at a fixed speed (depth noise: the participant believes it pressed to the intended depth),
-   hold, release. What the balloon and the motor deliver is noted when the believed depth passes each
-   checkpoint (fractions of the target depth) and at its strongest; each note is one observation
-   with Weber noise and a detection threshold. Noting the feel at several depths lets a participant use
-   whatever depth range a controller conveys best (below saturation, across a piecewise step).
-2. **Screen**: for each (channel, checkpoint) the reference is the median over all cells (normal tissue);
-   a cell whose mean log-percept exceeds it by ``screen_z`` noise SDs of the mean (or, where normal tissue
-   is mostly not felt, that is felt more often than the binomial base rate allows, as a z-score) is
-   re-probed ``confirm_presses`` times.
-3. **Report**: cells whose mean evidence stays above ``report_z`` (noise SDs of the mean), keeping only
-   the strongest of neighbouring cells; then ``finish``. When nothing stood out, it guesses
-   ``guesses`` distinct random cells (what a participant without feedback does when told to report).
+1. **Sweep**: for every cell in raster order, move above the cell (aim noise), press towards the intended
+   depth at the person's speed (depth noise: the participant believes it pressed to the intended depth),
+   hold, release. A press stops early when a haptic cue becomes strong (``stop_balloon_psi``,
+   ``stop_vibration_ms2``: "least force" — a strong sensation means something hard is under the probe).
+   What the balloon and the motor deliver is noted when the believed depth passes each checkpoint and at
+   its strongest; the camera's tip depth is noted at the bottom of the press as the ratio of the hand's
+   (believed) depth to the seen depth (the instrument yields more on stiffer tissue). Each note is one
+   observation with Weber noise and a detection threshold.
+2. **Screen**: for each note the reference is the median over all cells (normal tissue); a cell whose mean
+   log-percept exceeds it by ``screen_z`` noise SDs of the mean (or, where normal tissue is mostly not felt,
+   that is felt — or stopped on — more often than the base rate allows, as a z-score) is re-probed
+   ``confirm_presses`` times.
+3. **Report**: cells whose evidence stays above ``report_z``, keeping only the strongest of neighbouring
+   cells; then ``finish``. When nothing stood out, it guesses ``guesses`` distinct random cells.
 
-Parameters marked CHOSEN have no source; the tests show their effect.
+Between people, every perceptual, motor and decision parameter may differ (a population file draws them);
+within a person, the press speed varies from trial to trial (``speed_trial_cv``) and the depth from press to
+press (``depth_cv``), and perceptual noise shrinks with practice over trials (``learning``).
 """
 
 from __future__ import annotations
@@ -41,6 +46,8 @@ from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 from studyctl.plugins.params import Param, validate_params
 
 CHANNELS = ("balloon_psi", "vibration_ms2")
+VISUAL = ("view", "yield")  # the note key of the camera cue: hand depth / seen tip depth at the bottom
+STOP = ("stop", "early")  # the note key of a press stopped by a strong sensation
 
 
 @dataclass
@@ -53,6 +60,7 @@ class _Segment:
     ramp: float = 0.0
     intended: float = 0.0  # the depth the participant means to reach
     scale: float = 1.0  # actual / intended depth (motor error)
+    stopped: bool = False  # ended early by a strong sensation
 
 
 @dataclass
@@ -68,21 +76,44 @@ class VirtualPalpator(Participant):
     name = "virtual_palpator"
     virtual = True
     PARAMS = (
-        Param("depth_mm", 4.0, 0.2, 20.0, unit="mm", source="CHOSEN: ~2 N on the sponge, the controllers' range"),
-        Param("checkpoints", (0.4, 0.6, 0.8, 1.0), kind=tuple, source="CHOSEN: fractions of the target depth"),
-        Param("depth_cv", 0.08, 0.0, 0.5, source="CHOSEN: press-to-press variability of depth"),
+        # -- motor ----------------------------------------------------------------------------------------
+        Param("depth_mm", 4.0, 0.2, 20.0, unit="mm", source="FITTED: intended press depth (~2 N on the sponge; "
+              "Pugh 2015: examiners differ widely in palpation force)"),
+        Param("checkpoints", (0.4, 0.6, 0.8, 1.0), kind=tuple, source="CHOSEN: fractions of the target depth "
+              "at which the feel is noted"),
+        Param("depth_cv", 0.08, 0.0, 0.5, source="CHOSEN: press-to-press variability of depth (motor noise)"),
         Param("aim_sd_mm", 2.0, 0.0, 10.0, unit="mm", source="CHOSEN: scatter of the probe about the cell centre"),
-        Param("press_speed_mm_s", 6.0, 0.5, 100.0, unit="mm/s", source="CHOSEN: indentation speed"),
-        Param("hold_s", 0.4, 0.0, 5.0, unit="s", source="CHOSEN"),
-        Param("move_s", 0.3, 0.02, 5.0, unit="s", source="CHOSEN: time to move to the next cell"),
-        Param("balloon_threshold_psi", 0.3, 0.0, 20.0, unit="psi", source="CHOSEN: ≈2 kPa on the finger pad"),
-        Param("balloon_weber", 0.10, 0.01, 2.0, source="CHOSEN: pressure/force discrimination 7-15 %"),
-        Param("vibration_threshold_ms2", 0.2, 0.0, 20.0, unit="m/s²", source="CHOSEN: ~0.1 µm at 200 Hz is ~0.2 m/s²"),
-        Param("vibration_weber", 0.25, 0.01, 2.0, source="CHOSEN: vibrotactile amplitude discrimination ~20-30 %"),
-        Param("screen_z", 2.0, 0.0, 10.0, source="CHOSEN: re-probe above this (max over 10 channel-depth notes)"),
-        Param("report_z", 3.5, 0.0, 10.0, source="CHOSEN: ~0.1 false reports per 49-cell sweep (10 notes per cell)"),
-        Param("confirm_presses", 2, 0, 10, kind=int, source="CHOSEN"),
-        Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: the paper's trials had 3 tumours"),
+        Param("press_speed_mm_s", 6.0, 0.5, 100.0, unit="mm/s", source="FITTED: indentation speed"),
+        Param("speed_trial_cv", 0.10, 0.0, 1.0, source="CHOSEN: trial-to-trial variation of a person's pace "
+              "(speed and move time), within person"),
+        Param("hold_s", 0.4, 0.0, 5.0, unit="s", source="FITTED: dwell at the bottom of a press"),
+        Param("move_s", 0.3, 0.02, 5.0, unit="s", source="FITTED: time to move to the next 20 mm cell "
+              "(Fitts-type pointing with a robot master, ~0.3-1 s)"),
+        Param("stop_balloon_psi", 30.0, 0.0, 30.0, unit="psi", source="FITTED: a balloon pressure felt as strong "
+              "ends the press (instruction: least force); 30 = never (the regulator gives ≤ 20)"),
+        Param("stop_vibration_ms2", 30.0, 0.0, 30.0, unit="m/s²", source="FITTED: as stop_balloon_psi for "
+              "vibration; 30 = never (the motor gives ≤ 12)"),
+        # -- perception -----------------------------------------------------------------------------------
+        Param("balloon_threshold_psi", 0.19, 0.0, 20.0, unit="psi",
+              source="CITED: static one-point pressure threshold of the index finger 0.13 ± 0.06 g/mm² "
+                     "(= 0.19 ± 0.09 psi, CV 46 %, n = 35; research/virtual_participants.md §1)"),
+        Param("balloon_weber", 0.10, 0.01, 2.0,
+              source="CITED: force JND 7 % (Pang 1991), 10 % (Allin 2002), 18-19 % passive (Gueorguiev 2020)"),
+        Param("vibration_threshold_ms2", 0.2, 0.0, 20.0, unit="m/s²",
+              source="CITED: ~0.1 µm at 150-250 Hz (Brisben 1999; Verrillo) = 0.16-0.25 m/s²; varies with age"),
+        Param("vibration_weber", 0.20, 0.01, 2.0, source="CITED: vibrotactile amplitude discrimination ≈ 20 %"),
+        Param("visual_weber", 0.10, 0.01, 2.0,
+              source="CITED: visual speed Weber ≈ 7 % (Vision Res 1988), pseudo-haptic stiffness JND 6-13.4 % "
+                     "(Lécuyer); fractions vary considerably between people (J Vis 2018)"),
+        Param("visual_trust", 1.0, 0.0, 1.0, source="FITTED: weight a person gives the camera cue (0 ignores it)"),
+        Param("learning", 0.0, 0.0, 0.8, source="CITED: most practice gain in lump detection comes within 1-2 "
+              "sessions (Adams et al.); fraction of perceptual noise lost by the 4th trial"),
+        # -- decision -------------------------------------------------------------------------------------
+        Param("screen_z", 2.0, 0.0, 10.0, source="FITTED: re-probe a cell whose evidence exceeds this"),
+        Param("report_z", 3.5, 0.0, 10.0, source="FITTED: confidence needed to report a cell"),
+        Param("confirm_presses", 2, 0, 10, kind=int, source="CHOSEN: re-probes of a candidate cell"),
+        Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "
+              "trials had 3 tumours; subjects were told to report)"),
         Param("cell_mm", 20.0, 1.0, 100.0, unit="mm", source="used when the trial's public info has no grid size"),
         Param("columns", 7, 1, 50, kind=int, source="used when the trial's public info has no grid"),
         Param("rows", 7, 1, 50, kind=int, source="used when the trial's public info has no grid"),
@@ -92,10 +123,12 @@ class VirtualPalpator(Participant):
         checked = validate_params("virtual_palpator participant", params, self.PARAMS)
         super().__init__(checked)
         p = checked
-        self.senses = {
+        self.base_senses = {
             "balloon_psi": Sense("balloon pressure", p["balloon_threshold_psi"], p["balloon_weber"], "psi"),
             "vibration_ms2": Sense("vibration", p["vibration_threshold_ms2"], p["vibration_weber"], "m/s²"),
+            "view": Sense("tip depth", 0.0, p["visual_weber"], "mm"),
         }
+        self.senses = dict(self.base_senses)
         cps = tuple(checked["checkpoints"])
         if not cps or not all(isinstance(c, int | float) and 0 < c <= 1 for c in cps) or list(cps) != sorted(set(cps)):
             raise ModelParameterError(
@@ -105,17 +138,33 @@ class VirtualPalpator(Participant):
         self._note_keys = tuple(
             (ch, (ch, "peak"), tuple((c, (ch, f"{c:g}")) for c in self.checkpoints)) for ch in CHANNELS
         )
-        # every (channel, note) a cell is scored on: the checkpoints of each channel, then the peaks
+        # every (channel, note) a cell is scored on: the checkpoints of each channel, the peaks, the camera
         self._keys = tuple((ch, f"{c:g}") for ch in CHANNELS for c in self.checkpoints) + tuple(
             (ch, "peak") for ch in CHANNELS
-        )
+        ) + (VISUAL, STOP)
+        self._stop = {"balloon_psi": p["stop_balloon_psi"], "vibration_ms2": p["stop_vibration_ms2"]}
         self._rng: np.random.Generator | None = None
+        self.trials_done = 0
+
+    # -- memory (what carries over between trials: practice) ----------------------------------------------
+    def memory(self) -> Mapping[str, Any]:
+        return {"trials_done": self.trials_done}
+
+    def recall(self, memory: Mapping[str, Any]) -> None:
+        self.trials_done = int(memory.get("trials_done", 0))
 
     # -- trial --------------------------------------------------------------------------------------
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
         self._rng = rng
         self.info = info
-        self.columns, self.rows, self.cell_mm, self.origin = _grid(info.public, self.params)
+        p = self.params
+        # Practice: perceptual noise shrinks over the first trials (Weber fractions scale down).
+        gain = 1.0 - p["learning"] * min(self.trials_done, 3) / 3.0
+        self.senses = {k: Sense(s.name, s.threshold, s.weber * gain, s.unit) for k, s in self.base_senses.items()}
+        self.trials_done += 1
+        # Within-person pace of this trial.
+        self._pace = max(1.0 + p["speed_trial_cv"] * rng.standard_normal(), 0.3)
+        self.columns, self.rows, self.cell_mm, self.origin = _grid(info.public, p)
         self.evidence: dict[tuple[int, int], _CellEvidence] = {}
         self.reports: list[tuple[int, int]] = []
         self._plan: list[_Segment] = []
@@ -156,6 +205,8 @@ class VirtualPalpator(Participant):
             self._end_segment(seg)
             self._seg_t0 += seg.duration
             self._seg_index += 1
+        if seg.kind == "press" and not seg.stopped and elapsed < seg.ramp and self._strong(percept):
+            _stop_press(seg, elapsed)
         frac = 0.0 if seg.duration <= 0 else min(max(elapsed / seg.duration, 0.0), 1.0)
         pose = _lerp(seg.start, seg.end, frac) if seg.kind == "move" else _press_pose(seg, elapsed)
         self._pose = pose
@@ -174,11 +225,19 @@ class VirtualPalpator(Participant):
         depth = p["depth_mm"] * scale
         last = self._plan[-1].end if self._plan else self._pose
         above = (cx, cy, -2.0)
-        self._plan.append(_Segment("move", p["move_s"], (last[0], last[1], -2.0), above))
-        ramp = depth / p["press_speed_mm_s"]
+        self._plan.append(_Segment("move", p["move_s"] / self._pace, (last[0], last[1], -2.0), above))
+        ramp = depth / (p["press_speed_mm_s"] * self._pace)
         self._plan.append(
             _Segment("press", 2 * ramp + p["hold_s"], above, (cx, cy, depth), cell, ramp, p["depth_mm"], scale)
         )
+
+    def _strong(self, percept: Mapping[str, Any]) -> bool:
+        """A haptic cue strong enough to stop pressing (felt as is: far above threshold, noise is irrelevant)."""
+        for ch, level in self._stop.items():
+            v = percept.get(ch)
+            if isinstance(v, int | float) and v >= level:
+                return True
+        return False
 
     def _note(self, percept: Mapping[str, Any]) -> None:
         """Note what the actuators deliver (this tick's percept is the feel at the previous tick's depth)."""
@@ -195,6 +254,13 @@ class VirtualPalpator(Participant):
             for c, ck in cp_keys:
                 if ck not in notes and believed >= c * seg.intended - 1e-9:
                     notes[ck] = v
+        view = percept.get("view")
+        if isinstance(view, Mapping) and believed > 0:
+            seen = view.get("depth_mm")
+            # at the deepest point of the press: the hand's depth against the tip depth the camera shows
+            if isinstance(seen, int | float) and seen > 0 and believed >= notes.get(("view", "hand"), 0.0):
+                notes[("view", "hand")] = believed
+                notes[("view", "seen")] = float(seen) / seg.scale  # seen as a fraction of what the hand did
 
     def _end_segment(self, seg: _Segment) -> None:
         if seg.kind != "press":
@@ -202,11 +268,21 @@ class VirtualPalpator(Participant):
             return
         ev = self.evidence.setdefault(seg.cell, _CellEvidence())
         ev.presses += 1
-        for key, value in self._notes.items():
-            seen = self.senses[key[0]].observe(value, self._rng)
-            if seen > 0:
+        rng = self._rng
+        notes = self._notes
+        hand, seen = notes.pop(("view", "hand"), 0.0), notes.pop(("view", "seen"), 0.0)
+        for key, value in notes.items():
+            observed = self.senses[key[0]].observe(value, rng)
+            if observed > 0:
                 ev.felt[key] = ev.felt.get(key, 0) + 1
-                ev.logs.setdefault(key, []).append(math.log(seen))
+                ev.logs.setdefault(key, []).append(math.log(observed))
+        if hand > 0 and seen > 0 and self.params["visual_trust"] > 0:
+            # the instrument yields more on stiffer tissue: hand depth / seen depth grows over a tumour
+            observed = self.senses["view"].observe(seen, rng)
+            ev.logs.setdefault(VISUAL, []).append(math.log(hand / observed))
+            ev.felt[VISUAL] = ev.felt.get(VISUAL, 0) + 1
+        if seg.stopped:
+            ev.felt[STOP] = ev.felt.get(STOP, 0) + 1
         self._notes = {}
         self._pressing = None
 
@@ -222,8 +298,9 @@ class VirtualPalpator(Participant):
         for key in self._keys:
             first = [ev.logs[key][0] if ev.logs.get(key) else -math.inf for ev in self.evidence.values()]
             med = float(np.median(first)) if first else -math.inf
-            ref[key] = med if math.isfinite(med) else None
-            felt = sum(1 for v in first if math.isfinite(v))
+            ref[key] = med if math.isfinite(med) and key != STOP else None
+            felt = sum(1 for ev in self.evidence.values() if ev.felt.get(key, 0)) if key == STOP else sum(
+                1 for v in first if math.isfinite(v))
             self._felt_rate[key] = (felt + 1) / (n + 2)
         return ref
 
@@ -231,7 +308,6 @@ class VirtualPalpator(Participant):
         """Evidence that a cell differs from normal tissue, in noise SDs of its mean (inf: felt only here)."""
         best = -math.inf
         for key in self._keys:
-            sigma = self.senses[key[0]].sigma
             logs = ev.logs.get(key)
             if ref[key] is None:
                 # normal tissue mostly not felt here: how surprising is being felt in k of n presses?
@@ -242,7 +318,11 @@ class VirtualPalpator(Participant):
                 continue
             if not logs:
                 continue
-            best = max(best, (float(np.mean(logs)) - ref[key]) / (sigma / math.sqrt(len(logs))))
+            sigma = self.senses[key[0]].sigma
+            z = (float(np.mean(logs)) - ref[key]) / (sigma / math.sqrt(len(logs)))
+            if key == VISUAL:
+                z *= self.params["visual_trust"]
+            best = max(best, z)
         return best
 
     def _queue_confirmations(self) -> None:
@@ -279,6 +359,16 @@ class VirtualPalpator(Participant):
 
 def _lerp(a, b, f):
     return tuple(x + (y - x) * f for x, y in zip(a, b, strict=True))
+
+
+def _stop_press(seg: _Segment, elapsed: float) -> None:
+    """End the descent now: the press holds at the depth reached, then releases at the same speed."""
+    reached = seg.end[2] * elapsed / seg.ramp if seg.ramp > 0 else seg.end[2]
+    hold = seg.duration - 2 * seg.ramp
+    seg.end = (seg.end[0], seg.end[1], reached)
+    seg.ramp = elapsed
+    seg.duration = 2 * elapsed + hold
+    seg.stopped = True
 
 
 def _press_pose(seg: _Segment, elapsed: float) -> tuple[float, float, float]:

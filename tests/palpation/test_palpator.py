@@ -108,3 +108,72 @@ def test_bad_parameters(params, message):
     with pytest.raises(ModelParameterError) as err:
         VirtualPalpator(params)
     assert message in str(err.value)
+
+
+def test_the_instrument_yields_more_over_a_stiffer_spot():
+    """The camera shows the real tip depth: the compliant forceps sinks less far where a tumour pushes back."""
+    scene = SpongePhantomScene.build({}, {"sites": {"hard": 7}}, frozenset({"view"}), np.random.default_rng(0))
+    hole = scene.params["holes_mm"][6]
+    dev = SimulatedPalpationDevice({"sensor_noise_lsb": 0}, scene, np.random.default_rng(1))
+    dev.open()
+
+    def at(x, y):
+        dev.apply_input({"x_mm": x, "y_mm": y, "depth_mm": 5.0})
+        return dev.read(0.0).values
+
+    sponge, tumour = at(20.0, 20.0), at(*hole)
+    assert 0 < tumour["depth_mm"] < sponge["depth_mm"] < 5.0
+    assert tumour["force_n"] > sponge["force_n"]
+    rigid = SimulatedPalpationDevice({"sensor_noise_lsb": 0, "instrument_compliance_mm_per_n": 0}, scene,
+                                     np.random.default_rng(1))
+    rigid.open()
+    rigid.apply_input({"x_mm": 20.0, "y_mm": 20.0, "depth_mm": 5.0})
+    assert rigid.read(0.0).values["depth_mm"] == 5.0 and rigid.read(0.0).values["force_n"] > sponge["force_n"]
+
+
+def view_trial(sites, seed, params):
+    scene = SpongePhantomScene.build({}, {"sites": sites}, frozenset({"view"}), np.random.default_rng(seed))
+    device = SimulatedPalpationDevice({}, scene, np.random.default_rng(seed + 1))
+    device.open()
+    participant = VirtualPalpator(params)
+    run_trial(info=TrialInfo("none", 600.0, 50.0, public=dict(scene.public()), visual="realtime"),
+              controller=NoFeedback({}, scene), device=device, participant=participant, clock=SimulatedClock(),
+              rng=np.random.default_rng(seed + 2), view=scene.view)
+    return participant, scene
+
+
+def test_without_feedback_the_camera_cue_points_at_the_hard_tumour():
+    from studyctl.participants.palpator import VISUAL
+
+    hard_z, soft_z = [], []
+    for seed, sites in enumerate(SITES):
+        p, scene = view_trial(sites, seed, {"visual_weber": 0.05})
+        ref = p._reference()
+        cells = {t["class"]: (t["col"], t["row"]) for t in scene.truth()["tumours"]}
+        mean = {c: np.mean(p.evidence[cell].logs[VISUAL]) - ref[VISUAL] for c, cell in cells.items()}
+        hard_z.append(mean["hard"])
+        soft_z.append(mean["soft"])
+    assert np.mean(hard_z) > np.mean(soft_z) > -0.05 and np.mean(hard_z) > 0.05
+    # a person who ignores the camera has no cue at all: reports are guesses
+    blind, _ = view_trial(SITES[0], 0, {"visual_trust": 0.0})
+    assert VISUAL not in blind._reference() or blind._reference()[VISUAL] is None
+
+
+def test_a_strong_sensation_ends_the_press_early():
+    _, _, _, deep = trial(LinearController, SITES[0], seed=4, params={"depth_mm": 6.0})
+    _, _, _, light = trial(LinearController, SITES[0], seed=4, params={"depth_mm": 6.0, "stop_balloon_psi": 8.0})
+    assert max(s["force_n"] for s in light) < 0.85 * max(s["force_n"] for s in deep)
+
+
+def test_practice_sharpens_perception_and_is_remembered():
+    p = VirtualPalpator({"learning": 0.3, "balloon_weber": 0.2})
+    info = TrialInfo("x", 60, 50, public={"grid": {"columns": 2, "rows": 1, "cell_mm": 20}})
+    webers = []
+    for _ in range(5):
+        p.begin_trial(info, np.random.default_rng(0))
+        webers.append(p.senses["balloon_psi"].weber)
+    assert webers[0] == pytest.approx(0.2) and webers[3] == pytest.approx(0.14) and webers[4] == webers[3]
+    q = VirtualPalpator({"learning": 0.3, "balloon_weber": 0.2})
+    q.recall(p.memory())
+    q.begin_trial(info, np.random.default_rng(0))
+    assert q.senses["balloon_psi"].weber == pytest.approx(0.14)

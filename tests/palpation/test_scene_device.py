@@ -140,7 +140,11 @@ def test_device_reads_the_scene_through_the_adc():
     dev.open()
     dev.apply_input({"x_mm": 70.0, "y_mm": 70.0, "depth_mm": 2.0})
     obs = dev.read(0.0)
-    f = s.force_n(70.0, 70.0, 2.0)
+    # the compliant forceps yields: the tip reaches d = 2 / (1 + c·K) mm, K the sponge's stiffness here
+    k = s.force_n(70.0, 70.0, 1.0)
+    tip = 2.0 / (1 + dev.params["instrument_compliance_mm_per_n"] * k)
+    assert obs.values["depth_mm"] == pytest.approx(tip) and tip < 2.0
+    f = s.force_n(70.0, 70.0, tip)
     assert obs.values["adc"] == dev.sensor.counts(f)
     assert abs(obs.values["force_n"] - f) < 0.01  # one ADC step
     assert obs.values["probe_x_mm"] == 70.0 and obs.sample_t == 0.0 and obs.faults == ()
