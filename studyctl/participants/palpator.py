@@ -61,6 +61,7 @@ class _Segment:
     intended: float = 0.0  # the depth the participant means to reach
     scale: float = 1.0  # actual / intended depth (motor error)
     stopped: bool = False  # ended early by a strong sensation
+    looked: bool = False  # the dwell to judge by eye has been decided
 
 
 @dataclass
@@ -93,6 +94,11 @@ class VirtualPalpator(Participant):
               "ends the press (instruction: least force); 30 = never (the regulator gives ≤ 20)"),
         Param("stop_vibration_ms2", 30.0, 0.0, 30.0, unit="m/s²", source="FITTED: as stop_balloon_psi for "
               "vibration; 30 = never (the motor gives ≤ 12)"),
+        Param("stop_ratio", 0.0, 0.0, 10.0, source="FITTED: a press also stops when a cue exceeds this multiple of "
+              "what normal tissue gave at its strongest (the running median of earlier presses; 0 = never): "
+              "something under the probe already feels different, so pressing on only adds force"),
+        Param("look_s", 0.0, 0.0, 5.0, unit="s", source="FITTED: extra dwell to judge the instrument's yield by eye "
+              "when a press gave no haptic sensation (visual judgement of deformation takes time)"),
         # -- perception -----------------------------------------------------------------------------------
         Param("balloon_threshold_psi", 0.19, 0.0, 20.0, unit="psi",
               source="CITED: static one-point pressure threshold of the index finger 0.13 ± 0.06 g/mm² "
@@ -143,6 +149,7 @@ class VirtualPalpator(Participant):
             (ch, "peak") for ch in CHANNELS
         ) + (VISUAL, STOP)
         self._stop = {"balloon_psi": p["stop_balloon_psi"], "vibration_ms2": p["stop_vibration_ms2"]}
+        self._stop_ratio = float(p["stop_ratio"])
         self._rng: np.random.Generator | None = None
         self.trials_done = 0
 
@@ -174,6 +181,8 @@ class VirtualPalpator(Participant):
         self._belief_depth = 0.0
         self._pressing: _Segment | None = None
         self._ref: dict[tuple[str, str], float | None] | None = None  # normal-tissue reference, after the sweep
+        self._peaks: dict[str, list[float]] = {ch: [] for ch in CHANNELS}  # strongest feel of each press so far
+        self._usual: dict[str, float] = {}  # their running median: what pressing normal tissue feels like
         self._finished = False
         for row in range(1, self.rows + 1):
             cols = range(1, self.columns + 1) if row % 2 else range(self.columns, 0, -1)  # boustrophedon
@@ -205,8 +214,14 @@ class VirtualPalpator(Participant):
             self._end_segment(seg)
             self._seg_t0 += seg.duration
             self._seg_index += 1
-        if seg.kind == "press" and not seg.stopped and elapsed < seg.ramp and self._strong(percept):
-            _stop_press(seg, elapsed)
+        if seg.kind == "press":
+            if not seg.stopped and elapsed < seg.ramp and self._strong(percept):
+                _stop_press(seg, elapsed)
+            elif self.params["look_s"] > 0 and not seg.looked and elapsed >= seg.duration - seg.ramp:
+                # about to release: with nothing felt, look at the instrument a little longer
+                seg.looked = True
+                if not any(self._notes.get((ch, "peak"), 0.0) > 0 for ch in CHANNELS):
+                    seg.duration += self.params["look_s"]
         frac = 0.0 if seg.duration <= 0 else min(max(elapsed / seg.duration, 0.0), 1.0)
         pose = _lerp(seg.start, seg.end, frac) if seg.kind == "move" else _press_pose(seg, elapsed)
         self._pose = pose
@@ -232,10 +247,14 @@ class VirtualPalpator(Participant):
         )
 
     def _strong(self, percept: Mapping[str, Any]) -> bool:
-        """A haptic cue strong enough to stop pressing (felt as is: far above threshold, noise is irrelevant)."""
+        """A haptic cue strong enough to stop pressing: above an absolute level, or well above what normal tissue
+        usually gives (felt as is: these are large differences, far above the Weber noise)."""
+        ratio = self._stop_ratio
+        usual = self._usual
         for ch, level in self._stop.items():
             v = percept.get(ch)
-            if isinstance(v, int | float) and v >= level:
+            if isinstance(v, int | float) and (v >= level or (ratio and usual.get(ch, 0.0) > 0
+                                                              and v >= ratio * usual[ch])):
                 return True
         return False
 
@@ -283,6 +302,12 @@ class VirtualPalpator(Participant):
             ev.felt[VISUAL] = ev.felt.get(VISUAL, 0) + 1
         if seg.stopped:
             ev.felt[STOP] = ev.felt.get(STOP, 0) + 1
+        elif self._stop_ratio:
+            for ch in CHANNELS:  # only unstopped presses show what pressing all the way usually feels like
+                peaks = self._peaks[ch]
+                peaks.append(notes.get((ch, "peak"), 0.0))
+                if len(peaks) >= 5:
+                    self._usual[ch] = float(np.median(peaks))
         self._notes = {}
         self._pressing = None
 

@@ -177,3 +177,30 @@ def test_practice_sharpens_perception_and_is_remembered():
     q.recall(p.memory())
     q.begin_trial(info, np.random.default_rng(0))
     assert q.senses["balloon_psi"].weber == pytest.approx(0.14)
+
+
+def test_a_broken_controller_is_noticed_by_the_shipped_population():
+    """`none` in place of the bio-inspired controller: the population's typical person (every trait at its
+    location), on the same tumours and seeds, finds fewer tumours."""
+    from studyctl.controllers.bio_inspired import BioInspiredController
+    from studyctl.populations import load_population_file, shipped_population_path
+
+    pop = load_population_file(shipped_population_path("bio_inspired_palpation"))
+    params = pop.params({t.name: t.value(0.0) for t in pop.traits})
+    found_bio = found_none = 0
+    for k in range(4):
+        sites = SITES[k % len(SITES)]
+        for controller_cls in (BioInspiredController, NoFeedback):
+            scene = SpongePhantomScene.build({}, {"sites": sites}, frozenset({"view"}), np.random.default_rng(k))
+            device = SimulatedPalpationDevice({}, scene, np.random.default_rng(k + 1))
+            device.open()
+            out = run_trial(info=TrialInfo(controller_cls.name, 600.0, 50.0, public=dict(scene.public()),
+                                           visual="realtime"),
+                            controller=controller_cls({}, scene), device=device, participant=VirtualPalpator(params),
+                            clock=SimulatedClock(), rng=np.random.default_rng(k + 2), view=scene.view)
+            n = sum(found(out, scene).values())
+            if controller_cls is NoFeedback:
+                found_none += n
+            else:
+                found_bio += n
+    assert found_bio >= found_none + 3
