@@ -62,8 +62,12 @@ def agreement_table(frame: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
                                                                       and math.isnan(r["sd_ratio"])):
             within = f"{within} (ratio {r['sd_ratio']:.2f})"
         band = _band(r["published_low"], r["published_high"])
+        simulated = _val(r["simulated"])
+        note = r.get("note")
+        if r["statistic"] == "verdict" and isinstance(note, str) and note.startswith(("p = ", "significant in")):
+            simulated = f"{simulated} ({note})"
         body.append([r["target"], r["role"], r["metric"], r["where"] or "all", r["statistic"], _val(r["published"]),
-                     f"{band} {r['band']}".strip(), _val(r["simulated"]),
+                     f"{band} {r['band']}".strip(), simulated,
                      _band(r["simulated_low"], r["simulated_high"]), _yn(r["same_direction"]), within,
                      _yn(r["same_verdict"]), _yn(r["agrees"])])
     return head, body

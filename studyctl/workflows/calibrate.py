@@ -35,7 +35,7 @@ import pandas as pd
 
 from studyctl.calibration import agreement, distance, simulated_values
 from studyctl.calibration.simulated import SimulatedStats, SimulatedValue, stats_from_frame
-from studyctl.errors import PopulationError, UsageError
+from studyctl.errors import PopulationError, SessionInterrupted, UsageError
 
 PROFILE_STEP = 0.15  # ±h as a fraction of each free parameter's search range
 SIGMA0 = 0.25  # CMA-ES initial step, as a fraction of each free parameter's search range
@@ -252,6 +252,8 @@ def evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: i
 
     try:
         return _evaluate(spec, values, participants=participants, targets=targets, sim_se=sim_se, client=client)
+    except SessionInterrupted:
+        raise
     except StudyctlError as exc:
         targets = list(targets if targets is not None else spec.targets.targets)
         stats = SimulatedStats(tuple(SimulatedValue(t.id, t.statistic, math.nan, note=f"simulation failed: {exc}")
@@ -272,8 +274,14 @@ def _evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: 
         futures = [client.submit(_replicate_task, pspec, n, r, pure=False) for r in range(spec.replicates)]
         parts = client.gather(futures)
     elif spec.workers > 1 and spec.replicates > 1:
-        parts = list(_pool(spec.workers).map(_replicate_task, [pspec] * spec.replicates,
-                                             [n] * spec.replicates, range(spec.replicates)))
+        from concurrent.futures.process import BrokenProcessPool
+
+        try:
+            parts = list(_pool(spec.workers).map(_replicate_task, [pspec] * spec.replicates,
+                                                 [n] * spec.replicates, range(spec.replicates)))
+        except BrokenProcessPool:
+            raise SessionInterrupted("a calibration worker process ended (interrupted or killed); the journal keeps "
+                                     "every finished evaluation: run the same command again to continue") from None
     else:
         parts = [_replicate_task(pspec, n, r) for r in range(spec.replicates)]
     metrics = pd.concat([p[0] for p in parts], ignore_index=True)
