@@ -69,82 +69,94 @@ from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 from studyctl.plugins.params import Param, validate_params
 
 PARAMS = (
-    Param("line_spacing_mm", 8.0, low=1.0, high=50.0, unit="mm", source="chosen: below a nodule's reach"),
-    Param(
-        "press_spacing_mm",
-        8.0,
-        low=1.0,
-        high=50.0,
-        unit="mm",
-        source="chosen: every other line shifted by half this, so no spot is farther than 5 mm from a press",
-    ),
-    Param("margin_mm", 6.0, low=0.0, high=50.0, unit="mm", source="chosen: stay off the tissue's edge"),
-    Param("press_depth_mm", 5.0, low=0.5, high=15.0, unit="mm", source="chosen: inside the 2-7 mm maps"),
-    Param("depth_noise_mm", 0.2, low=0.0, high=5.0, unit="mm", source="chosen: press-to-press depth scatter"),
-    Param("hover_mm", 2.0, low=0.5, high=30.0, unit="mm", source="chosen"),
-    Param("move_speed_mm_s", 60.0, low=1.0, high=500.0, unit="mm/s", source="chosen"),
-    Param("press_speed_mm_s", 40.0, low=1.0, high=500.0, unit="mm/s", source="seed 003: 30 mm/s rolling scans"),
-    Param(
-        "gain_per_s",
-        8.0,
-        low=0.5,
-        high=200.0,
-        unit="1/s",
-        source="chosen: 125 ms hand-eye time constant, stable with the device's spring-held hand (4 Hz)",
-    ),
-    Param("tolerance_mm", 0.3, low=0.01, high=5.0, unit="mm", source="chosen: depth accuracy at the press bottom"),
-    Param("settle_s", 0.05, low=0.0, high=5.0, unit="s", source="chosen: a pause before pressing"),
-    Param("phase_timeout_s", 1.5, low=0.1, high=30.0, unit="s", source="chosen"),
-    Param("dwell_s", 0.08, low=0.0, high=5.0, unit="s", source="chosen"),
-    Param(
-        "force_weber",
-        0.06,
-        low=0.0,
-        high=1.0,
-        source="σ of one judgement = JND/(√2·0.954) for a force JND of 8% (Jones 1989), 75% correct 2AFC",
-    ),
-    Param(
-        "ratio_window_mm",
-        2.0,
-        low=0.2,
-        high=20.0,
-        unit="mm",
-        source="chosen: the cursor's slowing is judged over the last part of its travel",
-    ),
-    Param("visual_weber", 0.074, low=0.0, high=1.0, source="the same relation for a visual speed JND of 10%"),
-    Param("depth_weber", 0.05, low=0.0, high=1.0, source="chosen: reading the indentation depth off the screen"),
-    Param("max_press_force_n", 3.0, low=0.1, high=20.0, unit="N", source="chosen: below the Omni's 3.3 N"),
-    Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm", source="chosen"),
-    Param("cluster_radius_mm", 10.0, low=1.0, high=100.0, unit="mm", source="chosen: a nodule's reach"),
-    Param("z_threshold", 3.0, low=0.5, high=20.0, source="chosen: 3 robust SDs of the averaged contrast"),
-    Param("follow_up_z", 1.5, low=0.0, high=20.0, source="chosen: survey presses this suspicious are re-palpated"),
-    Param("follow_up_count", 5, low=0, high=50, kind=int, source="chosen: spots re-palpated at most"),
-    Param("follow_up_spacing_mm", 4.0, low=0.5, high=20.0, unit="mm", source="chosen: a 3 × 3 local grid"),
-    Param("max_reports", 6, low=1, high=100, kind=int, source="chosen"),
-    Param(
-        "follow_up_error",
-        0.05,
-        low=1e-4,
-        high=0.5,
-        source="chosen: Wald's SPRT error rates (α = β) at which a re-palpated spot counts as decided",
-    ),
-    Param(
-        "cutaneous_ratio",
-        0.354,
-        low=0.01,
-        high=10.0,
-        source="Bergmann Tiest & Kappers 2009 (IEEE ToH 2:189): compliance Weber fraction 15% by direct touch, "
-        "more than trebled without the finger's surface-deformation cue; optimal cue combination then gives the "
-        "skin cue σ = 1/√8 of the force/displacement cue's",
-    ),
-    Param(
-        "search_weber",
-        0.15,
-        low=0.01,
-        high=1.0,
-        source="chosen: a search rate (spots found per time) this much higher is noticed; judgements of how long "
-        "a minutes-long search took are coarser than the 8-10 % of force and speed",
-    ),
+    # ---- search strategy (between-subject traits: how densely a person surveys)
+    Param("line_spacing_mm", 8.0, low=1.0, high=50.0, unit="mm",
+          source="CHOSEN: survey lines closer than a nodule's reach; spread between people is the systematic "
+          "(dense) vs quick (sparse) survey (Saunders et al. 1986: coverage differed with the search pattern)"),
+    Param("press_spacing_mm", 8.0, low=1.0, high=50.0, unit="mm",
+          source="CHOSEN: every other line shifted by half this (a staggered lattice)"),
+    Param("margin_mm", 6.0, low=0.0, high=50.0, unit="mm", source="CHOSEN: stay off the tissue's edge"),
+    # ---- motor behaviour
+    Param("press_depth_mm", 5.0, low=0.5, high=15.0, unit="mm", source="CHOSEN: inside the 2-7 mm maps"),
+    Param("depth_noise_mm", 0.2, low=0.0, high=5.0, unit="mm", source="CHOSEN: press-to-press depth scatter"),
+    Param("hover_mm", 2.0, low=0.5, high=30.0, unit="mm", source="CHOSEN: lift just clear of the surface"),
+    Param("move_speed_mm_s", 60.0, low=1.0, high=500.0, unit="mm/s",
+          source="CHOSEN: hand transport between presses, before tempo"),
+    Param("press_speed_mm_s", 40.0, low=1.0, high=500.0, unit="mm/s",
+          source="CHOSEN: indentation speed before tempo (seed 003 scanned at 30 mm/s)"),
+    Param("gain_per_s", 8.0, low=0.5, high=200.0, unit="1/s",
+          source="CHOSEN: 125 ms hand-eye time constant at tempo 1, stable with the device's spring-held hand (4 Hz)"),
+    Param("tempo", 1.0, low=0.1, high=10.0,
+          source="FITTED: a person's motor tempo (between-subject trait): multiplies the move and press speeds and "
+          "divides the settle time and the shortest dwell"),
+    Param("tempo_trial_cv", 0.0, low=0.0, high=1.0,
+          source="CHOSEN: trial-to-trial (within-person) variation of the tempo, log-normal with this CV, drawn "
+          "from the trial's stream"),
+    Param("practice_gain", 0.0, low=0.0, high=2.0,
+          source="CHOSEN: learning: the tempo grows by this fraction over a session's trials, half of it by the "
+          "second trial (Adams et al.: most of the practice gain in lump detection came within 1-2 sessions)"),
+    Param("hold_gain_ratio", 0.25, low=0.0, high=1.0,
+          source="CHOSEN: while holding a press the depth is corrected this much more slowly than while pressing "
+          "(a 4/s loop at tempo 2 stays clear of the 4-5 Hz resonance of a spring-held hand on the tissue)"),
+    Param("tolerance_mm", 0.3, low=0.01, high=5.0, unit="mm", source="CHOSEN: depth accuracy at the press bottom"),
+    Param("settle_s", 0.05, low=0.0, high=5.0, unit="s", source="CHOSEN: a pause before pressing, at tempo 1"),
+    Param("phase_timeout_s", 1.5, low=0.1, high=30.0, unit="s", source="CHOSEN: a stuck movement is abandoned"),
+    Param("dwell_s", 0.08, low=0.0, high=5.0, unit="s",
+          source="CHOSEN: the shortest hold at a press bottom (a clear cue is judged at once), at tempo 1"),
+    # ---- perception (Weber fractions are the SD of one judgement made over judge_time_s)
+    Param("force_weber", 0.06, low=0.0, high=1.0,
+          source="CITED: force JND 7 % (Pang, Tan & Durlach 1991) to 10 % on a force-feedback device (Allin et "
+          "al. 2002); σ of one judgement = JND/(√2·0.954) at 75 % correct, 8 % → 0.06"),
+    Param("depth_weber", 0.05, low=0.0, high=1.0,
+          source="CHOSEN: reading the indentation depth (seen on screen, or felt by the hand's position)"),
+    Param("visual_weber", 0.074, low=0.0, high=1.0,
+          source="CITED: visual speed Weber fraction ≈ 7 % at 4-64 deg/s (Vision Res 1988;28:1323), varying "
+          "considerably between people (J Vis 2018;18(6):15); 10 % JND → σ 0.074"),
+    Param("hand_weber", 0.0, low=0.0, high=1.0,
+          source="CHOSEN: the hand's own travel, judged by proprioception, against which the cursor's slowing is "
+          "seen (the cursor cue compares the two; 0: the hand's travel is known exactly)"),
+    Param("judge_time_s", 0.3, low=0.01, high=10.0, unit="s",
+          source="CHOSEN: the hold over which one judgement has the Weber fractions above; a longer hold averages "
+          "the sensory noise down as 1/√time (evidence accumulation, Ratcliff & McKoon 2008)"),
+    Param("press_precision", 0.0, low=0.0, high=1.0,
+          source="FITTED: decision criterion per press: the person holds a press until its stiffness judgement "
+          "(all cues fused) has this SD or less, at most max_dwell_s (0: always the shortest dwell)"),
+    Param("steady_rate_n_s", 2.0, low=0.01, high=100.0, unit="N/s",
+          source="CHOSEN: a force changing faster than this is felt as still settling (0.1 N in 50 ms, about "
+          "a force JND at 1 N); the judgement starts once it is steady"),
+    Param("max_dwell_s", 2.0, low=0.0, high=30.0, unit="s", source="CHOSEN: nobody holds one press longer"),
+    Param("force_trust", 1.0, low=0.0, high=1.0,
+          source="CHOSEN: the share of the force cue's information a person uses (1: statistically optimal "
+          "fusion, Ernst & Banks 2002)"),
+    Param("cursor_trust", 1.0, low=0.0, high=1.0,
+          source="FITTED: the share of the cursor cue's information a person uses: a visual-only stiffness cue "
+          "is believed less than a felt one (the pseudo-haptic illusion weakens with exposure, Front VR 2024)"),
+    Param("ratio_window_mm", 2.0, low=0.2, high=20.0, unit="mm",
+          source="CHOSEN: the cursor's slowing is judged over the last part of its travel"),
+    Param("max_press_force_n", 3.0, low=0.1, high=20.0, unit="N", source="CHOSEN: below the Omni's 3.3 N"),
+    # ---- decision
+    Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm",
+          source="CHOSEN: a spot is compared with the tissue around it"),
+    Param("cluster_radius_mm", 10.0, low=1.0, high=100.0, unit="mm", source="CHOSEN: a nodule's reach"),
+    Param("z_threshold", 3.0, low=0.5, high=50.0,
+          source="FITTED: confidence to report: a spot's averaged contrast in SDs of the press noise"),
+    Param("report_fraction", 0.0, low=0.0, high=1.0,
+          source="FITTED: a spot is reported only if it feels at least this fraction as stiff (contrast) as the "
+          "clearest one: what a nodule feels like is known from the practice run with visible nodules"),
+    Param("follow_up_z", 1.5, low=0.0, high=50.0,
+          source="CHOSEN: survey presses this suspicious are re-palpated"),
+    Param("follow_up_count", 5, low=0, high=50, kind=int, source="CHOSEN: spots re-palpated at most"),
+    Param("follow_up_spacing_mm", 4.0, low=0.5, high=20.0, unit="mm", source="CHOSEN: a 3 × 3 local grid"),
+    Param("max_reports", 6, low=1, high=100, kind=int, source="CHOSEN: nobody marks more spots"),
+    Param("follow_up_error", 0.05, low=1e-4, high=0.5,
+          source="CHOSEN: confidence to settle a re-palpated spot: Wald's SPRT error rates (α = β)"),
+    Param("cutaneous_ratio", 0.354, low=0.01, high=10.0,
+          source="CITED: Bergmann Tiest & Kappers 2009 (IEEE ToH 2:189): compliance Weber fraction 15 % by direct "
+          "touch, more than trebled without the finger's surface-deformation cue; optimal cue combination then "
+          "gives the skin cue σ = 1/√8 of the force/displacement cue's"),
+    Param("search_weber", 0.15, low=0.01, high=1.0,
+          source="CHOSEN: a search rate (spots found per time) this much higher is noticed; judgements of how "
+          "long a minutes-long search took are coarser than the 8-10 % of force and speed"),
 )
 
 
@@ -201,6 +213,7 @@ class VirtualTissuePalpator(Participant):
         self.rng = rng
         self._ticks = 0
         self._t_prev = 0.0
+        self._dt = 0.0
         self._height = None
         start = info.public.get("start_mm")
         self._hand = [float(v) for v in start] if start is not None else None
@@ -225,6 +238,26 @@ class VirtualTissuePalpator(Participant):
         self._follow_up: dict[str, Any] = {}
         self._direct = False
         self.perceived: dict[str, Any] = {}
+        self._motor = self._trial_motor(info, rng)
+
+    def _trial_motor(self, info: TrialInfo, rng: np.random.Generator) -> dict[str, float]:
+        """This trial's movement speeds: the person's tempo, grown with practice over the session's trials and
+        varied from trial to trial (log-normal, mean 1, CV ``tempo_trial_cv``)."""
+        p = self.params
+        done = max(int(info.public.get("trial_index") or 1) - 1, 0)  # trials this person did before this one
+        tempo = p["tempo"] * (1.0 + p["practice_gain"] * (1.0 - 0.5**done))
+        cv = p["tempo_trial_cv"]
+        if cv > 0:
+            s2 = math.log1p(cv * cv)
+            tempo *= math.exp(math.sqrt(s2) * float(rng.normal()) - s2 / 2.0)
+        return {
+            "tempo": tempo,
+            "move": p["move_speed_mm_s"] * tempo,
+            "press": p["press_speed_mm_s"] * tempo,
+            "gain": p["gain_per_s"],  # the hand-eye loop's time constant is not a matter of tempo
+            "settle": p["settle_s"] / tempo,
+            "dwell": p["dwell_s"] / tempo,
+        }
 
     def _setup(self, surface: Mapping[str, Any]) -> None:
         p = self.params
@@ -273,6 +306,7 @@ class VirtualTissuePalpator(Participant):
     def act(self, t: float, percept: Mapping[str, Any]) -> Action:
         dt = max(t - self._t_prev, 0.0)
         self._t_prev = t
+        self._dt = dt
         self._ticks += 1
         view = percept.get("view")
         if type(view) is not dict and not isinstance(view, Mapping):  # a scene's view is a dict: skip the ABC check
@@ -332,13 +366,13 @@ class VirtualTissuePalpator(Participant):
     def _move_hand(self, ctrl: tuple[float, float, float], dt: float) -> None:
         """Moves in the air are planned (open loop, straight, at ``move_speed_mm_s``); presses are steered by
         a saturated proportional law on what the participant watches (cursor or hand)."""
-        p = self.params
+        m = self._motor
         h = self._hand
         if self._goal is not None:
             gx, gy, gz = self._goal
             ex, ey, ez = gx - h[0], gy - h[1], gz - h[2]
             dist = math.sqrt(ex * ex + ey * ey + ez * ez)
-            step = p["move_speed_mm_s"] * dt
+            step = m["move"] * dt
             k = 1.0 if dist <= step else step / dist
             h[0] += k * ex
             h[1] += k * ey
@@ -346,10 +380,12 @@ class VirtualTissuePalpator(Participant):
             return
         tx, ty, tz = self._target
         ex, ey, ez = tx - ctrl[0], ty - ctrl[1], tz - ctrl[2]
-        k = p["gain_per_s"] * dt
-        vx, vy, vz = ex * k, ey * k, ez * k
-        lateral = p["move_speed_mm_s"] * dt
-        vertical = p["press_speed_mm_s"] * dt
+        k = m["gain"] * dt
+        # holding a press: slow depth corrections only, well below the hand's own resonance against the tissue
+        kz = k * self.params["hold_gain_ratio"] if self._phase == "dwell" else k
+        vx, vy, vz = ex * k, ey * k, ez * kz
+        lateral = m["move"] * dt
+        vertical = m["press"] * dt
         lat = math.hypot(vx, vy)
         if lat > lateral:
             vx, vy = vx * lateral / lat, vy * lateral / lat
@@ -393,13 +429,13 @@ class VirtualTissuePalpator(Participant):
             reached = self._goal_reached()
             settled = reached and self._phase_t >= self._settle_at  # the settle time before it is set below
             if reached and self._settle_at == math.inf:
-                self._settle_at = self._phase_t + p["settle_s"]
+                self._settle_at = self._phase_t + self._motor["settle"]
             if settled or timed_out:
                 depth = p["press_depth_mm"] + p["depth_noise_mm"] * float(self.rng.normal())
                 self._target = (press["x"], press["y"], press["h"] - max(depth, 0.2))
                 self._goal, self._settle_at = None, math.inf
                 self._phase, self._phase_t = "press", 0.0
-                press.update(track=[], last=None, peak_force=0.0)
+                press.update(track=[], last=None, f_sum=0.0, z_sum=0.0, x_sum=0.0, y_sum=0.0, n_held=0)
         elif phase == "press":
             if cursor is not None and handle is not None:
                 last = press["last"]
@@ -413,14 +449,30 @@ class VirtualTissuePalpator(Participant):
                     track = press["track"]
                     c_sum, h_sum = track[-1] if track else (0.0, 0.0)
                     track.append((c_sum + last[0] - cursor[2], h_sum + last[1] - handle[2]))
-            near = math.dist(ctrl, self._target) <= p["tolerance_mm"]
+            # The press ends when the watched point first reaches the wanted depth: a person presses to a depth
+            # and holds, without servoing the last fraction of a millimetre (a spring-held hand pressing on
+            # rendered forces would oscillate about it for the whole phase timeout).
+            near = ctrl[2] <= self._target[2] + p["tolerance_mm"]
             if near or timed_out or force >= p["max_press_force_n"]:
                 self._phase, self._phase_t = "dwell", 0.0
                 press["bx"], press["by"], press["bz"] = ctrl[0], ctrl[1], ctrl[2]
-                self._target = ctrl  # hold still where the press ended
+                press["hold"] = self._hold_time(press, force)
         elif phase == "dwell":
-            press["peak_force"] = max(press["peak_force"], force)
-            if self._phase_t >= p["dwell_s"]:
+            # the force and indentation held at the bottom, averaged over the hold (judged from the terminal
+            # force, Tan et al. 1995), so a transient of the hand's own dynamics does not count as stiffness
+            last = press.get("f_last")
+            press["f_last"] = force
+            if last is not None and abs(force - last) > p["steady_rate_n_s"] * max(self._dt, 1e-6):
+                # the force still changes (the hand settling against the tissue): judge from when it is steady
+                press["f_sum"] = press["x_sum"] = press["y_sum"] = press["z_sum"] = 0.0
+                press["n_held"], press["steady_t"] = 0, self._phase_t
+            press["f_sum"] += force
+            press["x_sum"] += ctrl[0]
+            press["y_sum"] += ctrl[1]
+            press["z_sum"] += ctrl[2]
+            press["n_held"] += 1
+            held = self._phase_t - press.get("steady_t", 0.0)
+            if held >= press["hold"] or self._phase_t >= press["hold"] + p["phase_timeout_s"]:
                 self._record(press)
                 self._target = (ctrl[0], ctrl[1], press["h"] + p["hover_mm"])
                 self._phase, self._phase_t = "lift", 0.0
@@ -430,23 +482,67 @@ class VirtualTissuePalpator(Participant):
                 self._goal, self._settle_at = None, math.inf
                 self._next_press()
 
+    def _cue_sigmas(self) -> tuple[float, float]:
+        """SD of one judgement (over ``judge_time_s``) of the force cue (with the finger's skin cue when touching
+        directly) and of the cursor cue."""
+        p = self.params
+        kin = math.hypot(p["force_weber"], p["depth_weber"])
+        if self._direct:
+            cut = p["cutaneous_ratio"] * kin
+            kin = 1.0 / math.sqrt(1.0 / max(kin, 1e-9) ** 2 + 1.0 / max(cut, 1e-9) ** 2)
+        return kin, math.hypot(p["visual_weber"], p["hand_weber"])
+
+    def _r0(self) -> float:
+        """How far the cursor moves per hand millimetre in the air (1 before any move was seen)."""
+        if not self._air_dc:
+            return 1.0
+        return float(np.median(np.frombuffer(self._air_dc) / np.frombuffer(self._air_dh)))
+
+    def _hold_time(self, press: dict[str, Any], force: float) -> float:
+        """How long the person holds this press: until its stiffness judgement, fused over the cues this press
+        gives (a force felt, a cursor seen to lag the hand), reaches ``press_precision`` (evidence accumulating
+        as 1/√time), between the shortest dwell and ``max_dwell_s``. What it perceives, not what is true: the
+        cues present are read off this press's own force and cursor travel."""
+        p = self.params
+        shortest = self._motor["dwell"]
+        if p["press_precision"] <= 0:
+            return shortest
+        s_force, s_cursor = self._cue_sigmas()
+        info = 0.0
+        if force > 0.02:
+            info += p["force_trust"] / max(s_force, 1e-9) ** 2
+        track = press.get("track") or []
+        if track and track[-1][0] > 0.5 and self._r0() * track[-1][1] / track[-1][0] > 1.05:
+            info += p["cursor_trust"] / max(s_cursor, 1e-9) ** 2
+        if info <= 0:
+            return shortest
+        need = p["judge_time_s"] / (info * p["press_precision"] ** 2)
+        return min(max(need, shortest), max(p["max_dwell_s"], shortest))
+
     def _record(self, press: dict[str, Any]) -> None:
         p = self.params
         rng = self.rng
-        row = {"x": press["bx"], "y": press["by"], "force": math.nan, "ratio": math.nan, "stage": self._stage}
-        depth = press["h"] - press["bz"]  # the indentation the participant sees (cursor) or feels (hand)
-        if press["peak_force"] > 0.0 and depth > 0.2:
+        # a hold longer than one judgement's time averages the sensory noise down
+        scale = math.sqrt(p["judge_time_s"] / max(press.get("hold", 0.0), p["judge_time_s"]))
+        n = press.get("n_held", 0)
+        # where the press was held (the cursor or the hand, as the participant sees or feels it)
+        x, y = (press["x_sum"] / n, press["y_sum"] / n) if n else (press["bx"], press["by"])
+        row = {"x": x, "y": y, "force": math.nan, "ratio": math.nan, "stage": self._stage}
+        held = press["f_sum"] / n if n else 0.0
+        # the indentation the participant sees (cursor) or feels (hand), held at the bottom
+        depth = press["h"] - (press["z_sum"] / n if n else press["bz"])
+        if held > 0.0 and depth > 0.2:
             # Stiffness as people judge it: the force felt per indentation seen (Srinivasan & LaMotte 1995).
-            felt = press["peak_force"] * (1.0 + p["force_weber"] * float(rng.normal()))
-            seen = depth * (1.0 + p["depth_weber"] * float(rng.normal()))
+            felt = held * (1.0 + scale * p["force_weber"] * float(rng.normal()))
+            seen = depth * (1.0 + scale * p["depth_weber"] * float(rng.normal()))
             row["force"] = felt / seen
             if self._direct:
                 # The finger pad's surface-deformation cue judges the same stiffness with its own noise;
                 # the two are fused by inverse-variance weighting (Ernst & Banks 2002).
                 kin = math.hypot(p["force_weber"], p["depth_weber"])
                 cut = p["cutaneous_ratio"] * kin
-                skin = press["peak_force"] / depth * (1.0 + cut * float(rng.normal()))
-                w_kin, w_cut = 1.0 / kin**2, 1.0 / cut**2
+                skin = held / depth * (1.0 + scale * cut * float(rng.normal()))
+                w_kin, w_cut = 1.0 / max(kin, 1e-9) ** 2, 1.0 / max(cut, 1e-9) ** 2
                 row["force"] = (w_kin * row["force"] + w_cut * skin) / (w_kin + w_cut)
         track = press["track"]  # cumulative (cursor descent, hand descent) over the descending ticks
         if len(track) >= 2 and track[-1][0] > 0.5:
@@ -455,7 +551,9 @@ class VirtualTissuePalpator(Participant):
             k = next((i for i in range(len(track) - 1, -1, -1) if bc - track[i][0] >= p["ratio_window_mm"]), -1)
             oc, oh = track[k] if k >= 0 else (0.0, 0.0)
             if bc - oc > 0.2:
-                row["ratio"] = (bh - oh) / (bc - oc) * (1.0 + p["visual_weber"] * float(rng.normal()))
+                # the cursor's travel is seen (visual speed) against the hand's, felt (proprioception)
+                noise = scale * math.hypot(p["visual_weber"], p["hand_weber"])
+                row["ratio"] = (bh - oh) / (bc - oc) * (1.0 + noise * float(rng.normal()))
         self._presses.append(row)
 
     # ------------------------------------------------------------------ the decision
@@ -478,11 +576,7 @@ class VirtualTissuePalpator(Participant):
             cues.append((force, "force"))
         ratio = np.array([r["ratio"] for r in rows])
         if np.isfinite(ratio[survey]).sum() >= 5:
-            if self._air_dc:
-                r0 = float(np.median(np.frombuffer(self._air_dc) / np.frombuffer(self._air_dh)))
-            else:
-                r0 = 1.0  # no move in the air seen: the cursor follows the hand one to one
-            visual_force = r0 * ratio - 1.0
+            visual_force = self._r0() * ratio - 1.0
             if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
                 cues.append((visual_force, "cursor"))
         self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum())}
@@ -492,7 +586,8 @@ class VirtualTissuePalpator(Participant):
         near = d2 <= p["baseline_radius_mm"] ** 2
         num = np.zeros(len(pts))
         den = np.zeros(len(pts))
-        for values, _name in cues:
+        trust = {"force": p["force_trust"], "cursor": p["cursor_trust"]}
+        for values, name in cues:
             sv = values[survey]
             base = np.array([np.nanmedian(np.where(near[i], sv, np.nan)) for i in range(len(pts))])
             contrast = values / base - 1.0
@@ -501,7 +596,9 @@ class VirtualTissuePalpator(Participant):
             if cs.size < 5:
                 continue
             sigma = max(1.4826 * float(np.median(np.abs(cs - np.median(cs)))), 1e-3)
-            w = 1.0 / sigma**2
+            w = trust[name] / sigma**2  # a cue believed less weighs less, and its evidence counts less
+            if w <= 0:
+                continue
             num += np.where(ok, contrast * w, 0.0)
             den += np.where(ok, w, 0.0)
         keep = den > 0
@@ -521,19 +618,23 @@ class VirtualTissuePalpator(Participant):
         mean = (local * (w * contrast)[None, :]).sum(axis=1) / (local * w[None, :]).sum(axis=1)
         z = mean * np.sqrt((local * w[None, :]).sum(axis=1))
         self.perceived["z_max"] = float(np.max(z)) if z.size else math.nan
-        out: list[tuple[float, float, float]] = []
+        out: list[tuple[float, float, float, float]] = []  # x, y, z, the stiffest press's contrast
         taken = np.zeros(len(pts), dtype=bool)
         for i in np.argsort(-z):
             if len(out) >= limit or z[i] < threshold:
                 break
             if taken[i]:
                 continue
-            members = (d2[i] <= rc * rc) & (contrast > 0)
+            members = d2[i] <= rc * rc
+            # where it felt stiffest: the presses at least half as stiff as the stiffest one near this spot
+            # (all positive contrasts pulled the spot towards the survey grid around a nodule)
+            peak = float(np.max(np.where(members, contrast, -np.inf)))
+            members &= (contrast > 0) & (contrast >= 0.5 * peak)
             weights = np.where(members, contrast * w, 0.0)
             if weights.sum() <= 0:
                 continue
             cx, cy = (weights[:, None] * pts).sum(axis=0) / weights.sum()
-            out.append((float(cx), float(cy), float(z[i])))
+            out.append((float(cx), float(cy), float(z[i]), peak))
             taken |= d2[i] <= 4.0 * rc * rc
         return out
 
@@ -549,7 +650,7 @@ class VirtualTissuePalpator(Participant):
         s = p["follow_up_spacing_mm"]
         out = []
         half = p["cluster_radius_mm"] / 2.0
-        for cx, cy, _z in spots:
+        for cx, cy, _z, _mean in spots:
             grid = [(cx + ox, cy + oy) for ox in (0.0, -s, s) for oy in (0.0, -s, s)]
             near = ((pts - (cx, cy)) ** 2).sum(axis=1) <= half * half
             w = 1.0 / sigma[near] ** 2
@@ -595,12 +696,33 @@ class VirtualTissuePalpator(Participant):
             return []
         count = self.info.public.get("nodule_count")
         limit = int(count) if count is not None else p["max_reports"]
-        threshold = p["z_threshold"] if count is None else -math.inf
-        spots = self._clusters(*ev, threshold=threshold, limit=limit)
+        if count is not None:
+            # told how many nodules there are, the person names that many spots
+            spots = self._clusters(*ev, threshold=-math.inf, limit=limit)
+        else:
+            # It reports what feels like a nodule: a spot it re-palpated and found to be one, or one clear enough
+            # on its own (z_threshold); not what it re-palpated and found like its surroundings; and only spots
+            # nearly as stiff as the clearest one felt (report_fraction).
+            reach = p["cluster_radius_mm"] / 2.0
+            verdicts = self._follow_up.get("follow_up_decisions", ())
+            confirmed = [(x, y) for x, y, v, _n in verdicts if v == "nodule"]
+            dismissed = [(x, y) for x, y, v, _n in verdicts if v == "none"]
+
+            def near(sp, places) -> bool:
+                return any(math.hypot(sp[0] - x, sp[1] - y) <= reach for x, y in places)
+
+            spots = [
+                sp for sp in self._clusters(*ev, threshold=0.0, limit=2 * limit)
+                if (sp[2] >= p["z_threshold"] or near(sp, confirmed)) and not near(sp, dismissed)
+            ]
+            if spots and p["report_fraction"] > 0:
+                clearest = max(peak for *_, peak in spots)
+                spots = [sp for sp in spots if sp[3] >= p["report_fraction"] * clearest]
+            spots = spots[:limit]
         self.perceived["reports"] = spots
         self.experience.append({"condition": self.info.condition, "cues": list(self.perceived.get("cues", [])),
                                 "z_max": self.perceived.get("z_max", math.nan), "direct": self._direct})
-        return [(x, y) for x, y, _ in spots]
+        return [(x, y) for x, y, *_ in spots]
 
     # ------------------------------------------------------------------ questionnaires
     def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:

@@ -18,7 +18,7 @@ def _press(moves: list[tuple[float, float]]) -> float:
     h = 10.0
     p._phase, p._phase_t, p._replan, p._stage = "press", 0.0, False, "survey"
     p._target = (0.0, 0.0, h - 50.0)  # never reached: the press stays in its pressing phase
-    p._press = {"x": 0.0, "y": 0.0, "h": h, "track": [], "last": None, "peak_force": 0.0}
+    p._press = {"x": 0.0, "y": 0.0, "h": h, "track": [], "last": None, "f_sum": 0.0}
     cz = hz = h + 0.1  # just above the surface
     for dc, dh in moves:
         cz, hz = cz + dc, hz + dh
