@@ -462,7 +462,8 @@ class VirtualTissuePalpator(Participant):
             # force, Tan et al. 1995), so a transient of the hand's own dynamics does not count as stiffness
             last = press.get("f_last")
             press["f_last"] = force
-            if last is not None and abs(force - last) > p["steady_rate_n_s"] * max(self._dt, 1e-6):
+            # (a rising force; a force that vanishes, as FF renders none while the tool retracts, is not settling)
+            if last is not None and force - last > p["steady_rate_n_s"] * max(self._dt, 1e-6):
                 # the force still changes (the hand settling against the tissue): judge from when it is steady
                 press["f_sum"] = press["x_sum"] = press["y_sum"] = press["z_sum"] = 0.0
                 press["n_held"], press["steady_t"] = 0, self._phase_t

@@ -1,0 +1,91 @@
+"""The tissue palpator's people: every parameter declared with its source, the shipped populations load,
+traits change what a person does, and a broken controller is still noticed (force feedback that renders no
+force loses its advantage, because the person feels nothing, not because anything reads the truth)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from studyctl import populations
+from studyctl.controllers.tissue import StiffnessMapForceFeedback
+from studyctl.devices.force3d import SimulatedForceDevice
+from studyctl.engine.clock import SimulatedClock
+from studyctl.engine.trial_loop import run_trial
+from studyctl.models.palpation_metrics import score_trial
+from studyctl.participants.tissue_palpator import PARAMS, VirtualTissuePalpator
+from studyctl.plugins.interfaces import TrialInfo
+from studyctl.populations.loader import load_population_file
+from studyctl.populations.targets import load_targets_file
+from studyctl.scenes.tissue import StiffnessTissueScene
+
+# a typical person of the shipped seed 002 population (its traits' locations)
+PERSON_002 = {"tempo": 1.7, "line_spacing_mm": 12.0, "press_spacing_mm": 12.0, "margin_mm": 10.0,
+              "z_threshold": 5.0, "report_fraction": 0.4}
+
+
+def test_every_parameter_says_where_it_comes_from():
+    for p in PARAMS:
+        assert p.source.startswith(("CITED:", "CHOSEN:", "FITTED")), p.name
+
+
+@pytest.mark.parametrize("protocol", ["data_driven_palpation", "pseudo_haptic_palpation"])
+def test_shipped_populations_and_targets_load(protocol):
+    folder = Path(populations.__file__).parent
+    pop = load_population_file(folder / f"{protocol}.yaml")
+    assert pop.name == protocol
+    targets = load_targets_file(folder / f"{protocol}.targets.yaml")
+    roles = [t.role for t in targets.targets]
+    assert roles.count("validation") * 3 >= len(roles)  # at least a third kept out of the fit
+    assert any(t.statistic == "verdict" and t.role == "validation" for t in targets.targets)
+
+
+def _trial_002(params, *, seed, ff=None):
+    """One seed 002 haptic trial through the trial loop; returns (score, participant)."""
+    spec = {"phantom": "seed002_curved"}
+    ff = ff or {}
+    cparams = {"horizontal": "off", "release_on_retract": False, **ff}
+    needs = StiffnessMapForceFeedback.needs(cparams) | {"view"}
+    scene = StiffnessTissueScene.build(spec, {"orientation_deg": 0.0}, needs, np.random.default_rng(seed))
+    device = SimulatedForceDevice({}, scene, np.random.default_rng(seed + 1))
+    device.open()
+    person = VirtualTissuePalpator(params)
+    info = TrialInfo(condition="haptic", time_limit_s=600.0, rate_hz=250.0, visual="realtime",
+                     public={**scene.public(), "trial_index": 1})
+    out = run_trial(info=info, controller=StiffnessMapForceFeedback(cparams, scene), device=device,
+                    participant=person, clock=SimulatedClock(), rng=np.random.default_rng(seed + 2), view=scene.view)
+    device.close()
+    assert out.ended_by == "finish"
+    score = score_trial(out.reports, scene.truth()["nodules"], hit_radius_mm=10.0, duration_s=out.duration_s)
+    return score, person
+
+
+@pytest.mark.slow
+def test_force_feedback_without_force_loses_its_advantage():
+    working = [_trial_002(PERSON_002, seed=s)[0] for s in (11, 12)]
+    broken = [_trial_002(PERSON_002, seed=s, ff={"max_force_n": 0.01})[0] for s in (11, 12)]
+    assert sum(sc.nodules_found for sc in working) >= 3  # of 4
+    assert sum(sc.nodules_found for sc in broken) == 0
+
+
+@pytest.mark.slow
+def test_a_quicker_person_finishes_sooner_on_the_same_trial():
+    slow, _ = _trial_002({**PERSON_002, "tempo": 1.0}, seed=11)
+    quick, _ = _trial_002({**PERSON_002, "tempo": 2.5}, seed=11)
+    assert quick.detection_time_s < 0.75 * slow.detection_time_s
+
+
+def test_trial_tempo_varies_within_a_person_and_grows_with_practice():
+    person = VirtualTissuePalpator({"tempo": 1.5, "tempo_trial_cv": 0.2, "practice_gain": 0.3})
+    tempos = []
+    for k in range(1, 41):
+        info = TrialInfo(condition="FF", time_limit_s=10.0, rate_hz=250.0, visual="realtime",
+                         public={"trial_index": k if k <= 20 else 1})
+        person.begin_trial(info, np.random.default_rng(k))
+        tempos.append(person._motor["tempo"])
+    later, first = np.array(tempos[5:20]), np.array(tempos[20:])
+    assert 0.1 < np.std(np.log(first)) < 0.35  # trial-to-trial noise of about the stated CV
+    assert np.mean(later) > 1.15 * np.mean(first)  # practice: later trials quicker
+    assert VirtualTissuePalpator({"tempo": 1.5})._trial_motor(info, np.random.default_rng(0))["tempo"] == 1.5
