@@ -9,7 +9,7 @@ from rich.console import Console
 from rich.table import Table
 
 _POP_HELP = ("A population file (format: studyctl-population/1) the virtual people are drawn from (default: the "
-             "protocol's shipped, calibrated population), or a YAML file with a population: section (baseline, "
+             "protocol's shipped population), or a YAML file with a population: section (baseline, "
              "condition_effects, group_effects, between_sd): additive shifts on top that state the simulated effect.")
 
 

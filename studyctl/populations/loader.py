@@ -307,7 +307,9 @@ def describe_choice(pop: TraitPopulation | None, protocol_id: str, explicit: boo
     if pop is None:
         return (f"population: none shipped for {protocol_id}; virtual participants use their default parameters "
                 "(all alike apart from their own trait noise); pass --population FILE to give one")
-    how = "given" if explicit else "shipped, calibrated" if pop.calibration else "shipped"
+    how = "given" if explicit else "shipped"
+    if pop.calibration.get("objective"):  # written by studyctl calibrate (a hand-made block has no objective)
+        how += f", fitted to {pop.calibration.get('targets', 'targets')}"
     return f"population: {pop.name} v{pop.version} ({how}; sha256 {pop.sha256[:12]}; {len(pop.traits)} traits)"
 
 
