@@ -66,7 +66,7 @@ FIGURE_KINDS: dict[str, FigureKind] = {
             "pooled proportion per level with Wilson intervals (detection by tumour class, Se, PPV)",
         ),
         FigureKind("percent_change", FROM_RESULTS, "bars of % change against a reference level"),
-        FigureKind("likert", FROM_RESULTS, "mean Likert score per item and condition"),
+        FigureKind("likert", FROM_RESULTS, "diverging stacked bars of the answers per item and condition"),
         FigureKind(
             "force_trace", FROM_TRIALS, "sensor force and actuator commands around a tumour contact (stored samples)"
         ),

@@ -105,6 +105,8 @@ def register(app: typer.Typer) -> None:
         targets: Path = typer.Option(None, "--targets", help="Published targets a simulated study is compared "
                                      "with (default: the protocol's shipped studyctl/populations/<protocol>"
                                      ".targets.yaml)."),
+        figure_format: str = typer.Option("png,svg,pdf", "--figure-format", help="Figure files to write, "
+                                          "comma-separated: png (300 dpi), svg, pdf."),
     ) -> None:
         """Analyse a plan and write tidy CSV tables, figures, an HTML report and Markdown into a folder."""
         from studyctl.workflows.report import build_report
@@ -119,6 +121,7 @@ def register(app: typer.Typer) -> None:
                 study=study,
                 on_step=lambda s: status.update(f"{s}…"),
                 targets=targets,
+                figure_formats=tuple(figure_format.split(",")),
             )
         files = run.files
         console.print(f"Report: {files.html}", markup=False)

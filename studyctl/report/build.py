@@ -9,7 +9,7 @@ Layout of ``out_dir``::
     proportions.csv      pooled proportions with Wilson intervals (proportion metrics)
     percent_change.csv, likert.csv, descriptives.csv   when the plan asks for them
     missing.csv          every value that is missing, and why
-    figures/<id>.png     one per plan figure
+    figures/<id>.png     one per plan figure, 300 dpi (and <id>.svg, <id>.pdf: ``figure_formats``)
     report.html          everything above in one file (figures embedded as base64 PNG)
     report.md            the same as Markdown (figures linked from figures/)
     summary.json         headline numbers, partial flag and problems (machine-readable)
@@ -25,7 +25,7 @@ import math
 import os
 import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -80,6 +80,20 @@ def ensure_writable(out_dir: Path | str) -> Path:
     return out
 
 
+def check_figure_formats(figure_formats: Sequence[str]) -> list[str]:
+    """The figure formats, checked (before anything is computed): png, svg, pdf."""
+    from studyctl.report.figures import FORMATS
+
+    formats = list(dict.fromkeys(f.strip().lower() for f in figure_formats if f.strip()))
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise ConfigError(
+            f"--figure-format {','.join(bad) or repr('')}: allowed are {', '.join(FORMATS)} (comma-separated, "
+            "e.g. --figure-format png,svg,pdf)"
+        )
+    return formats
+
+
 def _atomic_write(path: Path, data: bytes | str) -> Path:
     mode = "wb" if isinstance(data, bytes) else "w"
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
@@ -104,6 +118,7 @@ def write_report(
     *,
     figure_data: Mapping[str, FigureData] | None = None,
     on_step: Callable[[str], None] | None = None,
+    figure_formats: Sequence[str] = ("png", "svg", "pdf"),
 ) -> ReportFiles:
     """Write tables, figures, HTML and Markdown for ``result`` into ``out_dir``.
 
@@ -118,10 +133,13 @@ def write_report(
         data is drawn as a notice and listed in ``problems``.
     on_step
         Called with the name of each step (progress display).
+    figure_formats
+        Files written per figure: ``png`` (300 dpi, always written), ``svg``, ``pdf``.
     """
     from studyctl.report import document
     from studyctl.report.compose import draw_figure
 
+    formats = check_figure_formats(figure_formats)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     out = ensure_writable(out_dir)
@@ -150,7 +168,7 @@ def write_report(
     t1 = time.perf_counter()
     figures: dict[str, bytes] = {}
     figure_paths: list[Path] = []
-    from studyctl.report.figures import png_bytes
+    from studyctl.report.figures import figure_bytes
 
     for fig_spec in plan.figures:
         if on_step:
@@ -159,18 +177,20 @@ def write_report(
         fig, problem = draw_figure(result, fig_spec, data)
         if problem:
             problems.append(f"figure {fig_spec.id}: {problem}")
-        png = png_bytes(fig)
+        png = figure_bytes(fig, "png")  # always: the HTML embeds it, the Markdown links it
         figures[fig_spec.id] = png
         figure_paths.append(_atomic_write(out / "figures" / f"{fig_spec.id}.png", png))
+        for fmt in formats:
+            if fmt != "png":
+                figure_paths.append(_atomic_write(out / "figures" / f"{fig_spec.id}.{fmt}", figure_bytes(fig, fmt)))
     timings["figures_s"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
     if on_step:
         on_step("documents")
     html = _atomic_write(out / "report.html", document.html(result, figures, problems, base=out))
-    md = _atomic_write(
-        out / "report.md", document.markdown(result, [p.name for p in figure_paths], problems, base=out)
-    )
+    pngs = [p.name for p in figure_paths if p.suffix == ".png"]
+    md = _atomic_write(out / "report.md", document.markdown(result, pngs, problems, base=out))
     summary = document.summary(result, problems, base=out)
     _atomic_write(out / "summary.json", json.dumps(summary, indent=2, default=_json_default) + "\n")
     timings["documents_s"] = time.perf_counter() - t2

@@ -102,13 +102,27 @@ def _percent_change(
 
 
 def _likert(result: AnalysisResult, spec: FigureEntry, data: FigureData | None, title: str) -> tuple[Figure, str]:
-    table = likert_items_table(result, spec.metrics[0])
-    if table.empty:
+    answers = likert_answers(result, spec.metrics[0])
+    if answers.empty:
         return F.message_figure("no Likert answers in this result", title=title), "no Likert answers"
-    items = list(dict.fromkeys(table["item"]))
-    conds = [(c, lbl) for c, lbl in _conditions(result) if c in set(table["level"])]
+    items = list(dict.fromkeys(answers["item"]))
+    conds = [(c, lbl) for c, lbl in _conditions(result) if c in set(answers["level"])]
     points = int(spec.options.get("points", 5))
-    return F.likert_figure(table, items=items, conditions=conds, points=points, title=title), ""
+    return F.likert_figure(answers, items=items, conditions=conds, points=points, title=title), ""
+
+
+def likert_answers(result: AnalysisResult, metric: str) -> pd.DataFrame:
+    """Every answer of a Likert metric (item, condition as ``level``, value): the data of the stacked bars."""
+    frame = result.data.frame
+    if frame.empty:
+        return pd.DataFrame(columns=["item", "level", "value"])
+    # Database tables carry plan metric ids, CSV tables the built-in metric names (as analysis.shape reads them).
+    sel = frame[frame["metric"] == metric]
+    if sel.empty:
+        sel = frame[frame["metric"] == result.plan.metric_name(metric)]
+    if sel.empty:
+        return pd.DataFrame(columns=["item", "level", "value"])
+    return pd.DataFrame({"item": sel["level"].astype(str), "level": sel["condition"], "value": sel["value"]})
 
 
 def likert_items_table(result: AnalysisResult, metric: str) -> pd.DataFrame:

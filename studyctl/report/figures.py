@@ -1,8 +1,9 @@
 """Figures that mirror the papers' results sections, drawn with matplotlib's object API (no pyplot state).
 
 Every function takes tidy tables (from :class:`~studyctl.analysis.results.AnalysisResult`) and returns a
-:class:`matplotlib.figure.Figure`; :func:`png_bytes` renders one. matplotlib is imported inside the
-functions so that ``import studyctl`` never pays for it.
+:class:`matplotlib.figure.Figure`; :func:`figure_bytes` renders one for print (PNG at 300 dpi, SVG, PDF),
+with panel letters on figures of more than one panel. matplotlib is imported inside the functions so that
+``import studyctl`` never pays for it.
 """
 
 from __future__ import annotations
@@ -15,13 +16,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from studyctl.report.style import PALETTE, fmt_p, stars
+from studyctl.report.apa import p_text
+from studyctl.report.style import PALETTE, stars
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-DPI = 110
+DPI = 300  # print resolution of the PNGs
+FORMATS = ("png", "svg", "pdf")
+_PANEL = "studyctl-panel"  # gid of the axes that are panels (twin axes and legends are not)
 
 
 def _figure(
@@ -35,7 +39,20 @@ def _figure(
     axes = fig.subplots(rows, cols, squeeze=False).ravel().tolist()
     for ax in axes[n_panels:]:
         ax.set_visible(False)
+    for ax in axes[:n_panels]:
+        ax.set_gid(_PANEL)
     return fig, axes[:n_panels]
+
+
+def _panel_letters(fig: Figure) -> None:
+    """Bold A, B, C … at the top left of each panel when a figure has more than one (journals' convention)."""
+    panels = [ax for ax in fig.axes if ax.get_gid() == _PANEL and ax.get_visible() and ax.axison]
+    if len(panels) < 2 or getattr(fig, "_studyctl_lettered", False):
+        return
+    for i, ax in enumerate(panels):
+        ax.text(-0.02, 1.02, chr(ord("A") + i), transform=ax.transAxes, ha="right", va="bottom", fontsize=12,
+                fontweight="bold")
+    fig._studyctl_lettered = True
 
 
 def _wrap_title(fig: Figure) -> None:
@@ -48,12 +65,24 @@ def _wrap_title(fig: Figure) -> None:
         fig.suptitle("\n".join(textwrap.wrap(title, width)), fontsize=11)
 
 
-def png_bytes(fig: Figure) -> bytes:
-    """The figure as PNG bytes."""
+def figure_bytes(fig: Figure, fmt: str = "png") -> bytes:
+    """The figure as ``fmt`` bytes: PNG at :data:`DPI`, or vector SVG / PDF (fonts as text in SVG)."""
+    if fmt not in FORMATS:
+        from studyctl.errors import ConfigError
+
+        raise ConfigError(f"figure format {fmt!r} is not one of {', '.join(FORMATS)}")
     _wrap_title(fig)
+    _panel_letters(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
+    # Fixed metadata: the same figure gives the same bytes (no creation date in SVG/PDF).
+    meta = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}[fmt]
+    fig.savefig(buf, format=fmt, dpi=DPI, metadata=meta)
     return buf.getvalue()
+
+
+def png_bytes(fig: Figure) -> bytes:
+    """The figure as PNG bytes (300 dpi)."""
+    return figure_bytes(fig, "png")
 
 
 def _spread(n: int, width: float) -> np.ndarray:
@@ -150,7 +179,7 @@ def box_panel(
             omni = marks[(marks["kind"] == "two_sample") & (marks["compare"] == "condition")]
         if len(omni) == 1 and np.isfinite(omni["p"].iloc[0]):
             r = omni.iloc[0]
-            title += f"\n{_test_name(r['test'])} p = {fmt_p(r['p'])}"
+            title += f"\n{_test_name(r['test'])}, {p_text(r['p'])}"
         level = top + 0.06 * span
         pairs = marks[marks["kind"].isin(["posthoc", "pairwise", "two_sample"]) & (marks["compare"] == "condition")]
         span_of = {i: _bracket_span(str(g), cond_ids) for i, g in zip(pairs.index, pairs["groups"], strict=True)}
@@ -246,14 +275,14 @@ def proportion_figure(
         color = PALETTE[li % len(PALETTE)]
         ax.bar(xs, est, width=width * 0.9, color=color, alpha=0.75, label=str(lv) if lv is not None else None)
         ax.errorbar(xs, est, yerr=[lo, hi], fmt="none", ecolor="black", elinewidth=1, capsize=3)
-        for x, e, h, t in zip(xs, est, hi, txt, strict=True):
-            ax.text(x, e + h + 0.015, t, ha="center", va="bottom", fontsize=7)
+        for x, t in zip(xs, txt, strict=True):  # counts at the foot of each bar: the axis ends at 1
+            ax.text(x, 0.015, t, ha="center", va="bottom", fontsize=6, rotation=90 if len(series) > 2 else 0)
     ax.set_xticks(range(len(cond_ids)), [_wrap(lbl, 16) for _, lbl in conditions])
-    ax.set_ylim(0, 1.14)
+    ax.set_ylim(0, 1)
     ax.set_ylabel(f"{label} (95% Wilson interval)")
     ax.grid(axis="y", alpha=0.3)
     if levels:
-        ax.legend(fontsize=8, frameon=False, ncols=len(series), loc="upper center", bbox_to_anchor=(0.5, 1.12))
+        ax.legend(fontsize=8, frameon=False, ncols=len(series), loc="lower center", bbox_to_anchor=(0.5, 1.0))
     fig.suptitle(title, fontsize=11)
     return fig
 
@@ -275,8 +304,8 @@ def percent_change_figure(
             float(sel.loc[sel["level"] == c, "percent_change"].iloc[0]) if (sel["level"] == c).any() else np.nan
             for c, _ in others
         ]
-        colors = [PALETTE[2] if v < 0 else PALETTE[5] for v in vals]
-        ax.bar(range(len(others)), vals, color=colors, alpha=0.8)
+        colors = [PALETTE[0] if v < 0 else PALETTE[1] for v in vals]
+        ax.bar(range(len(others)), vals, color=colors, alpha=0.85)
         for i, v in enumerate(vals):
             if np.isfinite(v):
                 ax.text(i, v, f"{v:+.1f}%", ha="center", va="bottom" if v >= 0 else "top", fontsize=8)
@@ -288,35 +317,78 @@ def percent_change_figure(
         lo, hi = np.nanmin(vals + [0]), np.nanmax(vals + [0])
         pad = 0.2 * ((hi - lo) or 10)
         ax.set_ylim(lo - pad, hi + pad)
+    from matplotlib.patches import Patch
+
+    fig.legend(
+        [Patch(color=PALETTE[0], alpha=0.85), Patch(color=PALETTE[1], alpha=0.85)],
+        [f"lower than {reference}", f"higher than {reference}"],
+        loc="outside lower center",
+        ncols=2,
+        fontsize=8,
+        frameon=False,
+    )
     fig.suptitle(title, fontsize=11)
     return fig
 
 
 def likert_figure(
-    table: pd.DataFrame, *, items: Sequence[str], conditions: Sequence[tuple[str, str]], points: int, title: str
+    answers: pd.DataFrame,
+    *,
+    items: Sequence[str],
+    conditions: Sequence[tuple[str, str]],
+    points: int,
+    title: str,
+    scale: Sequence[str] | None = None,
 ) -> Figure:
-    """Mean Likert score (± SE) per item, bars per condition. ``table``: item, level, mean, se, n."""
-    fig, (ax,) = _figure(1, panel_w=max(6.0, 1.6 * len(items) + 1.5), panel_h=3.8)
-    width = 0.8 / max(len(conditions), 1)
-    for ci, (cid, clabel) in enumerate(conditions):
-        sel = table[table["level"] == cid]
-        xs, ys, es = [], [], []
-        for ii, item in enumerate(items):
-            row = sel[sel["item"] == item]
-            if row.empty:
+    """Diverging stacked bars: the share of each answer per item (panel) and condition (bar).
+
+    ``answers`` columns: item, level (condition id), value (one answer, 1 … ``points``). Answers below the
+    middle of the scale extend left, those above right, the middle one is split across zero, so the bars
+    line up on the neutral point (Robbins & Heiberger 2011). Likert answers are ordinal: no means here.
+    """
+    from matplotlib import colormaps
+    from matplotlib.patches import Patch
+
+    cmap = colormaps["PuOr"]  # diverging and colour-blind safe (ColorBrewer)
+    colors = [cmap(0.08 + 0.84 * k / max(points - 1, 1)) for k in range(points)][::-1]
+    if points % 2:  # the middle answer in grey: PuOr's centre is almost white
+        colors[points // 2] = (0.78, 0.78, 0.78, 1.0)
+    labels = list(scale) if scale and len(scale) == points else [str(k + 1) for k in range(points)]
+    fig, axes = _figure(len(items), panel_w=4.6, panel_h=0.45 * len(conditions) + 1.1, cols=min(2, len(items)))
+    mid = (points + 1) / 2
+    for ax, item in zip(axes, items, strict=True):
+        sel = answers[answers["item"] == item]
+        ylabels = []
+        for ci, (cid, clabel) in enumerate(conditions):
+            vals = sel.loc[sel["level"] == cid, "value"].to_numpy(dtype=float)
+            vals = np.round(vals[np.isfinite(vals)])
+            n = len(vals)
+            ylabels.append(f"{clabel} (n={n})")
+            if not n:
                 continue
-            xs.append(ii + (ci - (len(conditions) - 1) / 2) * width)
-            ys.append(float(row["mean"].iloc[0]))
-            es.append(float(row["se"].iloc[0]) if np.isfinite(row["se"].iloc[0]) else 0.0)
-        ax.bar(xs, ys, width=width * 0.9, color=PALETTE[ci % len(PALETTE)], alpha=0.8, label=clabel)
-        ax.errorbar(xs, ys, yerr=es, fmt="none", ecolor="black", elinewidth=0.8, capsize=2)
-        for x, y, e in zip(xs, ys, es, strict=True):
-            ax.text(x, y + e + 0.04, f"{y:.1f}", ha="center", va="bottom", fontsize=7)
-    ax.set_xticks(range(len(items)), [i.replace("_", " ") for i in items], fontsize=8)
-    ax.set_ylim(1 if points > 1 else 0, points + 0.6)
-    ax.set_ylabel(f"mean score (1–{points}) ± SE")
-    ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=8, frameon=False, ncols=len(conditions), loc="upper center", bbox_to_anchor=(0.5, 1.13))
+            share = np.array([np.mean(vals == k + 1) * 100 for k in range(points)])
+            left = -share[: int(math.floor(mid)) - 1].sum() - (share[int(mid) - 1] / 2 if mid == int(mid) else 0)
+            for k in range(points):
+                ax.barh(ci, share[k], left=left, color=colors[k], height=0.7, edgecolor="white", linewidth=0.4)
+                left += share[k]
+        ax.axvline(0, color="black", linewidth=0.8)
+        ax.set_yticks(range(len(conditions)), ylabels, fontsize=8)
+        ax.invert_yaxis()
+        ax.set_xlim(-100, 100)
+        ax.set_xticks([-100, -50, 0, 50, 100], ["100", "50", "0", "50", "100"], fontsize=8)
+        ax.set_xlabel("% of answers (left: below the middle, right: above)", fontsize=8)
+        ax.set_title(item.replace("_", " "), fontsize=10)
+        ax.grid(axis="x", alpha=0.3)
+    fig.legend(
+        [Patch(color=c) for c in colors],
+        labels,
+        title=f"answer (1–{points})",
+        title_fontsize=8,
+        loc="outside lower center",
+        ncols=points,
+        fontsize=8,
+        frameon=False,
+    )
     fig.suptitle(title, fontsize=11)
     return fig
 

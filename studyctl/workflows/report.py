@@ -9,7 +9,7 @@ from pathlib import Path
 
 from studyctl.analysis.plan import AnalysisPlan
 from studyctl.analysis.results import AnalysisResult
-from studyctl.report.build import ReportFiles, ensure_writable, write_report
+from studyctl.report.build import ReportFiles, check_figure_formats, ensure_writable, write_report
 
 
 @dataclass(frozen=True)
@@ -30,6 +30,7 @@ def build_report(
     study: str | None = None,
     on_step: Callable[[str], None] | None = None,
     targets: str | Path | None = None,
+    figure_formats: tuple[str, ...] = ("png", "svg", "pdf"),
 ) -> ReportRun:
     """Analyse ``plan`` (database or CSV data) and write its report into ``out_dir``.
 
@@ -41,6 +42,7 @@ def build_report(
     from studyctl.analysis.run import analyze
 
     ensure_writable(out_dir)
+    check_figure_formats(figure_formats)
     t0 = time.perf_counter()
     result = analyze(plan, db=db, workspace=workspace, study=study, figures=True, on_step=on_step)
     if result.plan.data.source == "database":
@@ -55,7 +57,7 @@ def build_report(
             extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
             result = replace(result, tables={**result.tables, **extra})
     t2 = time.perf_counter()
-    files = write_report(result, out_dir, on_step=on_step)
+    files = write_report(result, out_dir, on_step=on_step, figure_formats=figure_formats)
     t3 = time.perf_counter()
     figure_data_s = result.timings.get("figure_data_s", 0.0)
     timings = {

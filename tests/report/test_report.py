@@ -141,10 +141,11 @@ def test_files_written(written):
     ):
         assert name in names, name
     assert sorted(p.name for p in (out / "figures").iterdir()) == sorted(
-        f"{i}.png" for i in ("box", "prop", "change", "lik", "trace")
+        f"{i}.{fmt}" for i in ("box", "prop", "change", "lik", "trace") for fmt in ("png", "svg", "pdf")
     )
-    for png in (out / "figures").iterdir():
-        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    magic = {".png": b"\x89PNG\r\n\x1a\n", ".svg": b"<?xml ve", ".pdf": b"%PDF-1.4"}
+    for path in (out / "figures").iterdir():
+        assert path.read_bytes()[:8] == magic[path.suffix], path.name
     assert not [p for p in out.rglob(".*") if p.is_file()], "temporary files left behind"
 
 
@@ -278,3 +279,35 @@ def test_cli_text_output_shows_the_split(result):
     block = text[text.index("groups:"):text.index("kw:")]
     for level in ("A", "B", "C"):  # the condition of each rank-sum row (rich once swallowed "[condition=A]")
         assert f"\n{level} " in block.replace(" ", " ") or f"\n{level}  " in block
+
+
+def test_figures_for_print(written):
+    import struct
+
+    png = (written.out_dir / "figures" / "box.png").read_bytes()
+    width, height = struct.unpack(">II", png[16:24])
+    assert width >= 1200 and height >= 1000  # a 4.2 × 4 inch panel at 300 dpi (was 110 dpi)
+    assert b"pHYs" in png and struct.unpack(">I", png[png.index(b"pHYs") + 4:][:4])[0] == round(300 / 0.0254)
+
+
+def test_figure_formats_are_checked(result, tmp_path):
+    with pytest.raises(ConfigError, match="allowed are png, svg, pdf"):
+        write_report(result, tmp_path / "r", figure_formats=("png", "tiff"))
+    files = write_report(result, tmp_path / "png-only", figure_formats=("png",))
+    assert {p.suffix for p in files.figures} == {".png"}
+
+
+def test_panel_letters_and_proportion_axis(result):
+    from studyctl.analysis.plan import FigureEntry  # noqa: F401 - the spec type the drawers take
+    from studyctl.report.compose import draw_figure
+    from studyctl.report.figures import figure_bytes
+
+    specs = {f.id: f for f in result.plan.figures}
+    fig, _ = draw_figure(result, specs["prop"], None)
+    ax = fig.axes[0]
+    assert ax.get_ylim() == (0.0, 1.0)  # a proportion axis ends at 1
+    fig, _ = draw_figure(result, specs["lik"], None)
+    figure_bytes(fig, "svg")
+    letters = [t.get_text() for ax in fig.axes for t in ax.texts if t.get_fontweight() == "bold"]
+    assert letters == ["A", "B"]  # two items: two lettered panels
+    assert fig.legends and [t.get_text() for t in fig.legends[0].get_texts()] == ["1", "2", "3", "4", "5"]
