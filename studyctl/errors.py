@@ -37,6 +37,31 @@ class NotFoundError(StudyctlError, LookupError):
     """A named thing (study, participant, session, plugin, file) does not exist."""
 
 
+class UnknownKeyError(NotFoundError, KeyError):
+    """A lookup by id or name found nothing where the caller may expect a mapping's ``KeyError``."""
+
+    def __str__(self) -> str:  # KeyError quotes its message; this one is a sentence
+        return str(self.args[0]) if self.args else ""
+
+
+class ValueTypeError(StudyctlError, TypeError):
+    """A value of a type studyctl cannot take (the audit log and the view's messages take JSON values).
+
+    Not a ``ValueError``: code that turns a ``ValueError`` of ``json.dumps`` (NaN) into its own message must not
+    catch this one."""
+
+    exit_code = 2
+
+
+class NotSupportedError(StudyctlError, NotImplementedError):
+    """A plugin lacks an optional capability the study asked of it (a participant that cannot answer items)."""
+
+
+class InvalidAnswer(StudyctlError, ValueError):
+    """A participant's typed answer is not allowed (off the scale, off the grid); the prompt names what is
+    allowed and asks again."""
+
+
 class StoreError(StudyctlError, RuntimeError):
     """The study database cannot be opened, read or written."""
 
@@ -67,6 +92,10 @@ class DeviceError(StudyctlError, RuntimeError):
     """A device cannot be opened, read or written."""
 
 
+class DatagramError(DeviceError, ValueError):
+    """A driver-board datagram is malformed (short, bad magic or version, unknown type, CRC mismatch)."""
+
+
 class SafetyFault(DeviceError):
     """The safety layer put a device in its safe state (watchdog, stale sensor, invalid command)."""
 
@@ -87,13 +116,21 @@ class AnalysisError(StudyctlError, ValueError):
     """An analysis plan cannot be executed on the given data."""
 
 
+class BenchmarkError(StudyctlError, RuntimeError):
+    """A benchmark's own check of what it measured failed, so its figures would be wrong."""
+
+
 __all__ = [
     "AnalysisError",
+    "BenchmarkError",
     "ConfigError",
+    "DatagramError",
     "DeviceError",
     "IntegrityError",
+    "InvalidAnswer",
     "ModelParameterError",
     "NotFoundError",
+    "NotSupportedError",
     "PluginError",
     "PopulationError",
     "ProtocolError",
@@ -104,5 +141,7 @@ __all__ = [
     "StatsInputError",
     "StoreError",
     "StudyctlError",
+    "UnknownKeyError",
     "UsageError",
+    "ValueTypeError",
 ]

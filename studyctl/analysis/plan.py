@@ -50,7 +50,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from studyctl.analysis.metric_defs import BUILTIN
 from studyctl.analysis.plan_checks import check_names, dotted
-from studyctl.errors import ProtocolError
+from studyctl.errors import ProtocolError, UnknownKeyError
 from studyctl.inputs import read_text
 from studyctl.protocol import yamlmarks
 from studyctl.protocol.problems import Problem
@@ -231,7 +231,7 @@ class AnalysisPlan(_Strict):
         for t in self.tests:
             if t.id == test_id:
                 return t
-        raise KeyError(test_id)
+        raise UnknownKeyError(f"no test {test_id!r} in the plan; tests are {', '.join(t.id for t in self.tests)}")
 
     def csv_path(self) -> Path | None:
         """The CSV data file, resolved against the plan's folder."""

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from studyctl.bench import BenchResult
+from studyctl.errors import BenchmarkError
 
 FS = 50.0
 REFERENCE_UPDATE_MS = 42.0  # research/capr.md §5: the public BHF code, one update, measured on a 2-core VM
@@ -272,7 +273,7 @@ def measure(quick: bool = False) -> dict[str, Any]:
         wall, cpu = _time_stream(ctrl, force, repeat)
         batch_cmd = _batch_commands(ctrl, force)
         if np.max(np.abs(batch_cmd - cmd)) > 1e-3:  # the two paths must agree before either is timed
-            raise RuntimeError(f"bench capr: batch and streaming commands differ for {label}")
+            raise BenchmarkError(f"bench capr: batch and streaming commands differ for {label}")
         b_wall, b_cpu = _time_batch(ctrl, force, repeat)
         row = {"variant": label, "units": ctrl.model.n_units, "fs_model_hz": ctrl.params["fs_model"],
                "realtime_factor": seconds / wall, "realtime_factor_cpu": seconds / cpu,

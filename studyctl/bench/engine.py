@@ -31,6 +31,7 @@ from studyctl.engine.recorder import MemoryRecorder
 from studyctl.engine.session import SessionRunner
 from studyctl.engine.store_recorder import StoreRecorder
 from studyctl.engine.ui import VirtualUI
+from studyctl.errors import BenchmarkError
 from studyctl.plugins.interfaces import (
     Action,
     ChannelLimit,
@@ -185,7 +186,7 @@ def run(quick: bool = False) -> BenchResult:
             store_cpu = time.process_time() - c0
             ticks = [t.outcome["ticks"] for t in store.list_trials() if t.status == "completed"]
             if result.trials_completed != n_trials or any(k != int(TRIAL_S * RATE_HZ) for k in ticks):
-                raise RuntimeError(f"bench session did not run {n_trials} full trials: {result}, ticks {ticks}")
+                raise BenchmarkError(f"bench session did not run {n_trials} full trials: {result}, ticks {ticks}")
             samples = len(store.read_samples(store.list_trials()[0].id))
             # event commits: durable (fsynced) and process-crash-safe only
             lat = np.empty(n_commits)

@@ -18,6 +18,7 @@ period_jitter_us_p99
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import threading
@@ -31,9 +32,11 @@ from studyctl.controllers.needle import NeedleHybridController
 from studyctl.devices.force3d import SimulatedForceDevice
 from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import run_trial
+from studyctl.errors import BenchmarkError
 from studyctl.participants.needle_operator import VirtualNeedleOperator
 from studyctl.plugins.interfaces import Action, Observation, Participant, TrialInfo
 from studyctl.plugins.safety import SafetyLayer
+from studyctl.protocol import load_protocol, resolve_protocol
 from studyctl.scenes.needle_liver import NeedleLiverScene
 
 
@@ -95,10 +98,20 @@ def _numpy_tick(o: Observation, a: np.ndarray, d: np.ndarray, kp: float, kd: flo
     return rot @ np.array([0.0, f_b[0], f_b[1]])
 
 
+@functools.cache
+def _protocol():  # noqa: ANN202
+    return load_protocol(resolve_protocol("needle_insertion"))
+
+
+def _scenario(condition: str) -> dict[str, Any]:
+    """A scenario's controller params, from the shipped protocol (where Table 1 is written)."""
+    return dict(_protocol().condition(condition).params)
+
+
 def _time_ticks(n: int) -> tuple[np.ndarray, np.ndarray]:
     scene = _scene()
     obs = _insertion_observations(scene, n)
-    ctrl = NeedleHybridController({"scenario": "ESG"}, scene)
+    ctrl = NeedleHybridController(_scenario("ESG"), scene)
     device = SimulatedForceDevice({"device_class": "omega6"}, scene)
     safety = SafetyLayer(device.limits, period_s=1e-3)
     clock = time.perf_counter
@@ -140,7 +153,7 @@ class _NoFinish(Participant):
 
 def _virtual_trial(limit_s: float) -> tuple[float, float, int]:
     scene = _scene(frozenset({"layers", "view"}))
-    ctrl = NeedleHybridController({"scenario": "BL"}, scene)
+    ctrl = NeedleHybridController(_scenario("BL"), scene)
     device = SimulatedForceDevice({"device_class": "omega6"}, scene)
     device.open()
     info = TrialInfo("BL", limit_s, 1000.0, "on_request")
@@ -170,10 +183,10 @@ def _busy_ui(stop: threading.Event) -> None:
 
 
 def _jitter_in_process(seconds: float) -> dict[str, float]:
-    from studyctl.devices.servo import TimedClock  # noqa: PLC0415
+    from studyctl.engine.servo import TimedClock  # noqa: PLC0415
 
     scene = _scene()
-    ctrl = NeedleHybridController({"scenario": "ESG"}, scene)
+    ctrl = NeedleHybridController(_scenario("ESG"), scene)
     device = SimulatedForceDevice({"device_class": "omega6"}, scene)
     device.open()
     clock = TimedClock(capacity=int(seconds * 1000) + 16)
@@ -203,14 +216,14 @@ _IDLE = Action()
 
 
 def _jitter_servo(seconds: float) -> dict[str, float]:
-    from studyctl.devices.servo import ServoSpec, run_trial_in_servo_process  # noqa: PLC0415
+    from studyctl.engine.servo import ServoSpec, run_trial_in_servo_process  # noqa: PLC0415
 
     spec = ServoSpec(
         info=TrialInfo("ESG", seconds, 1000.0, "none"),
         device="sim_force3d",
         device_params={"device_class": "omega6"},
         controller="needle_hybrid",
-        controller_params={"scenario": "ESG"},
+        controller_params=_scenario("ESG"),
         scene="needle_liver",
         scene_placement={"sites": {"tumour": 1}},
         scene_needs=frozenset({"layers"}),
@@ -218,7 +231,7 @@ def _jitter_servo(seconds: float) -> dict[str, float]:
     )
     result = run_trial_in_servo_process(spec, on_sample=lambda t, s: None)
     if result.timing is None:
-        raise RuntimeError("the servo process reported no timing")
+        raise BenchmarkError("the servo process reported no timing")
     return result.timing.as_dict()
 
 

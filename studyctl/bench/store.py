@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from studyctl.bench import BenchResult
+from studyctl.errors import BenchmarkError
 from studyctl.store.repository import StudyStore
 
 RATE = 1000
@@ -105,7 +106,7 @@ def _measure(store: StudyStore, size: Callable[[], int], seconds: float, trials:
     expected_t, expected_v = _trial_data(seconds, seed=0)
     if frame.shape != (len(expected_t), len(CHANNELS) + 1) or not np.array_equal(frame.iloc[:, 1:].to_numpy(),
                                                                                    expected_v):
-        raise RuntimeError("benchmark read-back differs from what was written")
+        raise BenchmarkError("benchmark read-back differs from what was written")
     return {
         "write_values_per_s": statistics.median(block_rates),
         "write_values_per_s_rowwise": row_rate,

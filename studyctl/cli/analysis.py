@@ -6,61 +6,12 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
 
 
 def _console(err: bool = False) -> Console:
     return Console(stderr=err, highlight=False)
-
-
-def _row_result(r) -> str:  # noqa: ANN001 - a row of AnalysisResult.to_frame()
-    from studyctl.report.style import fmt_num
-
-    if r.kind == "interval":
-        return f"{fmt_num(r.estimate)} [{fmt_num(r.ci_low)}, {fmt_num(r.ci_high)}] ({r.n_per_group})"
-    if r.test == "newcombe":
-        return f"Δp = {fmt_num(r.estimate)}, margin = {fmt_num(r.statistic)}"
-    if r.critical_value == r.critical_value:  # not NaN: W against W_critical
-        return f"W = {fmt_num(r.statistic)}, W_crit = {fmt_num(r.critical_value)} (n_r = {fmt_num(r.df)})"
-    if not r.statistic_name:
-        return ""
-    df = f", df = {fmt_num(r.df)}" if r.df == r.df else ""
-    return f"{r.statistic_name} = {fmt_num(r.statistic)}{df}"
-
-
-def _print_result(result, console: Console) -> None:  # noqa: ANN001 - AnalysisResult, imported lazily
-    from studyctl.report.style import fmt_p
-
-    frame = result.to_frame()
-    for entry in result.plan.tests:
-        rows = frame[frame["test_id"] == entry.id]
-        if rows.empty:
-            continue
-        table = Table(title=f"{entry.id}: {entry.title or entry.test}", title_justify="left", box=None, pad_edge=False)
-        # The split (e.g. the nodule of a per-nodule interval) gets its own column so blocks are told apart.
-        splits = any(rows["split"].astype(bool))
-        if splits:
-            table.add_column(", ".join(entry.by) or "split", overflow="fold")
-        table.add_column("comparison", overflow="fold", min_width=22)
-        table.add_column("result", overflow="fold", min_width=30)
-        table.add_column("p (adj.)", no_wrap=True)
-        table.add_column("sig.", no_wrap=True)
-        table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=40)
-        for r in rows.itertuples(index=False):
-            what = " ".join(x for x in (r.metric, r.groups) if x)
-            if r.kind == "posthoc":
-                what = f"  post-hoc {r.groups}"
-            split = ", ".join(part.partition("=")[2] for part in r.split.split(", ")) if r.split else ""
-            p = fmt_p(r.p) + (f" ({fmt_p(r.p_adj)})" if r.p_adj == r.p_adj else "")
-            sig = "" if r.significant is None else ("yes" if r.significant else "no")
-            note = ("NOT COMPUTED: " if r.status != "ok" else "") + (r.warnings or "")
-            cells = [what, _row_result(r), p, sig, note]
-            table.add_row(*(escape(c) for c in ([split, *cells] if splits else cells)))
-        console.print(table)
-        console.print()
 
 
 def register(app: typer.Typer) -> None:
@@ -88,7 +39,12 @@ def register(app: typer.Typer) -> None:
         if as_json:
             typer.echo(result.to_frame().to_json(orient="records"))
         else:
-            _print_result(result, _console())
+            from studyctl.report.terminal import analysis_tables
+
+            console = _console()
+            for table in analysis_tables(result):
+                console.print(table)
+                console.print()
         if result.partial:
             err = _console(err=True)
             err.print("[bold yellow]PARTIAL RESULTS[/]: some of what the plan asks for could not be computed:")
@@ -256,26 +212,9 @@ def register_sim(app: typer.Typer) -> None:
             typer.echo(result.to_frame().to_json(orient="records"))
         else:
             console = _console()
-            table = Table(
-                title=f"studyctl demo (seed {result.seed}, {result.workers} workers, "
-                + (f"tissue loops at {result.sim_rate_hz:g} Hz, " if result.sim_rate_hz else "protocol loop rates, ")
-                + f"{result.total_s:.1f} s)",
-                title_justify="left",
-            )
-            for col in ("study", "participants", "trials", "tests", "significant", "time", "status"):
-                table.add_column(col)
-            for r in result.studies:
-                status = "FAILED" if r.error else ("partial" if r.partial else "complete")
-                table.add_row(
-                    r.study,
-                    str(r.participants),
-                    str(r.trials_completed),
-                    str(r.tests),
-                    str(r.significant),
-                    f"{r.total_s:.1f} s",
-                    status,
-                )
-            console.print(table)
+            from studyctl.report.terminal import demo_table
+
+            console.print(demo_table(result))
             for r in result.studies:
                 if r.population:
                     console.print(f"  {r.study}: {r.population}", markup=False)

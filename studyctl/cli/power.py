@@ -6,7 +6,6 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.table import Table
 
 _POP_HELP = ("A population file (format: studyctl-population/1) the virtual people are drawn from (default: the "
              "protocol's shipped population), or a YAML file with a population: section (baseline, "
@@ -40,37 +39,6 @@ def _population(file: Path | None, effects: list[str], group_effects: list[str],
     sd = {p: v for _, p, v in (parse_knob(t, "--between-sd", keyed=False) for t in spreads)}
     base = {p: v for _, p, v in (parse_knob(t, "--baseline", keyed=False) for t in baselines)}
     return pop.merged(Population(base, cond, grp, sd))
-
-
-def _print_table(run, console: Console, show_posthoc: bool) -> None:  # noqa: ANN001 - PowerRun
-    from studyctl.report.style import fmt_num
-
-    frame = run.to_frame()
-    if not show_posthoc:
-        frame = frame[frame["kind"] != "posthoc"]
-    sizes = list(run.table.sizes)
-    table = Table(title="Power (fraction of replicates significant, 95% Wilson interval)", title_justify="left")
-    for col in ("test", "metric", "split / levels", *(f"n={n}" for n in sizes), "effect size (median, largest n)"):
-        table.add_column(col, overflow="fold")
-    keys = list(dict.fromkeys(zip(frame["test_id"], frame["metric"], frame["split"], frame["groups"], strict=True)))
-    for key in keys:
-        rows = frame[(frame["test_id"] == key[0]) & (frame["metric"] == key[1]) & (frame["split"] == key[2])
-                     & (frame["groups"] == key[3])]
-        cells = []
-        for n in sizes:
-            r = rows[rows["participants"] == n]
-            if r.empty:
-                cells.append("")
-                continue
-            r = r.iloc[0]
-            cells.append(f"{r['power']:.2f} [{r['power_ci_low']:.2f}, {r['power_ci_high']:.2f}]")
-        last = rows[rows["participants"] == max(sizes)]
-        eff = ""
-        if not last.empty and last.iloc[0]["effect_size_name"]:
-            eff = f"{last.iloc[0]['effect_size_name']} {fmt_num(last.iloc[0]['effect_median'])}"
-        where = " ".join(x for x in (key[2], key[3]) if x)
-        table.add_row(key[0], key[1], where, *cells, eff)
-    console.print(table)
 
 
 def register(app: typer.Typer) -> None:
@@ -123,6 +91,7 @@ def register(app: typer.Typer) -> None:
         from studyctl.errors import SessionInterrupted
         from studyctl.power import prepare_power
         from studyctl.report.power_figures import population_text
+        from studyctl.report.terminal import power_table
         from studyctl.workflows.power import run_power
 
         console = Console(highlight=False)
@@ -166,7 +135,7 @@ def register(app: typer.Typer) -> None:
                                      f"kept in {out}; run the same command again to continue") from None
         finally:
             progress.stop()
-        _print_table(result, console, show_posthoc)
+        console.print(power_table(result, show_posthoc))
         console.print(f"simulated {result.ran} replicate(s), reused {result.reused}, in {result.seconds:.1f} s "
                       f"({result.backend})", markup=False)
         for kind in ("table", "figure", "population", "replicates"):

@@ -26,6 +26,7 @@ import time
 from dataclasses import dataclass, field
 
 from studyctl.devices import board_protocol as bp
+from studyctl.errors import DatagramError
 from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
 
 FIRMWARE = 0x0100
@@ -80,7 +81,7 @@ class Board:
     def receive(self, data: bytes, addr: tuple[str, int], sock: socket.socket) -> None:
         try:
             pkt = bp.decode(data)
-        except bp.ProtocolError as exc:
+        except DatagramError as exc:
             self.dropped += 1
             self.log(event="dropped", reason=str(exc))
             return

@@ -39,6 +39,8 @@ import struct
 import zlib
 from dataclasses import dataclass
 
+from studyctl.errors import DatagramError
+
 MAGIC = b"SB"
 VERSION = 1
 HEADER = struct.Struct("<2sBBI")
@@ -64,10 +66,6 @@ ST_REJECTED = 1 << 3
 SCALE = 10  # control amount units per percent on the wire (0.1 % resolution)
 
 
-class ProtocolError(ValueError):
-    """A datagram that does not follow the format (never raised to users: receivers count and drop)."""
-
-
 @dataclass(frozen=True)
 class Packet:
     type: int
@@ -84,21 +82,21 @@ def encode(kind: int, seq: int, *fields: int) -> bytes:
 
 
 def decode(data: bytes) -> Packet:
-    """Parse and check a datagram; raise ProtocolError naming what is wrong."""
+    """Parse and check a datagram; raise DatagramError naming what is wrong."""
     if len(data) < HEADER.size + CRC.size:
-        raise ProtocolError(f"datagram of {len(data)} bytes is shorter than a header")
+        raise DatagramError(f"datagram of {len(data)} bytes is shorter than a header")
     magic, version, kind, seq = HEADER.unpack_from(data)
     if magic != MAGIC:
-        raise ProtocolError(f"bad magic {magic!r}")
+        raise DatagramError(f"bad magic {magic!r}")
     if version != VERSION:
-        raise ProtocolError(f"unsupported version {version}")
+        raise DatagramError(f"unsupported version {version}")
     body = BODIES.get(kind)
     if body is None:
-        raise ProtocolError(f"unknown packet type 0x{kind:02x}")
+        raise DatagramError(f"unknown packet type 0x{kind:02x}")
     expected = HEADER.size + body.size + CRC.size
     if len(data) != expected:
-        raise ProtocolError(f"type 0x{kind:02x} must be {expected} bytes, got {len(data)}")
+        raise DatagramError(f"type 0x{kind:02x} must be {expected} bytes, got {len(data)}")
     (crc,) = CRC.unpack_from(data, expected - CRC.size)
     if crc != zlib.crc32(data[: expected - CRC.size]) & 0xFFFFFFFF:
-        raise ProtocolError("CRC mismatch")
+        raise DatagramError("CRC mismatch")
     return Packet(kind, seq, body.unpack_from(data, HEADER.size))

@@ -23,7 +23,7 @@ import numpy as np
 
 from studyctl.devices import board_protocol as bp
 from studyctl.devices.palpation import palpation_limits
-from studyctl.errors import DeviceError
+from studyctl.errors import DatagramError, DeviceError
 from studyctl.models.palpation_hw import A201
 from studyctl.plugins.interfaces import Channels, Device, Observation, Scene
 from studyctl.plugins.params import Param, validate_params
@@ -186,7 +186,7 @@ class UdpDriverBoard(Device):
     def _parse(self, data: bytes) -> bp.Packet | None:
         try:
             return bp.decode(data)
-        except bp.ProtocolError:
+        except DatagramError:
             self.dropped += 1
             return None
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import time
 from typing import Protocol
 
+from studyctl.errors import UsageError
+
 
 class Clock(Protocol):
     simulated: bool
@@ -67,7 +69,7 @@ class PacedClock(SimulatedClock):
 
     def __init__(self, speed: float, start: float = 0.0) -> None:
         if not speed > 0:
-            raise ValueError(f"speed must be > 0, got {speed!r}")
+            raise UsageError(f"clock speed must be > 0, got {speed!r}")
         super().__init__(start)
         self.speed = float(speed)
         self._origin_sim = float(start)

@@ -11,7 +11,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from studyctl.engine.plan import InvalidAnswer, ReportSpec
+from studyctl.engine.plan import ReportSpec
+from studyctl.errors import InvalidAnswer, SessionError
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 
 
@@ -44,7 +45,7 @@ class TerminalParticipant(Participant):
 
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
         if self.term is None:
-            raise RuntimeError("TerminalParticipant.attach(terminal, ui) must be called before a trial")
+            raise SessionError("TerminalParticipant.attach(terminal, ui) must be called before a trial")
         self._info = info
         self._spec = report_spec(info)
 

@@ -14,16 +14,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
-from studyctl.errors import SessionError
+from studyctl.errors import InvalidAnswer, SessionError
 
 StepKind = Literal["instructions", "familiarisation", "trial", "break", "questionnaire", "end"]
 STEP_KINDS: tuple[str, ...] = ("instructions", "familiarisation", "trial", "break", "questionnaire", "end")
 POLICIES: tuple[str, ...] = ("repeat", "invalidate_and_append")
 PLAN_VERSION = 1
-
-
-class InvalidAnswer(ValueError):
-    """An answer at a prompt is not acceptable; the message says why and is shown before re-asking."""
 
 
 @dataclass(frozen=True)

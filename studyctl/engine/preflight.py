@@ -14,6 +14,7 @@ import pandas as pd
 from studyctl.engine.factory import MANUAL_TOUCH_DEVICE, PluginFactory
 from studyctl.engine.plan import SessionPlan
 from studyctl.errors import PluginError, SessionError
+from studyctl.plugins.interfaces import Participant
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,5 @@ def preflight(
 
 
 def _cannot_answer(cls: type) -> bool:
-    from studyctl.plugins.interfaces import Participant
 
     return getattr(cls, "answer", None) is Participant.answer

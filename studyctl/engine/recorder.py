@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 from studyctl.engine.plan import SessionPlan
+from studyctl.errors import UnknownKeyError
 
 
 @dataclass(frozen=True)
@@ -197,7 +198,7 @@ class MemoryRecorder:
 
     def _set_trial(self, trial_id: int, status: str, reason: str, outcome=None) -> None:
         if not self._state.set_trial(trial_id, status, reason, outcome):
-            raise KeyError(trial_id)
+            raise UnknownKeyError(f"no trial {trial_id} in this session")
 
     def trial_finished(self, trial_id, status, outcome, reports, *, position, t, reason="", complete_step=True):
         self._set_trial(trial_id, status, reason, outcome)

@@ -34,12 +34,12 @@ from studyctl.engine.factory import (
     build_scene,
     controller_needs,
 )
-from studyctl.engine.plan import ConditionSpec, InvalidAnswer, SessionPlan, Step
+from studyctl.engine.plan import ConditionSpec, SessionPlan, Step
 from studyctl.engine.recorder import MEMORY_EVENT, Recorder, SessionState
 from studyctl.engine.seeding import TrialStreams, person_rng, trial_streams
 from studyctl.engine.trial_loop import TrialOutcome, run_trial
 from studyctl.engine.ui import Control, ManualOutcome, SessionUI
-from studyctl.errors import DeviceError, SessionError, SessionInterrupted, StudyctlError
+from studyctl.errors import DeviceError, InvalidAnswer, SessionError, SessionInterrupted, StudyctlError
 from studyctl.plugins.interfaces import Participant, TrialInfo
 
 # A trial without a time limit (completion time is the measure) still needs an end when nobody can stop it:

@@ -33,9 +33,9 @@ from rich.panel import Panel
 from rich.text import Text
 
 from studyctl.engine.clock import Clock
-from studyctl.engine.plan import Instrument, InvalidAnswer, Item, ReportSpec, Step
+from studyctl.engine.plan import Instrument, Item, ReportSpec, Step
 from studyctl.engine.ui import Control, ManualOutcome, TimerResult
-from studyctl.errors import UsageError
+from studyctl.errors import InvalidAnswer, UsageError
 
 REDRAW_S = 0.25
 LINE_MODES = {"r": "report", "a": "abort", "i": "invalid"}

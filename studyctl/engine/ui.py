@@ -23,8 +23,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from studyctl.engine.clock import Clock
-from studyctl.engine.plan import Instrument, InvalidAnswer, Item, ReportSpec, Step
-from studyctl.errors import UsageError
+from studyctl.engine.plan import Instrument, Item, ReportSpec, Step
+from studyctl.errors import InvalidAnswer, UsageError
 from studyctl.inputs import loads_json, read_text
 from studyctl.protocol.yamlmarks import load_plain
 

@@ -35,6 +35,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from studyctl.errors import NotSupportedError, UnknownKeyError
+
 Channels = Mapping[str, float]
 
 
@@ -63,7 +65,7 @@ class DeviceLimits:
         for limit in self.outputs:
             if limit.name == name:
                 return limit
-        raise KeyError(name)
+        raise UnknownKeyError(f"no output channel {name!r}; channels are {', '.join(c.name for c in self.outputs)}")
 
     def safe_command(self) -> dict[str, float]:
         return {c.name: c.safe for c in self.outputs}
@@ -233,7 +235,7 @@ class Participant(ABC):
 
     def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:
         """Answer a questionnaire item (Likert code in the item's scale)."""
-        raise NotImplementedError(f"{type(self).__name__} cannot answer questionnaires")
+        raise NotSupportedError(f"{type(self).__name__} cannot answer questionnaires")
 
     def memory(self) -> Mapping[str, Any]:
         """What a virtual participant has learnt so far in the session and carries into later trials (JSON

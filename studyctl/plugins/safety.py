@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from studyctl.errors import ModelParameterError
 from studyctl.plugins.interfaces import DeviceLimits, Observation
 
 log = logging.getLogger("studyctl.safety")
@@ -388,7 +389,7 @@ class Watchdog:
 
     def __init__(self, timeout_s: float, on_timeout: Callable[[float], None]) -> None:
         if not timeout_s > 0:
-            raise ValueError(f"watchdog timeout must be > 0 s, got {timeout_s!r}")
+            raise ModelParameterError(f"watchdog timeout must be > 0 s, got {timeout_s!r}")
         self.timeout_s = timeout_s
         self.on_timeout = on_timeout
         self.trips = 0

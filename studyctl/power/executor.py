@@ -19,6 +19,7 @@ from typing import Any
 
 from studyctl import __version__
 from studyctl.errors import StudyctlError, UsageError
+from studyctl.plugins import registry
 from studyctl.power.replicate import ReplicateResult, WorkerMemoryError, simulate_replicate
 from studyctl.power.spec import PowerSpec
 
@@ -61,7 +62,6 @@ class SerialBackend:
 def _worker_report() -> dict[str, Any]:
     """Run on each worker: can it run studyctl's simulations, and which version is it?"""
     import studyctl
-    from studyctl.plugins import registry
 
     return {"version": studyctl.__version__, "participants": registry.known_names("participant")}
 

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from studyctl.engine.factory import EntryPointFactory
 from studyctl.errors import ModelParameterError, NotFoundError, ProtocolError, UsageError
 from studyctl.plugins.interfaces import Action, Participant, TrialInfo
 from studyctl.suggest import nearest
@@ -334,8 +335,6 @@ def population_model(population: Population, protocol: Any, factory: Any | None 
         group, or a whole-number parameter; the shifted values (without the random offsets) are out of
         range or rejected by the participant's constructor.
     """
-    from studyctl.engine.factory import EntryPointFactory
-
     ref = protocol.participants.virtual
     if ref is None:
         raise UsageError(

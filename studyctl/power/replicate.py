@@ -17,9 +17,17 @@ from typing import Any
 
 import pandas as pd
 
+from studyctl.analysis import compute_metrics, run_plan
+from studyctl.engine.api import run_session
+from studyctl.engine.factory import EntryPointFactory
+from studyctl.engine.seeding import population_rng
 from studyctl.errors import SessionInterrupted, StudyctlError
+from studyctl.power.population import population_model
 from studyctl.power.seeds import replicate_seeds
 from studyctl.power.spec import TEST_KINDS, PowerSpec
+from studyctl.protocol import allocate_strata, load_protocol_text
+from studyctl.store import StudyStore
+from studyctl.store.enrollment import enroll
 from studyctl.store.status import study_status
 
 #: Columns of :meth:`ReplicateResult.to_frame` (one row per hypothesis-test row of the plan's result).
@@ -148,15 +156,6 @@ def simulate_replicate(
     ReplicateResult
         One row per hypothesis test of the plan (omnibus, two-sample, pairwise and post-hoc rows).
     """
-    from studyctl.analysis import compute_metrics, run_plan
-    from studyctl.engine.api import run_session
-    from studyctl.engine.factory import EntryPointFactory
-    from studyctl.engine.seeding import population_rng
-    from studyctl.power.population import population_model
-    from studyctl.protocol import allocate_strata, load_protocol_text
-    from studyctl.store import StudyStore
-    from studyctl.store.enrollment import enroll
-
     t0, c0 = time.perf_counter(), time.process_time()
     where = f"replicate {replicate} at {participants} participants"
     seeds = replicate_seeds(spec.seed, participants, replicate)

@@ -16,9 +16,15 @@ from pathlib import Path
 from typing import Any
 
 from studyctl import __version__
+from studyctl.analysis import load_plan
+from studyctl.analysis.catalog import TESTS
+from studyctl.engine.factory import EntryPointFactory
+from studyctl.engine.planning import plan_for_participant
+from studyctl.engine.preflight import preflight
 from studyctl.errors import UsageError
 from studyctl.power.population import Population, population_model
 from studyctl.power.seeds import check_master_seed
+from studyctl.protocol import Planner, load_protocol, resolve_protocol
 
 #: Row kinds of a plan's result that are hypothesis tests (intervals and descriptives are not).
 TEST_KINDS = ("omnibus", "two_sample", "pairwise", "posthoc")
@@ -160,7 +166,6 @@ def check_plan_matches(plan: Any, protocol: Any, protocol_label: str) -> None:
                 f"plan {where}: group {g!r} is not a stratum of protocol {protocol.study.id!r} "
                 f"(it has {', '.join(strata)})"
             )
-    from studyctl.analysis.catalog import TESTS
 
     hypothesis = [t.id for t in plan.tests if TESTS[t.test].design not in ("descriptive", "proportion")]
     if not hypothesis:
@@ -172,11 +177,6 @@ def check_plan_matches(plan: Any, protocol: Any, protocol_label: str) -> None:
 
 def _preflight(protocol: Any) -> None:
     """Plugins the simulated sessions need exist (PluginError names the missing one)."""
-    from studyctl.engine.factory import EntryPointFactory
-    from studyctl.engine.planning import plan_for_participant
-    from studyctl.engine.preflight import preflight
-    from studyctl.protocol import Planner
-
     stratum = protocol.stratum_ids[0]
     schedule = Planner(protocol).expand(seed=0, slot=0, stratum=stratum)
     preflight(
@@ -223,9 +223,6 @@ def prepare_power(
     UsageError, ProtocolError, NotFoundError, PluginError
         For anything that would fail later, before any simulation starts.
     """
-    from studyctl.analysis import load_plan
-    from studyctl.protocol import Planner, load_protocol, resolve_protocol
-
     path = resolve_protocol(protocol)
     proto = load_protocol(path)
     loaded = load_plan(plan)

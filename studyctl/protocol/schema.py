@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr
 
-from studyctl.errors import ProtocolError
+from studyctl.errors import ProtocolError, UnknownKeyError
 
 FORMAT_VERSION = 1
 ID_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]*$"
@@ -316,25 +316,28 @@ class Protocol(StrictModel):
         return tuple(s.id for s in self.participants.strata)
 
     def condition(self, condition_id: str) -> Condition:
-        """The condition with this id (KeyError if none)."""
+        """The condition with this id (:class:`~studyctl.errors.UnknownKeyError`, a ``KeyError``, if none)."""
         for condition in self.conditions:
             if condition.id == condition_id:
                 return condition
-        raise KeyError(condition_id)
+        known = ", ".join(c.id for c in self.conditions)
+        raise UnknownKeyError(f"no condition {condition_id!r}; conditions are {known}")
 
     def instrument(self, instrument_id: str) -> Instrument:
-        """The questionnaire instrument with this id (KeyError if none)."""
+        """The questionnaire instrument with this id (:class:`~studyctl.errors.UnknownKeyError` if none)."""
         for instrument in self.instruments:
             if instrument.id == instrument_id:
                 return instrument
-        raise KeyError(instrument_id)
+        raise UnknownKeyError(
+            f"no instrument {instrument_id!r}; instruments are {', '.join(i.id for i in self.instruments) or 'none'}"
+        )
 
     def stratum(self, stratum_id: str) -> Stratum:
-        """The stratum with this id (KeyError if none)."""
+        """The stratum with this id (:class:`~studyctl.errors.UnknownKeyError` if none)."""
         for stratum in self.participants.strata:
             if stratum.id == stratum_id:
                 return stratum
-        raise KeyError(stratum_id)
+        raise UnknownKeyError(f"no stratum {stratum_id!r}; strata are {', '.join(self.stratum_ids)}")
 
 
 # Section models reachable by a key path: used to list the allowed keys of an unknown-key error.

@@ -22,7 +22,7 @@ import pandas as pd
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
-from studyctl.errors import UsageError
+from studyctl.errors import UsageError, ValueTypeError
 from studyctl.store.anchor import HEAD_KEY
 from studyctl.store.models import AuditHead, AuditLog
 
@@ -44,7 +44,7 @@ def _json_default(value: Any) -> Any:
         return value.astimezone(UTC).isoformat()
     if hasattr(value, "item"):  # numpy scalars
         return value.item()
-    raise TypeError(f"cannot store {type(value).__name__} {value!r} in the audit log; pass JSON values")
+    raise ValueTypeError(f"cannot store {type(value).__name__} {value!r} in the audit log; pass JSON values")
 
 
 def row_hash(prev_hash: str, row: dict[str, Any]) -> str:

@@ -25,6 +25,7 @@ from studyctl.protocol.loader import load_protocol_text
 from studyctl.protocol.schedule import SCHEDULE_ALGORITHM_VERSION, Planner, Schedule
 from studyctl.protocol.schema import Protocol
 from studyctl.store.identity import CODE_ALPHABET, random_code
+from studyctl.store.models import Participant, Study
 from studyctl.suggest import nearest
 
 CODE_LENGTH = 5
@@ -129,8 +130,6 @@ def enroll(store: Any, group: str | None = None, *, study: str | None = None, co
     Enrollment
         Code, stratum, slot and the stored :class:`Schedule` (seeded by the study's master seed).
     """
-    from studyctl.store.models import Participant, Study
-
     target = store.get_study(study)
     protocol = study_protocol(target)
     stratum = choose_stratum(protocol, group)

@@ -22,6 +22,7 @@ from sqlalchemy import URL
 
 from studyctl import __version__
 from studyctl.errors import ConfigError, StoreError, StudyctlError, UsageError
+from studyctl.protocol import load_protocol, resolve_protocol
 from studyctl.store.db import Database, describe_url, parse_url, require_head, sqlite_path
 from studyctl.store.models import Study
 from studyctl.store.repository import StudyStore, check_text
@@ -165,8 +166,6 @@ def _workspace_text(study: str, database: str) -> str:
 
 def _load_protocol(protocol: str) -> tuple[str, str, str | None, int | None]:
     """(text, name, study id, seed) of a protocol given by shipped name or file path, validated."""
-    from studyctl.protocol import load_protocol, resolve_protocol
-
     path = resolve_protocol(protocol)
     model = load_protocol(path)
     return model.source_text, Path(path).stem, model.study.id, model.study.seed

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from studyctl.errors import UsageError
+
 # A delta larger than this share of the pixels is sent as a new key image instead.
 DELTA_MAX_SHARE = 0.25
 PROFILE_BIN_MM = 0.5
@@ -54,7 +56,7 @@ class GreyCodec:
     def encode(self, image: np.ndarray) -> tuple[dict[str, Any] | None, dict[str, Any]]:
         img = np.asarray(image)
         if img.dtype != np.uint8 or img.ndim != 2:
-            raise ValueError(f"grey codec: expected a 2-D uint8 image, got {img.dtype} with shape {img.shape}")
+            raise UsageError(f"grey codec: expected a 2-D uint8 image, got {img.dtype} with shape {img.shape}")
         new_key = None
         if self._key is None or self._key.shape != img.shape:
             idx = None

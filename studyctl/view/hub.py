@@ -24,7 +24,8 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from studyctl.engine.plan import InvalidAnswer, ReportSpec
+from studyctl.engine.plan import ReportSpec
+from studyctl.errors import InvalidAnswer
 from studyctl.plugins.interfaces import Request
 from studyctl.view import encode
 

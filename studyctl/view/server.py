@@ -33,7 +33,7 @@ from importlib import resources
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from studyctl.errors import UsageError
+from studyctl.errors import UsageError, ValueTypeError
 from studyctl.inputs import loads_json
 from studyctl.view.hub import FRAME_HZ, ViewHub
 
@@ -70,7 +70,7 @@ def _default(value: Any) -> Any:
         return value.item()
     if isinstance(value, (tuple, set)):
         return list(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+    raise ValueTypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
 def _clean(obj: Any) -> Any:

@@ -29,8 +29,12 @@ from typing import Any
 
 import pandas as pd
 
+from studyctl.engine.api import check_sim_rate
 from studyctl.errors import ConfigError, StudyctlError
-from studyctl.workflows.simulate import Cohort
+from studyctl.report.build import ensure_writable
+from studyctl.report.style import fmt_p
+from studyctl.workflows.report import build_report
+from studyctl.workflows.simulate import Cohort, create_cohort, run_participant
 
 #: (protocol / plan name, participants in the paper)
 REFERENCE_STUDIES: tuple[tuple[str, int], ...] = (
@@ -136,8 +140,6 @@ def _prepare_folder(folder: Path) -> None:
 
 def _prepare_study(name: str, participants: int, seed: int, out: Path, sim_rate_hz: float | None) -> Cohort:
     """Fresh folder, workspace and enrolled cohort of one study (main process, fast)."""
-    from studyctl.workflows.simulate import create_cohort
-
     folder = out / name
     _prepare_folder(folder)
     return create_cohort(name, participants, seed, folder / "workspace", sim_rate_hz=sim_rate_hz)
@@ -145,8 +147,6 @@ def _prepare_study(name: str, participants: int, seed: int, out: Path, sim_rate_
 
 def _session_task(cohort: Cohort, code: str) -> tuple[str, float]:
     """One participant's session (runs in a worker process)."""
-    from studyctl.workflows.simulate import run_participant
-
     t0 = time.perf_counter()
     status = run_participant(cohort, code)
     return status, time.perf_counter() - t0
@@ -154,8 +154,6 @@ def _session_task(cohort: Cohort, code: str) -> tuple[str, float]:
 
 def _report_task(cohort: Cohort, folder: str) -> dict[str, Any]:
     """Analysis and report of one study (runs in a worker process)."""
-    from studyctl.workflows.report import build_report
-
     rep = build_report(cohort.study, folder, workspace=cohort.workspace)
     result, files = rep.result, rep.files
     frame = result.to_frame()
@@ -185,8 +183,6 @@ def _error_text(exc: BaseException) -> str:
 
 def _headline(result: Any) -> list[str]:
     """A few lines for the terminal: each paper-role omnibus/two-sample test with its p-value."""
-    from studyctl.report.style import fmt_p
-
     out = []
     frame = result.to_frame()
     paper = frame[
@@ -235,11 +231,8 @@ def run_demo(
     on_event
         Receives progress events ``(study, stage, done, total, message)`` in the calling process.
     """
-    from studyctl.report.build import ensure_writable
-
     t0 = time.perf_counter()
     if sim_rate_hz is not None:
-        from studyctl.engine.api import check_sim_rate
 
         check_sim_rate(sim_rate_hz)
     out = ensure_writable(out_dir)

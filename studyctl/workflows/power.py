@@ -13,10 +13,13 @@ from typing import Any
 import pandas as pd
 
 from studyctl.power.executor import open_backend
+from studyctl.power.population import population_model
 from studyctl.power.replicate import ReplicateResult
 from studyctl.power.results import ResultsFile
 from studyctl.power.spec import PowerSpec
 from studyctl.power.summary import PowerTable, summarise
+from studyctl.protocol import load_protocol_text
+from studyctl.report.power_figures import power_curve_figure, write_png
 
 ProgressFn = Callable[[int, int, ReplicateResult | None], None]  # (finished, total, the replicate just finished)
 
@@ -121,8 +124,6 @@ def run_power(
             backend.close()
     per_size = {n: int((reps["participants"] == n).sum()) for n in spec.sizes}
     table = summarise(rows, spec.sizes, per_size)
-    from studyctl.power.population import population_model
-    from studyctl.protocol import load_protocol_text
 
     population = population_model(
         spec.population, load_protocol_text(spec.protocol_text, spec.protocol_name)
@@ -186,7 +187,6 @@ def _write(
     }
     _atomic(files["settings"], lambda p: p.write_text(json.dumps(settings, indent=2, default=str), encoding="utf-8"))
     if figure and not table.frame.empty:
-        from studyctl.report.power_figures import power_curve_figure, write_png
 
         fig = power_curve_figure(
             table.to_frame(),

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from studyctl.analysis.plan import AnalysisPlan
 from studyctl.analysis.results import AnalysisResult
+from studyctl.analysis.run import analyze
 from studyctl.report.build import ReportFiles, check_figure_formats, ensure_writable, write_report
 
 
@@ -39,8 +40,6 @@ def build_report(
     study's report gets a "simulated vs published" section and ``agreement.csv`` (``targets``: a targets file;
     default: the protocol's shipped one).
     """
-    from studyctl.analysis.run import analyze
-
     ensure_writable(out_dir)
     check_figure_formats(figure_formats)
     t0 = time.perf_counter()

@@ -15,10 +15,15 @@ from typing import Any
 
 import pandas as pd
 
+from studyctl.engine.api import check_sim_rate, run_session
 from studyctl.errors import UsageError
 from studyctl.populations import SHIPPED
 from studyctl.populations import population_for as cohort_population  # re-exported for callers
+from studyctl.protocol import load_protocol, resolve_protocol
+from studyctl.protocol.schedule import allocate_strata
+from studyctl.store.enrollment import enroll, study_protocol
 from studyctl.store.status import study_status
+from studyctl.store.workspace import init_workspace, open_study
 
 ProgressFn = Callable[[int, int, str], None]  # (participants done, participants total, message)
 
@@ -62,13 +67,9 @@ class SimulationResult:
 def check_simulation(protocol: str | Path, participants: int, sim_rate_hz: float | None = None) -> Path:
     """The protocol file a simulation would use; raises for an unknown protocol, a bad participant count or a
     bad loop-rate cap."""
-    from studyctl.protocol import resolve_protocol
-
     if participants < 1:
         raise UsageError(f"--participants must be at least 1, got {participants}")
     if sim_rate_hz is not None:
-        from studyctl.engine.api import check_sim_rate
-
         check_sim_rate(sim_rate_hz)
     return resolve_protocol(protocol)
 
@@ -105,11 +106,6 @@ def create_cohort(
     ``population``: a :class:`~studyctl.populations.TraitPopulation` or a population file; the default
     (:data:`SHIPPED`) is the protocol's shipped population when there is one; None: the participant's defaults.
     """
-    from studyctl.protocol import load_protocol
-    from studyctl.protocol.schedule import allocate_strata
-    from studyctl.store.enrollment import enroll, study_protocol
-    from studyctl.store.workspace import init_workspace, open_study
-
     # the population is checked before anything is written: a bad file leaves no half-made workspace
     population = cohort_population(load_protocol(check_simulation(protocol, participants, sim_rate_hz)), population)
     init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
@@ -134,9 +130,6 @@ def run_participant(cohort: Cohort, code: str, *, durable: bool = False, store=N
     Safe to call from several processes at once for different participants of the same SQLite study:
     each commit is a short transaction and SQLite serialises writers (busy timeout).
     """
-    from studyctl.engine.api import run_session
-    from studyctl.store.workspace import open_study
-
     def run(target) -> str:  # noqa: ANN001
         result = run_session(target, code, study=cohort.study, virtual=True, sim_rate_hz=cohort.sim_rate_hz,
                              population=cohort.population)
@@ -152,8 +145,6 @@ def run_participant(cohort: Cohort, code: str, *, durable: bool = False, store=N
 
 def summarize(cohort: Cohort, *, sessions_completed: int, seconds: float) -> SimulationResult:
     """Trial counts of a simulated cohort, read back from its database."""
-    from studyctl.store.workspace import open_study
-
     with open_study(cohort.db, cohort.workspace, cohort.study) as opened:
         counts = study_status(opened.store, opened.study).trials
     return SimulationResult(
@@ -214,8 +205,6 @@ def simulate_study(
         population file or :class:`~studyctl.populations.TraitPopulation`, or None for the participant's
         own defaults. Each session stores the population's sha256 and the person's traits.
     """
-    from studyctl.store.workspace import open_study
-
     t0 = time.perf_counter()
     cohort = create_cohort(protocol, participants, seed, out_dir, db=db, sim_rate_hz=sim_rate_hz,
                            population=population)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 
@@ -22,3 +24,22 @@ def insert_at_constant_speed(model, geometry, speed_mm_s=15.0, start_mm=-10.0, e
         s_track.append(s)
         s += speed_mm_s * dt
     return np.array(s_track), np.array(depth), np.array(f_axial), np.array(layer)
+
+
+@functools.cache
+def _shipped_protocol():
+    from studyctl.protocol import load_protocol, resolve_protocol
+
+    return load_protocol(resolve_protocol("needle_insertion"))
+
+
+def condition_params(condition: str) -> dict:
+    """The controller params of one scenario as the shipped protocol writes them (the one place Table 1 is)."""
+    return dict(_shipped_protocol().condition(condition).params)
+
+
+def table1(condition: str) -> dict:
+    """The same scenario's parameters under the model's flat names (``liver_k_cut``, ``radial_kp`` …)."""
+    from studyctl.controllers.needle import flat_params
+
+    return flat_params(condition_params(condition))

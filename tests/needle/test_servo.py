@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from needle_helpers import condition_params
 
-from studyctl.devices.servo import ServoSpec, ServoTiming, run_trial_in_servo_process
+from studyctl.engine.servo import ServoSpec, ServoTiming, run_trial_in_servo_process
 from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import Request, TrialInfo
 
@@ -23,7 +24,7 @@ def test_trial_runs_in_a_servo_process_and_streams_back():
         info=TrialInfo("ESG", 0.6, 1000.0, "on_request"),
         device="sim_force3d",
         controller="needle_hybrid",
-        controller_params={"scenario": "ESG"},
+        controller_params=condition_params("ESG"),
         scene="needle_liver",
         scene_placement={"sites": {"tumour": 1}},
         scene_needs=frozenset({"layers"}),

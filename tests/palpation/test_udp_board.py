@@ -16,7 +16,7 @@ from studyctl.devices import board_protocol as bp
 from studyctl.devices.udp_board import UdpDriverBoard
 from studyctl.engine.clock import RealClock
 from studyctl.engine.trial_loop import run_trial
-from studyctl.errors import DeviceError
+from studyctl.errors import DatagramError, DeviceError
 from studyctl.plugins.interfaces import Action, Participant, TrialInfo
 
 
@@ -89,7 +89,7 @@ def test_wire_format_round_trip_and_rejects():
     for bad, why in [(data[:-1], "must be 24 bytes"), (b"XX" + data[2:], "bad magic"), (data[:10], "shorter"),
                      (data[:-4] + b"\0\0\0\0", "CRC mismatch"), (bp.encode(bp.SAFE, 1)[:3] + b"\x07" +
                                                                  bp.encode(bp.SAFE, 1)[4:], "unknown packet type")]:
-        with pytest.raises(bp.ProtocolError, match=why):
+        with pytest.raises(DatagramError, match=why):
             bp.decode(bad)
 
 

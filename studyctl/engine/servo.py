@@ -27,8 +27,10 @@ from typing import Any
 import numpy as np
 
 from studyctl.engine.clock import RealClock
+from studyctl.engine.trial_loop import run_trial
 from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
+from studyctl.plugins.registry import load_plugin
 
 BATCH_S = 0.016  # samples reach the parent at about the display rate
 
@@ -165,9 +167,6 @@ def _construct(cls: type, **kwargs: Any) -> Any:
 
 def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
     """The child process: build the plugins, run the trial on a real clock, stream everything back."""
-    from studyctl.engine.trial_loop import run_trial  # noqa: PLC0415
-    from studyctl.plugins.registry import load_plugin  # noqa: PLC0415
-
     # Safety events travel to the parent as events; printing each one here would cost the loop its time.
     quiet = logging.getLogger("studyctl")
     quiet.addHandler(logging.NullHandler())

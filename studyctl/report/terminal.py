@@ -1,0 +1,113 @@
+"""Results as terminal tables: what ``studyctl analyze``, ``studyctl power`` and ``studyctl demo`` print.
+
+The CLI only prints these; choosing rows, pivoting and number formatting happen here, beside the report's other
+formatting (:mod:`studyctl.report.style`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.markup import escape
+from rich.table import Table
+
+from studyctl.report.style import fmt_num, fmt_p
+
+
+def _row_result(r: Any) -> str:  # a row of AnalysisResult.to_frame()
+    if r.kind == "interval":
+        return f"{fmt_num(r.estimate)} [{fmt_num(r.ci_low)}, {fmt_num(r.ci_high)}] ({r.n_per_group})"
+    if r.test == "newcombe":
+        return f"Δp = {fmt_num(r.estimate)}, margin = {fmt_num(r.statistic)}"
+    if r.critical_value == r.critical_value:  # not NaN: W against W_critical
+        return f"W = {fmt_num(r.statistic)}, W_crit = {fmt_num(r.critical_value)} (n_r = {fmt_num(r.df)})"
+    if not r.statistic_name:
+        return ""
+    df = f", df = {fmt_num(r.df)}" if r.df == r.df else ""
+    return f"{r.statistic_name} = {fmt_num(r.statistic)}{df}"
+
+
+def analysis_tables(result: Any) -> list[Table]:
+    """One table per test of the plan that produced rows (an :class:`~studyctl.analysis.AnalysisResult`)."""
+    frame = result.to_frame()
+    tables = []
+    for entry in result.plan.tests:
+        rows = frame[frame["test_id"] == entry.id]
+        if rows.empty:
+            continue
+        table = Table(title=f"{entry.id}: {entry.title or entry.test}", title_justify="left", box=None, pad_edge=False)
+        # The split (e.g. the nodule of a per-nodule interval) gets its own column so blocks are told apart.
+        splits = any(rows["split"].astype(bool))
+        if splits:
+            table.add_column(", ".join(entry.by) or "split", overflow="fold")
+        table.add_column("comparison", overflow="fold", min_width=22)
+        table.add_column("result", overflow="fold", min_width=30)
+        table.add_column("p (adj.)", no_wrap=True)
+        table.add_column("sig.", no_wrap=True)
+        table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=40)
+        for r in rows.itertuples(index=False):
+            what = " ".join(x for x in (r.metric, r.groups) if x)
+            if r.kind == "posthoc":
+                what = f"  post-hoc {r.groups}"
+            split = ", ".join(part.partition("=")[2] for part in r.split.split(", ")) if r.split else ""
+            p = fmt_p(r.p) + (f" ({fmt_p(r.p_adj)})" if r.p_adj == r.p_adj else "")
+            sig = "" if r.significant is None else ("yes" if r.significant else "no")
+            note = ("NOT COMPUTED: " if r.status != "ok" else "") + (r.warnings or "")
+            cells = [what, _row_result(r), p, sig, note]
+            table.add_row(*(escape(c) for c in ([split, *cells] if splits else cells)))
+        tables.append(table)
+    return tables
+
+
+def power_table(run: Any, show_posthoc: bool) -> Table:
+    """The power table of a :class:`~studyctl.workflows.power.PowerRun`: one row per test, metric, split and
+    levels, one column per sample size (power with its 95 % Wilson interval), the effect size at the largest n."""
+    frame = run.to_frame()
+    if not show_posthoc:
+        frame = frame[frame["kind"] != "posthoc"]
+    sizes = list(run.table.sizes)
+    table = Table(title="Power (fraction of replicates significant, 95% Wilson interval)", title_justify="left")
+    for col in ("test", "metric", "split / levels", *(f"n={n}" for n in sizes), "effect size (median, largest n)"):
+        table.add_column(col, overflow="fold")
+    keys = list(dict.fromkeys(zip(frame["test_id"], frame["metric"], frame["split"], frame["groups"], strict=True)))
+    for key in keys:
+        rows = frame[
+            (frame["test_id"] == key[0])
+            & (frame["metric"] == key[1])
+            & (frame["split"] == key[2])
+            & (frame["groups"] == key[3])
+        ]
+        cells = []
+        for n in sizes:
+            r = rows[rows["participants"] == n]
+            if r.empty:
+                cells.append("")
+                continue
+            r = r.iloc[0]
+            cells.append(f"{r['power']:.2f} [{r['power_ci_low']:.2f}, {r['power_ci_high']:.2f}]")
+        last = rows[rows["participants"] == max(sizes)]
+        eff = ""
+        if not last.empty and last.iloc[0]["effect_size_name"]:
+            eff = f"{last.iloc[0]['effect_size_name']} {fmt_num(last.iloc[0]['effect_median'])}"
+        where = " ".join(x for x in (key[2], key[3]) if x)
+        table.add_row(key[0], key[1], where, *cells, eff)
+    return table
+
+
+def demo_table(result: Any) -> Table:
+    """The per-study summary of a :class:`~studyctl.workflows.demo.DemoResult`."""
+    table = Table(
+        title=f"studyctl demo (seed {result.seed}, {result.workers} workers, "
+        + (f"tissue loops at {result.sim_rate_hz:g} Hz, " if result.sim_rate_hz else "protocol loop rates, ")
+        + f"{result.total_s:.1f} s)",
+        title_justify="left",
+    )
+    for col in ("study", "participants", "trials", "tests", "significant", "time", "status"):
+        table.add_column(col)
+    for r in result.studies:
+        status = "FAILED" if r.error else ("partial" if r.partial else "complete")
+        table.add_row(
+            r.study, str(r.participants), str(r.trials_completed), str(r.tests), str(r.significant),
+            f"{r.total_s:.1f} s", status,
+        )
+    return table
