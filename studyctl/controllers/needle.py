@@ -7,20 +7,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 from studyctl.errors import ModelParameterError
-from studyctl.models.needle import TABLE1, NeedleGeometry, NeedleParams, NeedleTissueModel
+from studyctl.models.needle import NeedleGeometry, NeedleTissueModel
+from studyctl.models.needle_params import UNITS, NeedleParams
 from studyctl.plugins.interfaces import Controller, Observation, Scene
+from studyctl.plugins.params import ParamProblem, unknown_param
+from studyctl.suggest import nearest
 
 
 class NeedleHybridController(Controller):
     """Hybrid position/force controller of Selim et al. (2024) at 1 kHz.
 
-    Parameters (protocol ``params``; SI units as in the paper's Table 1)
-    --------------------------------------------------------------------
-    scenario : str, optional
-        ``BL``, ``RT``, ``ES``, ``EG`` or ``ESG``: fills every Table 1 value below; named keys override it.
+    Parameters (protocol ``params``; SI units as in the paper's Table 1, whose values per scenario are written
+    once, in the conditions of ``protocols/needle_insertion.yaml``)
+    --------------------------------------------------------------------------------------------------------
     capsule_k_stiff : float
         Capsule stiffness k_stiff (N/m), eq. (3). Table 1: 100.
     liver_k_cut, liver_f_dynamic, liver_f_static, liver_c : float
@@ -57,7 +60,8 @@ class NeedleHybridController(Controller):
 
     def __init__(self, params: Mapping[str, Any], scene: Scene | None = None) -> None:
         super().__init__(params, scene)
-        self.model_params = NeedleParams.from_mapping(params, where="controller needle_hybrid params")
+        where = "controller needle_hybrid params"
+        self.model_params = NeedleParams.from_mapping(flat_params(params, where=where), where=where)
         self.rate_hz = self.model_params.rate_hz
         geometry_of = getattr(scene, "geometry", None)
         if geometry_of is None:
@@ -82,9 +86,29 @@ class NeedleHybridController(Controller):
         return frozenset({"layers"})
 
     @classmethod
-    def scenarios(cls) -> dict[str, dict[str, float]]:
-        """The Table 1 parameter sets by scenario name."""
-        return {k: dict(v) for k, v in TABLE1.items()}
+    def param_problems(cls, params: Mapping[str, Any]) -> list[ParamProblem]:
+        """Every refused parameter, at its key (``liver.k_cut``), for ``studyctl protocol check``."""
+        flat, paths, problems = _flatten(params)
+        names = NeedleParams.names()
+        for name, value in flat.items():
+            if name not in names:
+                problem = unknown_param(paths[name], names)
+                near = nearest(name, names)  # liver.k_cutt is liver_k_cutt: suggest k_cut inside the block
+                if near is not None and len(paths[name]) == 2:
+                    near = near.removeprefix(name[: len(name) - len(paths[name][1])])
+                problems.append(replace(problem, suggestion=near))
+            elif isinstance(value, bool) or not isinstance(value, int | float):
+                problems.append(ParamProblem(paths[name], "not a number", f"a number in {UNITS[name]}"))
+        if problems:
+            return problems
+        try:
+            NeedleParams.from_mapping(flat, where="needle model")
+        except ModelParameterError as exc:
+            # validate() names the field first ("needle model: radial_kd = 0.1 N·s/m is below …"): point at it
+            text = str(exc).removeprefix("needle model: ")
+            field = text.split(" ", 1)[0]
+            return [ParamProblem(paths.get(field, ()), "refused by the needle model", text)]
+        return []
 
     def reset(self) -> None:
         self.model.reset()
@@ -145,3 +169,44 @@ class NeedleHybridController(Controller):
         d["punctures"] = float(m.punctures)
         d["needle_dir_x"], d["needle_dir_y"], d["needle_dir_z"] = u
         return {"fx_n": fx, "fy_n": fy, "fz_n": fz}
+
+
+# The protocol writes the parameters in per-layer blocks, as the paper's Table 1 groups them; the model takes
+# flat names. ``tumor`` is accepted for ``tumour`` (block or prefix), ``k_p``/``k_d`` for ``kp``/``kd``.
+_BLOCKS = ("capsule", "liver", "tumour", "tumor", "radial")
+_KEY_ALIASES = {"k_p": "kp", "k_d": "kd"}
+_RADIAL_PLAIN = ("tolerance_mm", "damping_band_mm")  # radial.max_n → radial_max_n
+
+
+def flat_params(params: Mapping[str, Any], *, where: str = "needle_hybrid params") -> dict[str, Any]:
+    """The model's flat parameter names from the protocol's layout (per-layer blocks, ``tumor``, ``k_p``)."""
+    flat, _, problems = _flatten(params)
+    if problems:
+        first = problems[0]
+        raise ModelParameterError(f"{where}: {'.'.join(first.key)}: {first.what}; allowed {first.allowed}")
+    return flat
+
+
+def _flatten(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, tuple[str, ...]], list[ParamProblem]]:
+    """(flat model names → values, flat name → the key path it was written at, names given twice)."""
+    flat: dict[str, Any] = {}
+    paths: dict[str, tuple[str, ...]] = {}
+    problems: list[ParamProblem] = []
+
+    def put(name: str, value: Any, path: tuple[str, ...]) -> None:
+        if name in flat:
+            first = ".".join(paths[name])
+            problems.append(ParamProblem(path, "given twice", f"one value for {name} (first at {first})"))
+            return
+        flat[name], paths[name] = value, path
+
+    for key, value in params.items():
+        key = str(key)
+        if key in _BLOCKS and isinstance(value, Mapping):
+            block = "tumour" if key == "tumor" else key
+            for raw_sub, v in value.items():
+                sub = _KEY_ALIASES.get(str(raw_sub), str(raw_sub))
+                put(sub if (block == "radial" and sub in _RADIAL_PLAIN) else f"{block}_{sub}", v, (key, str(raw_sub)))
+        else:
+            put(key.replace("tumor_", "tumour_", 1) if key.startswith("tumor_") else key, value, (key,))
+    return flat, paths, problems

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from studyctl.errors import ModelParameterError
-from studyctl.suggest import did_you_mean
+from studyctl.suggest import did_you_mean, nearest
 
 
 @dataclass(frozen=True)
@@ -43,34 +43,84 @@ class Param:
         return f"a {self.kind.__name__} in [{low}, {high}]{unit}"
 
 
-def _coerce(owner: str, spec: Param, value: Any) -> Any:
-    where = f"{owner}: parameter {spec.name!r}"
+def _check(spec: Param, value: Any) -> tuple[tuple[str, str] | None, Any]:
+    """((what is wrong in a word, the sentence for messages), or None when allowed; the converted value)."""
+    allowed = spec.allowed()
     if spec.choices is not None:
-        if value not in spec.choices:
-            raise ModelParameterError(f"{where} = {value!r} is not allowed; use {spec.allowed()}")
-        return value
+        return (None, value) if value in spec.choices else (("not allowed", f"is not allowed; use {allowed}"), value)
     if spec.kind is bool:
-        if not isinstance(value, bool):
-            raise ModelParameterError(f"{where} = {value!r} must be true or false")
-        return value
+        return (None, value) if isinstance(value, bool) else (("not true or false", "must be true or false"), value)
     if spec.kind in (int, float):
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ModelParameterError(f"{where} = {value!r} must be {spec.allowed()}")
+            return ("not a number", f"must be {allowed}"), value
         if spec.kind is int and not float(value).is_integer():
-            raise ModelParameterError(f"{where} = {value!r} must be a whole number in {spec.allowed()}")
+            return ("not a whole number", f"must be a whole number in {allowed}"), value
         number = spec.kind(value)
         if not math.isfinite(number):
-            raise ModelParameterError(f"{where} = {value!r} must be finite; use {spec.allowed()}")
+            return ("not finite", f"must be finite; use {allowed}"), value
         if (spec.low is not None and number < spec.low) or (spec.high is not None and number > spec.high):
-            raise ModelParameterError(f"{where} = {value!r} is out of range; use {spec.allowed()}")
-        return number
+            return ("out of range", f"is out of range; use {allowed}"), value
+        return None, number
     if spec.kind in (list, tuple):
-        if not isinstance(value, list | tuple):
-            raise ModelParameterError(f"{where} = {value!r} must be a list")
-        return tuple(value)
+        return (None, tuple(value)) if isinstance(value, list | tuple) else (("not a list", "must be a list"), value)
     if not isinstance(value, spec.kind):
-        raise ModelParameterError(f"{where} = {value!r} must be a {spec.kind.__name__}")
-    return value
+        return ("wrong type", f"must be a {spec.kind.__name__}"), value
+    return None, value
+
+
+def _coerce(owner: str, spec: Param, value: Any) -> Any:
+    refused, converted = _check(spec, value)
+    if refused is not None:
+        raise ModelParameterError(f"{owner}: parameter {spec.name!r} = {value!r} {refused[1]}")
+    return converted
+
+
+@dataclass(frozen=True)
+class ParamProblem:
+    """One refused parameter of a plugin, for checks that report every problem with its place in a file.
+
+    ``key`` is the path inside the plugin's ``params`` mapping (``("liver", "k_cut")`` for a nested block, ``()``
+    for the mapping as a whole); ``what`` says what is wrong, ``allowed`` what would do; ``at_key`` marks an
+    unknown name (point at the key, not its value).
+    """
+
+    key: tuple[str, ...]
+    what: str
+    allowed: str
+    suggestion: str | None = None
+    at_key: bool = False
+
+
+def unknown_param(key: tuple[str, ...], known: Iterable[str]) -> ParamProblem:
+    """The problem of a parameter name the plugin does not declare, with the nearest known name."""
+    names = sorted(known)
+    allowed = ("one of " + ", ".join(repr(n) for n in names)) if names else "no parameters"
+    return ParamProblem(key, "unknown parameter", allowed, nearest(str(key[-1]), names), True)
+
+
+def param_problems(params: Mapping[str, Any] | None, spec: Sequence[Param]) -> list[ParamProblem]:
+    """Every unknown name and refused value in ``params`` (what :func:`validate_params` raises for the first)."""
+    by_name = {p.name: p for p in spec}
+    problems = []
+    for key, value in dict(params or {}).items():
+        if key not in by_name:
+            problems.append(unknown_param((key,), by_name))
+            continue
+        refused, _ = _check(by_name[key], value)
+        if refused is not None:
+            problems.append(ParamProblem((key,), refused[0], by_name[key].allowed()))
+    return problems
+
+
+def declared_problems(plugin: type, params: Mapping[str, Any] | None) -> list[ParamProblem]:
+    """What a plugin class refuses in ``params``: its own ``param_problems(params)`` classmethod when it has one
+    (plugins whose parameters nest or depend on each other), else a check against its declared ``PARAMS``;
+    nothing for a plugin that declares neither."""
+    own = getattr(plugin, "param_problems", None)
+    if callable(own):
+        return list(own(params or {}))
+    spec = getattr(plugin, "PARAMS", None)
+    return [] if spec is None else param_problems(params, spec)
 
 
 def validate_params(owner: str, params: Mapping[str, Any] | None, spec: Sequence[Param]) -> dict[str, Any]:

@@ -12,17 +12,14 @@ from collections.abc import Iterator
 from importlib import metadata
 from typing import Any
 
+from studyctl.errors import StudyctlError
+from studyctl.plugins.params import declared_problems
+from studyctl.plugins.registry import GROUPS, load_plugin
 from studyctl.protocol.problems import KeyPath, Problem, one_of, show
 from studyctl.protocol.schema import MAX_BLOCKS, MAX_REPETITIONS, MAX_TRIALS
 from studyctl.protocol.yamlmarks import MarkedData
 from studyctl.suggest import nearest
 
-PLUGIN_GROUPS = {
-    "controller": "studyctl.controllers",
-    "device": "studyctl.devices",
-    "scene": "studyctl.scenes",
-    "participant": "studyctl.participants",
-}
 MAX_ALL_PERMUTATIONS = 8  # 8! = 40,320 sequences; beyond that use williams or random
 
 
@@ -49,12 +46,20 @@ def _registered(group: str) -> tuple[str, ...]:
     return tuple(sorted({ep.name for ep in metadata.entry_points(group=group)}))
 
 
+@functools.cache
+def _plugin_class(kind: str, name: str) -> type | None:
+    try:
+        return load_plugin(kind, name)
+    except StudyctlError:
+        return None
+
+
 def plugin_names(kind: str) -> list[str]:
     """Names registered under the entry-point group of a plugin kind (controller, device, scene, participant).
 
     Read once per process: installing a plugin package takes effect in the next studyctl run.
     """
-    return list(_registered(PLUGIN_GROUPS[kind]))
+    return list(_registered(GROUPS[kind]))
 
 
 class _Checker:
@@ -315,10 +320,31 @@ class _Checker:
         for index, cond in _items(self.d, "conditions"):
             if isinstance(cond, dict) and cond.get("controller") is not None:
                 self.plugin(("conditions", index, "controller"), "controller")
-        self.plugin(("devices", "hardware", "plugin"), "device")
-        self.plugin(("devices", "simulated", "plugin"), "device")
-        self.plugin(("scene", "plugin"), "scene")
-        self.plugin(("participants", "virtual", "plugin"), "participant")
+                if cond.get("manual") is not True:
+                    self.params(("conditions", index), "controller", "controller")
+        for path, kind in (
+            (("devices", "hardware"), "device"),
+            (("devices", "simulated"), "device"),
+            (("scene",), "scene"),
+            (("participants", "virtual"), "participant"),
+        ):
+            self.plugin((*path, "plugin"), kind)
+            self.params(path, "plugin", kind)
+
+    def params(self, owner: KeyPath, name_key: str, kind: str) -> None:
+        """The values under ``<owner>.params`` against the parameters the plugin declares (``PARAMS``), so a
+        bad value is reported here with its line instead of when the first trial builds the plugin."""
+        name, params = _get(self.d, *owner, name_key), _get(self.d, *owner, "params")
+        if not isinstance(name, str) or not isinstance(params, dict):
+            return
+        cls = _plugin_class(kind, name)
+        if cls is None:
+            return  # unknown or broken: reported by plugin() here and by the preflight
+        for problem in declared_problems(cls, params):
+            path = (*owner, "params", *problem.key)
+            found = show(problem.key[-1]) if problem.at_key else show(_get(self.d, *path))
+            self.add(path, f"{kind} {name!r}: {problem.what}", found, problem.allowed, problem.suggestion,
+                     at_key=problem.at_key)
 
 
 def cross_check(marked: MarkedData, filename: str) -> list[Problem]:

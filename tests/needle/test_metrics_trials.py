@@ -9,13 +9,14 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from needle_helpers import condition_params, table1
 
 from studyctl.controllers.needle import NeedleHybridController
 from studyctl.devices.force3d import SimulatedForceDevice
 from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import run_trial
 from studyctl.errors import AnalysisError, ModelParameterError
-from studyctl.models.needle import TABLE1, NeedleParams
+from studyctl.models.needle import NeedleParams
 from studyctl.models.needle_metrics import (
     NeedleTrialMetrics,
     count_scans,
@@ -71,20 +72,20 @@ def test_duration_is_capped_and_errors_are_clear():
 
 
 # ---------------------------------------------------------------- controller and protocol
-def test_shipped_protocol_conditions_are_table1():
+def test_shipped_protocol_conditions_are_table1(scene):
     data = yaml.safe_load(PROTOCOL.read_text())
     conds = {c["id"]: c for c in data["conditions"]}
-    assert set(conds) == set(TABLE1)
+    assert set(conds) == {"BL", "RT", "ES", "EG", "ESG"}
     for cid, cond in conds.items():
         assert cond["controller"] == "needle_hybrid"
-        assert NeedleParams.from_mapping(cond["params"]) == NeedleParams.from_mapping({"scenario": cid})
+        assert NeedleHybridController(cond["params"], scene).model_params == NeedleParams.from_mapping(table1(cid))
         assert cond["visual"] == ("realtime" if cid == "RT" else "on_request")
 
 
 def test_controller_needs_the_liver_scene_and_reports_diagnostics(scene):
     with pytest.raises(ModelParameterError, match="needle_liver"):
-        NeedleHybridController({"scenario": "BL"}, None)
-    ctrl = NeedleHybridController({"scenario": "ES"}, scene)
+        NeedleHybridController(condition_params("BL"), None)
+    ctrl = NeedleHybridController(condition_params("ES"), scene)
     assert ctrl.rate_hz == 1000.0 and NeedleHybridController.needs({}) == frozenset({"layers"})
     from studyctl.plugins.interfaces import Observation
 
@@ -119,7 +120,7 @@ def test_a_device_fault_ends_the_trial_in_the_safe_state(scene):
     device.open()
     out = run_trial(
         info=TrialInfo("BL", 10.0, 1000.0, "none"),
-        controller=NeedleHybridController({"scenario": "BL"}, scene),
+        controller=NeedleHybridController(condition_params("BL"), scene),
         device=device,
         participant=Jumper(),
         clock=SimulatedClock(),
@@ -135,7 +136,7 @@ def test_a_device_fault_ends_the_trial_in_the_safe_state(scene):
 def _trial(condition: str, participant: VirtualNeedleOperator, site: int, seed: int):
     rng = np.random.default_rng(seed)
     scene = NeedleLiverScene.build({}, {"sites": {"tumour": site}}, frozenset({"layers", "view"}), rng)
-    ctrl = NeedleHybridController({"scenario": condition}, scene)
+    ctrl = NeedleHybridController(condition_params(condition), scene)
     device = SimulatedForceDevice({"device_class": "omega6"}, scene)
     device.open()
     rows: list[tuple[float, float, float, float]] = []

@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 import pytest
-from needle_helpers import insert_at_constant_speed
+from needle_helpers import condition_params, insert_at_constant_speed, table1
 
+from studyctl.errors import ModelParameterError
 from studyctl.models.needle import (
     CAPSULE,
     LIVER,
-    TABLE1,
     TUMOUR,
     TUMOUR_SURFACE,
     NeedleParams,
@@ -27,7 +27,7 @@ SPEED = 15.0  # mm/s, the stated constant insertion speed of the Figure 3 check
 
 
 def _model(scenario: str, geometry, **override) -> NeedleTissueModel:
-    params = NeedleParams.from_mapping({"scenario": scenario, **override})
+    params = NeedleParams.from_mapping({**table1(scenario), **override})
     return NeedleTissueModel(params, geometry)
 
 
@@ -272,24 +272,36 @@ def test_maintain_mode_transition_is_smooth_and_holds(vertical_geometry):
 
 
 def test_damping_rule_is_k_t_over_two():
-    p = NeedleParams.from_mapping({"scenario": "ESG"})
+    p = NeedleParams.from_mapping(table1("ESG"))
     for _spring, damper, k in p.spring_damper_pairs():
         assert getattr(p, damper) >= k / (2 * p.rate_hz)
 
 
-def test_params_flat_nested_and_presets_agree():
-    flat = NeedleParams.from_mapping({"scenario": "ESG"})
-    nested = NeedleParams.from_mapping(
-        {
-            "capsule": {"k_stiff": 100},
-            "liver": {"k_cut": 5, "f_dynamic": 0.8, "f_static": 1.0, "c": 10},
-            "tumor": {"k_stiff": 1000, "k_cut": 10, "f_dynamic": 1.4, "f_static": 1.8, "c": 15},
-            "radial": {"k_p": 1000, "k_d": 50},
-        }
-    )
-    assert flat == nested
-    assert set(TABLE1) == {"BL", "RT", "ES", "EG", "ESG"}
-    assert TABLE1["BL"] == TABLE1["RT"]
+def test_table1_is_written_once_in_the_protocol_and_the_model_takes_plain_numbers():
+    """The shipped protocol's conditions hold the paper's Table 1 (checked here against the paper's numbers);
+    the controller turns its per-layer blocks into the model's flat names; the model refuses the blocks."""
+    from studyctl.controllers.needle import flat_params
+
+    compliant = {"k_stiff": 0, "k_cut": 7, "f_dynamic": 0.9, "f_static": 1.1, "c": 10.5}
+    enhanced = {"k_stiff": 1000, "k_cut": 10, "f_dynamic": 1.4, "f_static": 1.8, "c": 15}
+    paper = {  # Table 1 of Selim et al. (2024): tumour block and radial gains per scenario
+        "BL": (compliant, 100, 30), "RT": (compliant, 100, 30), "ES": (enhanced, 100, 30),
+        "EG": (compliant, 1000, 70), "ESG": (enhanced, 1000, 50),
+    }  # fmt: skip
+    for scenario, (tumour, kp, kd) in paper.items():
+        p = NeedleParams.from_mapping(table1(scenario))
+        assert (p.capsule_k_stiff, p.liver_k_cut, p.liver_f_dynamic, p.liver_f_static, p.liver_c) == (
+            100, 5, 0.8, 1.0, 10)  # fmt: skip
+        assert {k: getattr(p, f"tumour_{k}") for k in tumour} == tumour
+        assert (p.radial_kp, p.radial_kd) == (kp, kd)
+    assert table1("BL") == table1("RT")
+    # the protocol's layout (blocks, "tumor", k_p/k_d, flat names) is the controller's business, not the model's
+    nested = flat_params({"tumor": {"k_stiff": 1000}, "radial": {"k_p": 1000, "k_d": 50}, "liver_c": 10})
+    assert nested == {"tumour_k_stiff": 1000, "radial_kp": 1000, "radial_kd": 50, "liver_c": 10}
+    with pytest.raises(ModelParameterError, match="given twice"):
+        flat_params({"radial": {"k_p": 1000}, "radial_kp": 100})
+    with pytest.raises(ModelParameterError, match="unknown parameter 'capsule'"):
+        NeedleParams.from_mapping(condition_params("BL"))
 
 
 def test_closed_loop_energy_does_not_grow():
@@ -303,7 +315,7 @@ def test_closed_loop_energy_does_not_grow():
     side = np.array(body_frame(*u)[:3])
 
     def energies(kp: float, kd: float) -> np.ndarray:
-        params = dataclasses.replace(NeedleParams.from_mapping({"scenario": "EG"}), radial_kp=kp, radial_kd=kd)
+        params = dataclasses.replace(NeedleParams.from_mapping(table1("EG")), radial_kp=kp, radial_kd=kd)
         model = NeedleTissueModel(params, g, validate=False)
         dev = SimulatedForceDevice(
             {"hand_stiffness_n_per_m": 0.0, "hand_damping_ns_per_m": 0.0, "hand_mass_kg": 0.3, "device_class": "omega6"}
@@ -332,28 +344,24 @@ def test_closed_loop_energy_does_not_grow():
 
 
 def test_unstable_parameters_are_refused_with_the_bound():
-    from studyctl.errors import ModelParameterError
-
     with pytest.raises(ModelParameterError, match="negative stiffness"):
-        NeedleParams.from_mapping({"scenario": "BL", "capsule_k_stiff": -5})
+        NeedleParams.from_mapping({**table1("BL"), "capsule_k_stiff": -5})
     with pytest.raises(ModelParameterError, match="negative stiffness"):
-        NeedleParams.from_mapping({"radial": {"k_p": -1}})
+        NeedleParams.from_mapping({"radial_kp": -1})
     with pytest.raises(ModelParameterError) as err:
-        NeedleParams.from_mapping({"scenario": "EG", "radial_kd": 0.1})
+        NeedleParams.from_mapping({**table1("EG"), "radial_kd": 0.1})
     msg = str(err.value)
     assert "damping rule K·T/2" in msg and "0.5 N·s/m" in msg and "radial_kp" in msg and "1000 Hz" in msg
     with pytest.raises(ModelParameterError, match="contact_d"):
-        NeedleParams.from_mapping({"scenario": "ES", "contact_d": 0.1})
+        NeedleParams.from_mapping({**table1("ES"), "contact_d": 0.1})
     with pytest.raises(ModelParameterError, match="unknown parameter 'k_stif'"):
         NeedleParams.from_mapping({"k_stif": 3})
-    with pytest.raises(ModelParameterError, match="scenario"):
-        NeedleParams.from_mapping({"scenario": "XX"})
     with pytest.raises(ModelParameterError, match="not a number"):
         NeedleParams.from_mapping({"liver_c": "ten"})
     with pytest.raises(ModelParameterError, match="dynamic ≤ static"):
         NeedleParams.from_mapping({"liver_f_dynamic": 2.0})
     # a higher servo rate lowers the bound: the same damping becomes acceptable
-    ok = NeedleParams.from_mapping({"scenario": "EG", "radial_kd": 0.3, "rate_hz": 2000})
+    ok = NeedleParams.from_mapping({**table1("EG"), "radial_kd": 0.3, "rate_hz": 2000})
     assert ok.radial_kd == 0.3
     assert math.isclose(ok.spring_damper_pairs()[0][2] / (2 * ok.rate_hz), 0.25)
 
