@@ -10,7 +10,7 @@ in mm/s, the pen axis (``dir_x``… — a column of the wrist rotation, ``pen_ax
 (forces off and brakes on when no command arrives for ``watchdog_ms``) stay on underneath the safety layer.
 
 A 1 kHz loop in Python must not share the interpreter with a user interface or logging: run trials on
-this device through :func:`studyctl.devices.servo.run_trial_in_servo_process`, which runs the loop in its
+this device through :func:`studyctl.engine.servo.run_trial_in_servo_process`, which runs the loop in its
 own process and measures the period jitter.
 """
 

@@ -29,7 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("devices",),  # simulated and hardware devices (a simulated device touches its scene)
     ("store",),  # the study database; enrollment writes a protocol's schedule into it
     ("engine",),  # sessions, trial loop, servo process, recorders
-    ("view", "analysis"),  # the participant's browser view; metrics and plan execution
+    ("view", "analysis", "populations"),  # the browser view; metrics and plan execution; virtual populations
     ("power",),  # replicate studies and their power table
     ("report",),  # tables, figures, pages: the only formatting and the only matplotlib
     ("workflows",),  # simulate, report, power run, demo: the one place that composes the layers above
