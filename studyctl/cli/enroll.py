@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
-from studyctl.protocol.schedule import format_placement
+from studyctl.protocol.stored_plan import format_placement
 from studyctl.store.enrollment import enroll as enroll_participant
 from studyctl.store.workspace import open_study
 

@@ -31,7 +31,7 @@ from studyctl.engine.store_recorder import StoreRecorder, refuse_second_session
 from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
 from studyctl.errors import NotFoundError, PopulationError, SessionError, UsageError
 from studyctl.plugins.interfaces import Participant
-from studyctl.protocol.schedule import Schedule
+from studyctl.protocol.stored_plan import Schedule
 from studyctl.store import StudyStore
 from studyctl.store.enrollment import study_protocol
 from studyctl.store.lease import take_lease

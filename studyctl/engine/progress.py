@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import pandas as pd
 from sqlalchemy import select
 
-from studyctl.protocol.schedule import Schedule
+from studyctl.protocol.stored_plan import Schedule
 from studyctl.store import StudyStore
 from studyctl.store.models import Participant, Session, Trial
 

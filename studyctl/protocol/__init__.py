@@ -19,9 +19,7 @@ from studyctl.protocol.loader import check_protocol, find_problems, load_protoco
 from studyctl.protocol.problems import Mark, Problem
 from studyctl.protocol.schedule import (
     SCHEDULE_ALGORITHM_VERSION,
-    PlanEntry,
     Planner,
-    Schedule,
     allocate_strata,
     expand_many,
     expand_schedule,
@@ -51,6 +49,7 @@ from studyctl.protocol.schema import (
     StudyMeta,
     TrialTemplate,
 )
+from studyctl.protocol.stored_plan import PlanEntry, Schedule
 
 __all__ = [
     "SCHEDULE_ALGORITHM_VERSION",

@@ -22,8 +22,9 @@ from sqlalchemy import select
 
 from studyctl.errors import IntegrityError, NotFoundError, UsageError
 from studyctl.protocol.loader import load_protocol_text
-from studyctl.protocol.schedule import SCHEDULE_ALGORITHM_VERSION, Planner, Schedule
+from studyctl.protocol.schedule import SCHEDULE_ALGORITHM_VERSION, Planner
 from studyctl.protocol.schema import Protocol
+from studyctl.protocol.stored_plan import Schedule
 from studyctl.store.identity import CODE_ALPHABET, random_code
 from studyctl.store.models import Participant, Study
 from studyctl.suggest import nearest

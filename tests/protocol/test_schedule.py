@@ -20,7 +20,7 @@ from studyctl.protocol import (
     schedule_balance,
     schedule_rows,
 )
-from studyctl.protocol.schedule import PLAN_COLUMNS
+from studyctl.protocol.stored_plan import PLAN_COLUMNS
 
 
 @pytest.fixture
