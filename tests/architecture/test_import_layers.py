@@ -29,8 +29,9 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("devices",),  # simulated and hardware devices (a simulated device touches its scene)
     ("store",),  # the study database; enrollment writes a protocol's schedule into it
     ("engine",),  # sessions, trial loop, servo process, recorders
-    ("view", "analysis", "populations"),  # the browser view; metrics and plan execution; virtual populations
-    ("power",),  # replicate studies and their power table
+    ("view", "analysis"),  # the participant's browser view; metrics and plan execution
+    ("populations",),  # virtual populations and published targets (targets name metrics of analysis plans)
+    ("power", "calibration"),  # replicate studies and their power table; simulated against published numbers
     ("report",),  # tables, figures, pages: the only formatting and the only matplotlib
     ("workflows",),  # simulate, report, power run, demo: the one place that composes the layers above
     ("bench",),  # benchmarks of all of the above
