@@ -58,6 +58,8 @@ class HalfLinear(Controller):
         return {"balloon_pct": 0.5 * 99.0 * min(max(f / 2.0, 0.0), 1.0), "vibration_pct": 0.0}
 '''
 
+pytestmark = pytest.mark.slow  # spawns processes / runs whole sessions: CI runs it, plain pytest skips it
+
 BROKEN = 'raise ImportError("gainplug_broken needs libfoo, which is not installed")\n'
 
 RUN = '''\
@@ -66,8 +68,6 @@ from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import run_trial
 from studyctl.plugins.interfaces import TrialInfo
 from studyctl.plugins.registry import load_plugin
-
-pytestmark = pytest.mark.slow  # spawns processes / runs whole sessions: CI runs it, plain pytest skips it
 
 scene = load_plugin("scene", "sponge_phantom").build(
     {}, {"sites": {"soft": 1, "medium": 3, "hard": 5}}, frozenset(), np.random.default_rng(1))
