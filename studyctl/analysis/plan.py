@@ -48,14 +48,14 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from studyctl import yamlmarks
 from studyctl.analysis.metric_defs import BUILTIN
 from studyctl.analysis.plan_checks import check_names, dotted
 from studyctl.errors import ProtocolError, UnknownKeyError
 from studyctl.inputs import read_text
-from studyctl.protocol import yamlmarks
-from studyctl.protocol.problems import Problem
-from studyctl.protocol.yamlmarks import MarkedData
+from studyctl.problems import Problem
 from studyctl.suggest import did_you_mean
+from studyctl.yamlmarks import MarkedData
 
 ROLES = ("paper", "within_subject", "supplementary")
 MISSING = ("available", "complete_cases", "fail")

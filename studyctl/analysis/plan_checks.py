@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING
 from studyctl.analysis import catalog
 from studyctl.analysis.metric_defs import BUILTIN, KINDS
 from studyctl.errors import ProtocolError
-from studyctl.protocol.problems import format_path
-from studyctl.protocol.yamlmarks import MarkedData
+from studyctl.problems import format_path
 from studyctl.suggest import did_you_mean
+from studyctl.yamlmarks import MarkedData
 
 if TYPE_CHECKING:
     from studyctl.analysis.plan import AnalysisPlan

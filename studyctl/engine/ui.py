@@ -26,7 +26,7 @@ from studyctl.engine.clock import Clock
 from studyctl.engine.plan import Instrument, Item, ReportSpec, Step
 from studyctl.errors import InvalidAnswer, UsageError
 from studyctl.inputs import loads_json, read_text
-from studyctl.protocol.yamlmarks import load_plain
+from studyctl.yamlmarks import load_plain
 
 
 @dataclass(frozen=True)

@@ -439,7 +439,7 @@ def _load_npz(path: Path) -> StiffnessMap:
 
 def _read_manifest(path: Path) -> dict[str, Any]:
     from studyctl.inputs import loads_json, read_text
-    from studyctl.protocol.yamlmarks import load_plain
+    from studyctl.yamlmarks import load_plain
 
     text = read_text(path, "stiffness map manifest", error=ModelParameterError)
     try:

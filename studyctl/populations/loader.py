@@ -77,7 +77,7 @@ def load_population_file(path: str | Path, *, factory: Any | None = None) -> Tra
 
 def parse_population(text: str, label: str, *, factory: Any | None = None, sha256: str = "") -> TraitPopulation:
     """Check population YAML ``text`` (``label`` names it in errors); see :func:`load_population_file`."""
-    from studyctl.protocol.yamlmarks import load_marked
+    from studyctl.yamlmarks import load_marked
 
     marked = load_marked(text, label, merge_keys=False, text_keys=True)
     if marked.problems:

@@ -166,7 +166,7 @@ def _fail(m: Any, label: str, path: tuple[Any, ...], message: str, *, value: boo
 def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: Any | None = None,
                   sha256: str = "") -> TargetSet:
     """Check targets YAML ``text`` (see :func:`load_targets_file`)."""
-    from studyctl.protocol.yamlmarks import load_marked
+    from studyctl.yamlmarks import load_marked
 
     m = load_marked(text, label, merge_keys=False, text_keys=True)
     if m.problems:

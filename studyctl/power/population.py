@@ -155,7 +155,7 @@ def load_population(path: str | Path) -> Population:
             f"population file {str(path)!r} does not exist; pass a YAML file with a population: section"
         )
     from studyctl.inputs import read_text
-    from studyctl.protocol.yamlmarks import load_plain
+    from studyctl.yamlmarks import load_plain
 
     try:
         data = load_plain(read_text(file, "population file", error=ProtocolError), str(file))

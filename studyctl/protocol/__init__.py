@@ -14,9 +14,9 @@ Enrollment writes a protocol's schedule to the store, so it lives in the store p
 :mod:`studyctl.store.enrollment` (``enroll``, ``replan``, ``study_protocol``).
 """
 
+from studyctl.problems import Mark, Problem
 from studyctl.protocol.counterbalance import BalanceReport, balance_report
 from studyctl.protocol.loader import check_protocol, find_problems, load_protocol, load_protocol_text, resolve_protocol
-from studyctl.protocol.problems import Mark, Problem
 from studyctl.protocol.schedule import (
     SCHEDULE_ALGORITHM_VERSION,
     Planner,

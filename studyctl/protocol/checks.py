@@ -15,10 +15,10 @@ from typing import Any
 from studyctl.errors import StudyctlError
 from studyctl.plugins.params import declared_problems
 from studyctl.plugins.registry import GROUPS, load_plugin
-from studyctl.protocol.problems import KeyPath, Problem, one_of, show
+from studyctl.problems import KeyPath, Problem, one_of, show
 from studyctl.protocol.schema import MAX_BLOCKS, MAX_REPETITIONS, MAX_TRIALS
-from studyctl.protocol.yamlmarks import MarkedData
 from studyctl.suggest import nearest
+from studyctl.yamlmarks import MarkedData
 
 MAX_ALL_PERMUTATIONS = 8  # 8! = 40,320 sequences; beyond that use williams or random
 

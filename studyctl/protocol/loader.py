@@ -10,12 +10,12 @@ from pydantic import ValidationError
 
 from studyctl.errors import NotFoundError, ProtocolError
 from studyctl.inputs import MAX_TEXT_BYTES
+from studyctl.problems import Mark, Problem
 from studyctl.protocol.checks import cross_check
-from studyctl.protocol.problems import Mark, Problem
 from studyctl.protocol.schema import Protocol
 from studyctl.protocol.validation import problems_from_validation
-from studyctl.protocol.yamlmarks import load_marked
 from studyctl.resources import find_shipped
+from studyctl.yamlmarks import load_marked
 
 
 def find_problems(text: str, filename: str = "<protocol>") -> tuple[Protocol | None, list[Problem]]:

@@ -14,10 +14,10 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from studyctl.protocol.problems import KeyPath, Problem, one_of, show
+from studyctl.problems import KeyPath, Problem, one_of, show
 from studyctl.protocol.schema import ID_PATTERN, Protocol
-from studyctl.protocol.yamlmarks import MarkedData
 from studyctl.suggest import nearest
+from studyctl.yamlmarks import MarkedData
 
 _TYPE_WORDS = {
     "int_type": "an integer",

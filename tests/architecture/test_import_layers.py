@@ -21,7 +21,8 @@ import studyctl
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("studyctl",),  # the package's __init__: its version only
     ("errors",),  # the one exception tree
-    ("suggest", "resources"),  # did-you-mean hints; files shipped inside the wheel
+    ("suggest", "resources", "inputs", "problems"),  # did-you-mean; shipped files; bounded reading; file:line problems
+    ("yamlmarks",),  # YAML with positions and size limits (protocols, plans, populations, stiffness manifests)
     ("stats", "models"),  # pure statistics; pure numerical models (arrays in, frozen results out)
     ("plugins",),  # the Controller/Device/Scene/Participant interfaces, parameters, safety, discovery
     ("protocol",),  # the protocol language, counterbalancing, schedules
@@ -169,8 +170,12 @@ def test_the_walker_sees_function_level_and_relative_imports(tmp_path: Path) -> 
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
+FOUNDATION = {"errors", "suggest", "resources", "inputs", "problems", "yamlmarks"}
+
+
 @pytest.mark.parametrize("package", ["stats", "models"])
-def test_pure_layers_import_only_the_error_tree(package: str) -> None:
-    """Statistics and numerical models take arrays and return results: nothing of studyctl but its errors."""
+def test_statistics_and_models_import_only_the_foundation(package: str) -> None:
+    """Statistics and numerical models take arrays and return results: nothing of studyctl but the error tree and
+    the bounded readers (a stiffness map's manifest is a file)."""
     used = {_package(t) for s, t, _ in _edges() if _package(s) == package} - {package}
-    assert used <= {"errors"}, used
+    assert used <= FOUNDATION, used

@@ -166,7 +166,7 @@ def test_deep_json_body_to_the_view_is_a_400_not_a_traceback(capfd):
 
 def test_bounded_yaml_loader_keeps_real_anchors():
     """The limits do not get in the way of ordinary anchors and merge keys."""
-    from studyctl.protocol.yamlmarks import load_plain
+    from studyctl.yamlmarks import load_plain
 
     data = load_plain("base: &b {x: 1, y: [1, 2]}\nuse: {<<: *b, z: 3}\nagain: *b\n", "t.yaml")
     assert data["use"] == {"x": 1, "y": [1, 2], "z": 3} and data["again"] == {"x": 1, "y": [1, 2]}
