@@ -271,10 +271,12 @@ def test_cli_text_output_shows_the_split(result):
 
     from rich.console import Console
 
-    from studyctl.cli.analysis import _print_result
+    from studyctl.report.terminal import analysis_tables
 
     buf = io.StringIO()
-    _print_result(result, Console(file=buf, width=160, highlight=False))
+    console = Console(file=buf, width=160, highlight=False)
+    for table in analysis_tables(result):
+        console.print(table)
     text = buf.getvalue()
     block = text[text.index("groups:"):text.index("kw:")]
     for level in ("A", "B", "C"):  # the condition of each rank-sum row (rich once swallowed "[condition=A]")
