@@ -73,6 +73,10 @@ def _digest(values: dict[str, Any]) -> str:
 
 
 def _fields(row: Any, names: tuple[str, ...]) -> dict[str, Any]:
+    # by column name: a core Row's attribute ``t`` is its tuple, not the column t
+    mapping = getattr(row, "_mapping", None)
+    if mapping is not None:
+        return {k: mapping[k] for k in names}
     return {k: getattr(row, k) for k in names}
 
 
@@ -103,8 +107,9 @@ def chunk_digest(header: dict[str, Any], t: bytes, data: bytes) -> str:
     return h.hexdigest()
 
 
-def stored_chunk_digest(row: SampleChunk) -> str:
-    return chunk_digest(_fields(row, _CHUNK_FIELDS), row.t, row.data)
+def stored_chunk_digest(row: Any) -> str:
+    blobs = _fields(row, ("t", "data"))
+    return chunk_digest(_fields(row, _CHUNK_FIELDS), blobs["t"], blobs["data"])
 
 
 # ------------------------------------------------------------------------------------------- sealing
@@ -141,8 +146,9 @@ def _session_rows(tx: OrmSession, session_id: int, mark: SealMark) -> dict[str, 
     """Digests of the session's records that are new or changed since ``mark``."""
     new: dict[str, dict[str, Any]] = {}
     trials = {}
-    for row in tx.scalars(select(Trial).where(Trial.session_id == session_id).execution_options(
-            populate_existing=True)):
+    # Core rows (attribute access by column name), not ORM objects: no identity map, and always what the
+    # database holds now.
+    for row in tx.execute(select(Trial.__table__).where(Trial.session_id == session_id)):
         d = trial_digest(row)
         if mark.trials.get(row.id) != d:
             trials[str(row.id)] = d
@@ -155,8 +161,8 @@ def _session_rows(tx: OrmSession, session_id: int, mark: SealMark) -> dict[str, 
         "report": (LocationReport, LocationReport.trial_id.in_(trial_ids), report_digest),
     }
     for kind, (model, where, fn) in queries.items():
-        rows = {str(r.id): fn(r) for r in tx.scalars(select(model).where(where, model.id > mark.last[kind])
-                                                     .order_by(model.id).execution_options(populate_existing=True))}
+        rows = {str(r.id): fn(r) for r in tx.execute(select(model.__table__).where(where, model.id > mark.last[kind])
+                                                     .order_by(model.id))}
         if rows:
             new[kind] = rows
     chunks = {str(i): d for i, d in tx.execute(
@@ -240,7 +246,7 @@ def _sealed(tx: OrmSession) -> tuple[dict[str, dict[int, Any]], dict[int, dict[s
 
 
 def _iter(tx: OrmSession, stmt: Any) -> Iterator[Any]:
-    yield from tx.scalars(stmt.execution_options(yield_per=500))
+    yield from tx.execute(stmt.execution_options(yield_per=500))
 
 
 def verify_records(tx: OrmSession) -> RecordsReport:
@@ -281,16 +287,16 @@ def verify_records(tx: OrmSession) -> RecordsReport:
             problems.append(RecordProblem(kind, rid, "edited", f"{what} changed since sealed in audit row "
                                                                f"{where[kind][rid]}"))
 
-    for t in _iter(tx, select(Trial).order_by(Trial.id)):
+    for t in _iter(tx, select(Trial.__table__).order_by(Trial.id)):
         compare("trial", t.id, trial_digest(t), t.session_id,
                 f"(session {t.session_id}, plan position {t.plan_position}, {t.condition})")
-    for e in _iter(tx, select(Event).order_by(Event.id)):
+    for e in _iter(tx, select(Event.__table__).order_by(Event.id)):
         compare("event", e.id, event_digest(e), e.session_id, f"(session {e.session_id} seq {e.seq}, {e.kind})")
-    for a in _iter(tx, select(QuestionnaireResponse).order_by(QuestionnaireResponse.id)):
+    for a in _iter(tx, select(QuestionnaireResponse.__table__).order_by(QuestionnaireResponse.id)):
         compare("answer", a.id, answer_digest(a), a.session_id, f"({a.instrument} {a.item} = {a.code})")
-    for r in _iter(tx, select(LocationReport).order_by(LocationReport.id)):
+    for r in _iter(tx, select(LocationReport.__table__).order_by(LocationReport.id)):
         compare("report", r.id, report_digest(r), trial_session.get(r.trial_id), f"(trial {r.trial_id})")
-    for c in _iter(tx, select(SampleChunk).order_by(SampleChunk.id)):
+    for c in _iter(tx, select(SampleChunk.__table__).order_by(SampleChunk.id)):
         what = f"(trial {c.trial_id}, stream {c.stream}, chunk {c.chunk_index})"
         recomputed = stored_chunk_digest(c)
         if c.digest is not None and recomputed != c.digest and c.id in sealed["chunk"]:
