@@ -217,6 +217,9 @@ def init_workspace(
     if protocol is not None:
         text, proto_name, proto_study, proto_seed = _load_protocol(protocol)
     study_name = check_text(name or proto_study or folder.resolve().name or "study", "study name")
+    if db is not None and not str(db).strip():
+        raise ConfigError("--db is empty; give a PostgreSQL URL (postgresql://USER@HOST:PORT/DBNAME), or leave --db "
+                          "out for a SQLite study.db in the workspace")
     url = parse_url(db) if db else None
     if url is not None and sqlite_path(url) is None and url.get_backend_name() == "sqlite":
         raise UsageError("an in-memory database cannot back a workspace; omit --db or give a file or PostgreSQL URL")

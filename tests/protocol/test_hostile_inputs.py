@@ -143,6 +143,8 @@ def test_hostile_answers_file_is_one_error_and_writes_nothing(case, ws, tmp_path
 def test_empty_db_option_is_refused_not_the_workspace(ws):
     _expect_one_error(_run(["status", "--db", ""], ws), r"--db is empty")
     _expect_one_error(_run(["audit", "verify", "--db", "  "], ws), r"--db is empty")
+    _expect_one_error(_run(["init", str(ws.parent / "new"), "--db", ""], ws), r"--db is empty")
+    assert not (ws.parent / "new").exists()
 
 
 def test_deep_json_body_to_the_view_is_a_400_not_a_traceback(capfd):
