@@ -118,6 +118,8 @@ class VirtualPalpator(Participant):
         Param("screen_z", 2.0, 0.0, 10.0, source="FITTED: re-probe a cell whose evidence exceeds this"),
         Param("report_z", 3.5, 0.0, 10.0, source="FITTED: confidence needed to report a cell"),
         Param("confirm_presses", 2, 0, 10, kind=int, source="CHOSEN: re-probes of a candidate cell"),
+        Param("max_reports", 0, 0, 49, kind=int, source="CHOSEN: at most this many cells are reported, the strongest "
+              "first (0 = no limit); the example phantom shows 3 tumours, so people expect about that many"),
         Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "
               "trials had 3 tumours; subjects were told to report)"),
         Param("cell_mm", 20.0, 1.0, 100.0, unit="mm", source="used when the trial's public info has no grid size"),
@@ -372,6 +374,8 @@ class VirtualPalpator(Participant):
                 break
             if all(max(abs(cell[0] - c[0]), abs(cell[1] - c[1])) > 1 for c in chosen):
                 chosen.append(cell)
+                if len(chosen) == self.params["max_reports"]:
+                    break
         if not chosen and self.params["guesses"]:
             cells = [(c, r) for r in range(1, self.rows + 1) for c in range(1, self.columns + 1)]
             idx = self._rng.choice(len(cells), size=min(self.params["guesses"], len(cells)), replace=False)

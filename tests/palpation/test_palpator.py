@@ -204,3 +204,11 @@ def test_a_broken_controller_is_noticed_by_the_shipped_population():
             else:
                 found_bio += n
     assert found_bio >= found_none + 3
+
+
+def test_at_most_max_reports_cells_are_reported_strongest_first():
+    many, _, _, _ = trial(LinearController, SITES[1], seed=2, params={"report_z": 1.0, "screen_z": 0.5})
+    capped, _, _, _ = trial(LinearController, SITES[1], seed=2, params={"report_z": 1.0, "screen_z": 0.5,
+                                                                         "max_reports": 2})
+    assert len(many.reports) > 2 and len(capped.reports) == 2
+    assert [(r["column"], r["row"]) for r in capped.reports] == [(r["column"], r["row"]) for r in many.reports[:2]]
