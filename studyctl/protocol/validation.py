@@ -38,8 +38,8 @@ _RANGE_WHAT = {
     "max_s": "familiarisation time must be positive",
     "points": "a scale needs at least 2 points",
     "break_s": "break must not be negative",
-    "repetitions": "repetitions out of range",
-    "blocks": "blocks out of range",
+    "repetitions": "repetitions must be at least 1",
+    "blocks": "blocks must be at least 1",
     "sites": "there must be at least 1 site",
 }
 
@@ -172,7 +172,8 @@ def problems_from_validation(exc: ValidationError, marked: MarkedData, filename:
             problems.append(Problem(filename, mark, path, "wrong type", found, _TYPE_WORDS[kind]))
         elif kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
             key = next((p for p in reversed(path) if isinstance(p, str)), "")
-            what = _RANGE_WHAT.get(str(key), "value out of range")
+            what = (_RANGE_WHAT.get(str(key), "value out of range") if kind.startswith("greater")
+                    else "value too large")  # the upper limits (studyctl.protocol.schema.MAX_*)
             sign = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}[kind]
             bound = next(iter(ctx.values())) if ctx else "?"
             integer = isinstance(bound, int) and isinstance(value, int) and not isinstance(value, bool)
