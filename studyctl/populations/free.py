@@ -67,9 +67,10 @@ def _parse(name: str) -> tuple[str, str | None, str]:
     return base, group, key
 
 
-def free_params(pop: TraitPopulation, names: Sequence[str], *, declared: Mapping[str, Any] | None = None
-                ) -> tuple[FreeParam, ...]:
-    """Check ``names`` against ``pop`` and give each one's bounds (see the module docs)."""
+def free_params(pop: TraitPopulation, names: Sequence[str], *, declared: Mapping[str, Any] | None = None,
+                strata: Sequence[str] | None = None) -> tuple[FreeParam, ...]:
+    """Check ``names`` against ``pop`` (and a ``TRAIT@GROUP``'s group against ``strata`` when given) and give
+    each one's bounds (see the module docs)."""
     if not names:
         raise PopulationError("no free parameters: give --free TRAIT,TRAIT.sd,… (or calibration.free in the "
                               f"population file); traits of {pop.name}: {', '.join(t.name for t in pop.traits)}")
@@ -110,6 +111,9 @@ def free_params(pop: TraitPopulation, names: Sequence[str], *, declared: Mapping
                                   f"{did_you_mean(base, trait_names + list(pop.fixed))}; free names: "
                                   f"{', '.join(valid)} (TRAIT@GROUP for a stratum)")
         t = pop.trait(base)
+        if group is not None and strata is not None and group not in strata:
+            raise PopulationError(f"free parameter {name!r}: the protocol has no stratum {group!r}"
+                                  f"{did_you_mean(group, strata)}; its strata: {', '.join(strata)}")
         if t.dist == "fixed" and key == "sd":
             raise PopulationError(f"free parameter {name!r}: trait {base} is fixed (no spread); make it normal, "
                                   "lognormal or logitnormal first")

@@ -149,7 +149,7 @@ def prepare_calibration(
     from studyctl.plugins.registry import load_plugin
 
     declared = participant_params(load_plugin("participant", pop.participant))
-    fps = free_params(pop, list(names), declared=declared)
+    fps = free_params(pop, list(names), declared=declared, strata=list(proto.stratum_ids))
     if participants is None:
         participants = DEFAULT_FIT_PARTICIPANTS
     strata = max(len(proto.stratum_ids), 1)

@@ -84,6 +84,8 @@ def test_bad_calibration_input(tmp_path, protocol):
 
     with pytest.raises(PopulationError, match="did you mean 'report_z'"):
         prepare_calibration(protocol, TARGETS, population=POPULATION, free="report_zz", out=tmp_path / "a.yaml")
+    with pytest.raises(PopulationError, match="no stratum 'experts'; did you mean 'expert'"):
+        prepare_calibration(protocol, TARGETS, population=POPULATION, free="press_speed_mm_s@experts")
     with pytest.raises(PopulationError, match="has no shipped population"):
         prepare_calibration(protocol, TARGETS, free="report_z", out=tmp_path / "a.yaml")
     with pytest.raises(UsageError, match="--participants"):
@@ -126,3 +128,18 @@ def test_simulated_report_compares_with_published(tmp_path, protocol):
     md2 = (tmp_path / "rep2" / "report.md").read_text()
     assert "none shipped for power_mini_palpation" in md2 and not (tmp_path / "rep2" / "agreement.csv").exists()
     assert rep2.files.html.is_file()
+
+
+def test_replicates_run_on_a_dask_scheduler(tmp_path, protocol):
+    distributed = pytest.importorskip("distributed")
+    from studyctl.workflows.calibrate import evaluate, prepare_calibration
+
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
+        spec = prepare_calibration(protocol, TARGETS, population=POPULATION, free="report_z", participants=2,
+                                   replicates=2, evaluations=2, out=tmp_path / "d.yaml", scheduler=lc.scheduler_address)
+        with distributed.Client(lc.scheduler_address) as client:
+            remote = evaluate(spec, {"report_z": 3.0}, client=client)
+    local = evaluate(spec, {"report_z": 3.0})
+    # the same seeds on the cluster and locally: the same simulated statistics
+    pd.testing.assert_frame_equal(remote.stats, local.stats)
+    assert remote.distance == local.distance
