@@ -131,6 +131,7 @@ class _EntryRunner:
             effect_size=es[0] if es else None,
             reference=self.entry.reference,
             units=sub,
+            compare=self.entry.compare,
             **data,
         )
 
@@ -181,7 +182,10 @@ class _EntryRunner:
         kind = self.plan.metric_kind(metric)
         compare_col = factor_column(self.entry.compare)
         by_cols = [factor_column(b) for b in self.entry.by]
-        keep = list(dict.fromkeys([compare_col, *by_cols]))
+        # A model's second factor (``options.factor``, e.g. group × condition) stays in the units too.
+        extra = [factor_column(self.entry.options["factor"])] if "factor" in self.spec.options and \
+            "factor" in self.entry.options else []
+        keep = list(dict.fromkeys([compare_col, *by_cols, *extra]))
         design = self.spec.design
         if self.pooled_source and design in (catalog.BETWEEN, catalog.WITHIN):
             why = f"{self.spec.name} needs per-participant values; the data source has pooled counts"
@@ -320,9 +324,12 @@ class _EntryRunner:
             return self.run_procedure(metric, split, cell, spec, kind="pairwise")
         assert spec.run is not None
         try:
-            (finding,) = spec.run(cell)
+            findings = spec.run(cell)
         except StudyctlError as exc:
             return [self.row(metric, split, status="not_computed", warnings=_join(notes, [str(exc)]), **base)]
+        if any(f.term for f in findings):  # a model: one row per term (factor or interaction)
+            return [self.finding_row(metric, split, f, spec, notes, **{**base, "groups": f.term}) for f in findings]
+        (finding,) = findings
         row = self.finding_row(metric, split, finding, spec, notes, **base)
         ph = self.entry.posthoc
         if ph is None:

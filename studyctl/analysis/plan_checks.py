@@ -110,8 +110,14 @@ def check_names(plan: AnalysisPlan, doc: MarkedData) -> list[str]:
             if name == "likert_table" and kind != "ordinal":
                 bad(("tests", i, "metrics", j), f"likert_table needs an ordinal (Likert) metric; {m!r} is {kind}")
         factors = list(FIXED_FACTORS) + sorted(x for x in levels_of_metrics if x)
-        for key, factor in [("compare", t.compare)] + [("by", b) for b in t.by]:
-            path = ("tests", i, key) if key == "compare" else ("tests", i, "by", t.by.index(factor))
+        second = t.options.get("factor") if "factor" in spec.options else None
+        for key, factor in [("compare", t.compare)] + [("by", b) for b in t.by] + (
+            [("factor", second)] if second is not None else []
+        ):
+            if key == "by":
+                path = ("tests", i, "by", t.by.index(factor))
+            else:
+                path = ("tests", i, key) if key == "compare" else ("tests", i, "options", "factor")
             if factor not in factors:
                 bad(
                     path,
@@ -119,6 +125,9 @@ def check_names(plan: AnalysisPlan, doc: MarkedData) -> list[str]:
                 )
             elif factor not in FIXED_FACTORS and len(levels_of_metrics) > 1:
                 bad(path, f"factor {factor!r} is not a level of every metric in this test; split the test")
+        if second is not None and (second == t.compare or second in t.by):
+            bad(("tests", i, "options", "factor"), f"the second factor {second!r} is already compared or split by; "
+                "name another factor (e.g. group)")
         if t.compare in t.by:
             bad(("tests", i, "by"), f"{t.compare!r} is both compared and split by; drop it from 'by'")
         if t.compare == "group" and not groups:

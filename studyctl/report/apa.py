@@ -26,14 +26,16 @@ EFFECT_SYMBOLS = {
     "odds_ratio": "OR",
     "cohens_d": "d",
     "r_squared_marginal": "R²m",
+    "nagelkerke_r2": "R²N",
 }
 
 #: Statistics as printed, by the name a result gives them.
-STAT_SYMBOLS = {"chi2 (Friedman)": "χ²", "V (R+)": "V", "chi2": "χ²", "LR chi2": "χ²"}
+STAT_SYMBOLS = {"chi2 (Friedman)": "χ²", "V (R+)": "V", "chi2": "χ²", "chi2 (LR)": "χ²"}
 
 # Effect sizes bounded by 1 in absolute value: printed without the leading zero (APA).
 _BOUNDED = {"eta_squared", "omega_squared", "partial_eta_squared", "generalized_eta_squared", "epsilon_squared",
-            "kendall_w", "rank_biserial", "matched_pairs_r", "difference", "r_squared_marginal"}
+            "kendall_w", "rank_biserial", "matched_pairs_r", "difference", "r_squared_marginal",
+            "nagelkerke_r2"}
 
 
 def _nan(x: Any) -> bool:

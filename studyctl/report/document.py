@@ -438,15 +438,15 @@ def blocks(
         out.append(("alert", "PARTIAL RESULTS: some of what the plan asks for could not be computed "
                     "(listed under Missing data and marked NOT COMPUTED in the tables)."))
     findings = []
+    agreement = _agreement_headline(result)
+    if agreement:  # one line, first: how far a simulated study is from the paper
+        findings.append(("Simulated vs published", "simulated-vs-published", [agreement]))
     for entry in plan.tests:
         if entry.role == "supplementary":
             continue
         lines = headline_lines(entry, result)
         if lines:
             findings.append((entry.title or entry.id, entry.id, lines))
-    agreement = _agreement_headline(result)
-    if agreement:
-        findings.append(("Simulated vs published", "simulated-vs-published", [agreement]))
     out.append(("findings", findings))
 
     out.append(("h", 2, "Statistical methods", "methods"))

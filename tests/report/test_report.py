@@ -313,3 +313,24 @@ def test_panel_letters_and_proportion_axis(result):
     letters = [t.get_text() for ax in fig.axes for t in ax.texts if t.get_fontweight() == "bold"]
     assert letters == ["A", "B"]  # two items: two lettered panels
     assert fig.legends and [t.get_text() for t in fig.legends[0].get_texts()] == ["1", "2", "3", "4", "5"]
+
+
+def test_summary_of_findings_leads_with_the_agreement_of_a_simulated_study(result):
+    import dataclasses
+
+    from studyctl.report.document import blocks
+
+    agreement = pd.DataFrame({
+        "role": ["fit", "fit", "validation", "validation"],
+        "statistic": ["mean", "mean", "verdict", "mean"],
+        "same_direction": [True, None, None, False],
+        "same_verdict": [None, None, True, None],
+        "within": [True, False, None, False],
+        "agrees": [True, False, True, False],
+        "sd_ratio": [np.nan] * 4,
+    })
+    sim = dataclasses.replace(result, tables={**result.tables, "agreement": agreement})
+    (findings,) = [b for b in blocks(sim, [], []) if b[0] == "findings"]
+    title, anchor, lines = findings[1][0]
+    assert (title, anchor) == ("Simulated vs published", "simulated-vs-published")
+    assert lines[0].startswith("2/4 (50%) published targets agree on every check")

@@ -8,7 +8,7 @@ constants of :mod:`studyctl.analysis.procedures.spec`.
 
 from __future__ import annotations
 
-from studyctl.analysis.procedures import counts, means, ranks, tables
+from studyctl.analysis.procedures import counts, means, models, ranks, tables
 from studyctl.analysis.procedures.spec import (
     BETWEEN,
     DESCRIPTIVE,
@@ -23,7 +23,7 @@ from studyctl.analysis.procedures.spec import (
 )
 from studyctl.analysis.procedures.tables import describe
 
-REGISTRY: dict[str, TestSpec] = {s.name: s for module in (ranks, means, counts, tables) for s in module.SPECS}
+REGISTRY: dict[str, TestSpec] = {s.name: s for module in (ranks, means, counts, models, tables) for s in module.SPECS}
 
 __all__ = [
     "BETWEEN",

@@ -56,6 +56,7 @@ class Cell:
     effect_size: str | None = None
     reference: str | None = None
     units: pd.DataFrame | None = field(default=None, repr=False)
+    compare: str = ""  # the compared factor's name (condition, group or a metric's level such as item)
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,7 @@ class Finding:
     critical_value: float = NAN
     warnings: tuple[str, ...] = ()
     status: str = "ok"
+    term: str = ""  # the model term of this finding (models give one finding per term)
 
 
 Run = Callable[[Cell], Sequence[Finding]]

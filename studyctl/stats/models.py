@@ -1,0 +1,349 @@
+"""Model-based tests reviewers ask for: the aligned rank transform ANOVA, a linear mixed model with a
+participant random intercept, and a cumulative link (ordinal logistic) model for Likert answers.
+
+Every function takes long-form arrays (one value per observation, its factor levels, its participant) and
+returns a frozen :class:`ModelResult` with one :class:`ModelTerm` per tested term. A term that cannot be
+estimated (a factor with one level, an empty design cell that makes the design singular, no replication)
+is returned with ``status = "not_computed"`` and the reason; nothing raises for a design problem.
+
+How each term is tested (stated in every term's ``method``):
+
+* **OLS terms** (no participant seen twice): type III F — the residual sum of squares of the full
+  factorial model (sum-to-zero contrasts) against the model without the term's columns.
+* **Mixed terms** (a participant in more than one row): likelihood-ratio χ² between maximum-likelihood fits
+  of the random-intercept model with and without the term's columns (statsmodels MixedLM; the same as R
+  ``anova(lmer(..., REML = FALSE), ...)``). Satterthwaite / Kenward-Roger F-tests are not implemented.
+* **ART** (Wobbrock et al. 2011): for each term the response is aligned (residual from the full-factorial
+  cell means plus the term's estimated effect from marginal means of the observations), ranked with
+  average ties, and only that term is read from the model fitted to those ranks (OLS or mixed, as above).
+* **Ordinal**: proportional-odds cumulative logit model (statsmodels OrderedModel), likelihood-ratio χ²
+  against the thresholds-only model. Without a participant random effect (a cumulative link mixed model is
+  not available in statsmodels); repeated answers of one person are treated as independent (stated).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import stats as _st
+
+from studyctl.errors import StatsInputError
+
+from .summary import TestSummary
+
+NAN = math.nan
+
+
+@dataclass(frozen=True)
+class ModelTerm:
+    """The test of one model term (a factor or an interaction)."""
+
+    term: str
+    statistic_name: str  # "F" or "chi2 (LR)"
+    statistic: float
+    df: float
+    df2: float
+    p: float
+    effect_size_name: str = ""
+    effect_size: float = NAN
+    method: str = ""
+    status: str = "ok"
+    reason: str = ""
+
+    def summary(self) -> TestSummary:
+        return TestSummary(self.statistic_name, self.statistic, p=self.p, df=self.df, df2=self.df2,
+                           effect_size_name=self.effect_size_name, effect_size=self.effect_size,
+                           method=self.method, warnings=(self.reason,) if self.reason else ())
+
+
+@dataclass(frozen=True)
+class ModelResult:
+    """A model-based test: one :class:`ModelTerm` per term, in model order."""
+
+    model: str
+    terms: tuple[ModelTerm, ...]
+    n: int
+    n_participants: int
+    warnings: tuple[str, ...] = ()
+
+    def to_frame(self) -> pd.DataFrame:
+        cols = ["term", "statistic_name", "statistic", "df", "df2", "p", "effect_size_name", "effect_size",
+                "method", "status", "reason"]
+        return pd.DataFrame([[getattr(t, c) for c in cols] for t in self.terms], columns=cols)
+
+    def term(self, name: str) -> ModelTerm:
+        return next(t for t in self.terms if t.term == name)
+
+
+# ----------------------------------------------------------------------------------------- design
+
+
+def _clean(y: Sequence[float], factors: dict[str, Sequence], subject: Sequence | None) -> pd.DataFrame:
+    frame = pd.DataFrame({"y": np.asarray(y, dtype=float)})
+    if not factors:
+        raise StatsInputError("a model needs at least one factor")
+    for name, values in factors.items():
+        if len(values) != len(frame):
+            raise StatsInputError(f"factor {name!r} has {len(values)} values for {len(frame)} observations")
+        frame[name] = pd.Series(list(values), dtype=object).astype(str).to_numpy()
+    frame["_subject"] = (pd.Series(list(subject), dtype=object).astype(str).to_numpy() if subject is not None
+                         else np.arange(len(frame)).astype(str))
+    return frame[np.isfinite(frame["y"])].reset_index(drop=True)
+
+
+def _terms(names: Sequence[str]) -> list[tuple[str, ...]]:
+    """Main effects, then two-way, … interactions (the full factorial)."""
+    return [c for k in range(1, len(names) + 1) for c in itertools.combinations(names, k)]
+
+
+def _sum_coding(values: np.ndarray, levels: list[str]) -> np.ndarray:
+    """R's contr.sum: level i → unit vector i, the last level → −1 in every column."""
+    k = len(levels)
+    idx = np.array([levels.index(v) for v in values])
+    out = np.zeros((len(values), k - 1))
+    for j in range(k - 1):
+        out[:, j] = (idx == j).astype(float)
+    out[idx == k - 1, :] = -1.0
+    return out
+
+
+def design(frame: pd.DataFrame, names: Sequence[str], levels: dict[str, list[str]]) -> tuple[np.ndarray, list[int]]:
+    """Full-factorial design matrix (intercept first, sum-to-zero contrasts) and each column's term index
+    (−1 for the intercept; as R's ``assign`` minus one)."""
+    coded = {n: _sum_coding(frame[n].to_numpy(), levels[n]) for n in names}
+    cols = [np.ones((len(frame), 1))]
+    assign = [-1]
+    for t, term in enumerate(_terms(names)):
+        block = coded[term[0]]
+        for n in term[1:]:
+            block = np.einsum("ij,ik->ijk", block, coded[n]).reshape(len(frame), -1)
+        cols.append(block)
+        assign += [t] * block.shape[1]
+    return np.hstack(cols), assign
+
+
+def _levels(frame: pd.DataFrame, names: Sequence[str], order: dict[str, Sequence[str]] | None) -> dict[str, list]:
+    out = {}
+    for n in names:
+        present = list(dict.fromkeys(frame[n]))
+        preferred = [str(v) for v in (order or {}).get(n, [])]
+        out[n] = [v for v in preferred if v in present] + [v for v in present if v not in preferred]
+    return out
+
+
+def _term_name(term: tuple[str, ...]) -> str:
+    return ":".join(term)
+
+
+def _problem(frame: pd.DataFrame, names: Sequence[str], levels: dict[str, list]) -> str:
+    """Why the full-factorial design cannot be fitted ('' when it can)."""
+    for n in names:
+        if len(levels[n]) < 2:
+            return f"factor {n} has one level ({', '.join(levels[n]) or 'none'}) in these data"
+    cells = frame.groupby(list(names)).size()
+    expected = math.prod(len(levels[n]) for n in names)
+    if len(cells) < expected:
+        return (f"{expected - len(cells)} of {expected} cells of {' × '.join(names)} have no observation: the "
+                "full-factorial model is singular")
+    if len(frame) <= expected:
+        return f"no replication: {len(frame)} observations for {expected} cells"
+    return ""
+
+
+def _repeated(frame: pd.DataFrame) -> bool:
+    return bool(frame["_subject"].duplicated().any())
+
+
+# --------------------------------------------------------------------------------------- fitting
+
+
+def _ols_f(y: np.ndarray, x: np.ndarray, assign: list[int], t: int) -> tuple[float, float, float, float, float]:
+    """Type III F of term ``t``: (F, df1, df2, p, partial η²)."""
+    def rss(m: np.ndarray) -> tuple[float, int]:
+        beta, _, rank, _ = np.linalg.lstsq(m, y, rcond=None)
+        r = y - m @ beta
+        return float(r @ r), int(rank)
+
+    rss_f, rank_f = rss(x)
+    keep = [j for j, a in enumerate(assign) if a != t]
+    rss_r, rank_r = rss(x[:, keep])
+    df1, df2 = rank_f - rank_r, len(y) - rank_f
+    ss = rss_r - rss_f
+    f = (ss / df1) / (rss_f / df2) if rss_f > 0 else math.inf
+    p = float(_st.f.sf(f, df1, df2)) if math.isfinite(f) else 0.0
+    return f, float(df1), float(df2), p, ss / (ss + rss_f) if ss + rss_f > 0 else NAN
+
+
+def _mixed_llf(y: np.ndarray, x: np.ndarray, groups: np.ndarray) -> float:
+    """Maximum-likelihood log-likelihood of y = Xβ + u_subject + e (statsmodels MixedLM, ML)."""
+    from statsmodels.regression.mixed_linear_model import MixedLM
+    from statsmodels.tools.sm_exceptions import ConvergenceWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        warnings.simplefilter("ignore", UserWarning)
+        model = MixedLM(y, x, groups=groups)
+        best = None
+        for method in (["lbfgs"], ["bfgs"], ["nm", "lbfgs"]):
+            try:
+                fit = model.fit(reml=False, method=method)
+            except (np.linalg.LinAlgError, ValueError):
+                continue
+            if best is None or fit.llf > best.llf:
+                best = fit
+    if best is None:
+        raise np.linalg.LinAlgError("the mixed model could not be fitted")
+    return float(best.llf)
+
+
+def _mixed_lr(y: np.ndarray, x: np.ndarray, assign: list[int], t: int, groups: np.ndarray,
+              full_llf: float | None = None) -> tuple[float, float, float, float]:
+    """(χ², df, p, full llf) of the likelihood-ratio test of term ``t`` (ML fits with and without it)."""
+    keep = [j for j, a in enumerate(assign) if a != t]
+    llf_f = _mixed_llf(y, x, groups) if full_llf is None else full_llf
+    llf_r = _mixed_llf(y, x[:, keep], groups)
+    df = np.linalg.matrix_rank(x) - np.linalg.matrix_rank(x[:, keep])
+    chi2 = max(2.0 * (llf_f - llf_r), 0.0)
+    return chi2, float(df), float(_st.chi2.sf(chi2, df)), llf_f
+
+
+# ----------------------------------------------------------------------------------------- tests
+
+
+def _not_computed(model: str, names: Sequence[str], frame: pd.DataFrame, reason: str) -> ModelResult:
+    terms = tuple(ModelTerm(_term_name(t), "", NAN, NAN, NAN, NAN, status="not_computed", reason=reason)
+                  for t in _terms(names))
+    return ModelResult(model, terms, len(frame), int(frame["_subject"].nunique()) if len(frame) else 0)
+
+
+def mixed_model(y: Sequence[float], factors: dict[str, Sequence], subject: Sequence, *,
+                levels: dict[str, Sequence[str]] | None = None) -> ModelResult:
+    """Linear mixed model, full factorial of ``factors``, random intercept per ``subject``; each term by a
+    likelihood-ratio test of ML fits (see the module docstring)."""
+    frame = _clean(y, factors, subject)
+    names = list(factors)
+    lv = _levels(frame, names, levels)
+    why = _problem(frame, names, lv)
+    if not why and not _repeated(frame):
+        why = "every participant has one value: no random intercept to estimate (use a between-subject test)"
+    if why:
+        return _not_computed("mixed_model", names, frame, why)
+    x, assign = design(frame, names, lv)
+    yv, groups = frame["y"].to_numpy(), frame["_subject"].to_numpy()
+    out, llf = [], None
+    method = ("linear mixed model, random intercept per participant (ML fits, statsmodels MixedLM); "
+              "likelihood-ratio χ² of the term (sum-to-zero contrasts)")
+    for t, term in enumerate(_terms(names)):
+        try:
+            chi2, df, p, llf = _mixed_lr(yv, x, assign, t, groups, llf)
+        except np.linalg.LinAlgError as exc:
+            out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=str(exc)))
+            continue
+        out.append(ModelTerm(_term_name(term), "chi2 (LR)", chi2, df, NAN, p, method=method))
+    return ModelResult("mixed_model", tuple(out), len(frame), int(frame["_subject"].nunique()))
+
+
+def aligned_responses(frame: pd.DataFrame, names: Sequence[str], term: tuple[str, ...]) -> np.ndarray:
+    """Wobbrock et al. (2011) alignment for ``term``: residual from the full-factorial cell means plus the
+    term's estimated effect (inclusion–exclusion of marginal means of the observations)."""
+    y = frame["y"].to_numpy()
+    cell_mean = frame.groupby(list(names))["y"].transform("mean").to_numpy()
+    effect = np.zeros(len(frame))
+    for k in range(len(term) + 1):
+        for sub in itertools.combinations(term, k):
+            sign = (-1) ** (len(term) - k)
+            means = frame.groupby(list(sub))["y"].transform("mean").to_numpy() if sub else np.full(len(frame),
+                                                                                               y.mean())
+            effect += sign * means
+    return (y - cell_mean) + effect
+
+
+def art_anova(y: Sequence[float], factors: dict[str, Sequence], subject: Sequence | None = None, *,
+              levels: dict[str, Sequence[str]] | None = None) -> ModelResult:
+    """Aligned rank transform ANOVA of the full factorial of ``factors`` (two or more)."""
+    frame = _clean(y, factors, subject)
+    names = list(factors)
+    if len(names) < 2:
+        raise StatsInputError("the aligned rank transform needs at least two factors (use a rank test for one)")
+    lv = _levels(frame, names, levels)
+    why = _problem(frame, names, lv)
+    if why:
+        return _not_computed("art_anova", names, frame, why)
+    x, assign = design(frame, names, lv)
+    repeated = _repeated(frame)
+    groups = frame["_subject"].to_numpy()
+    out = []
+    for t, term in enumerate(_terms(names)):
+        ranks = _st.rankdata(aligned_responses(frame, names, term))
+        try:
+            if repeated:
+                chi2, df, p, _ = _mixed_lr(ranks, x, assign, t, groups)
+                out.append(ModelTerm(_term_name(term), "chi2 (LR)", chi2, df, NAN, p, method=(
+                    "aligned rank transform (Wobbrock et al. 2011); ranks in a random-intercept model per "
+                    "participant, likelihood-ratio χ² of ML fits")))
+            else:
+                f, df1, df2, p, pes = _ols_f(ranks, x, assign, t)
+                out.append(ModelTerm(_term_name(term), "F", f, df1, df2, p, "partial_eta_squared", pes, method=(
+                    "aligned rank transform (Wobbrock et al. 2011); type III F on the aligned ranks")))
+        except np.linalg.LinAlgError as exc:
+            out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=str(exc)))
+    return ModelResult("art_anova", tuple(out), len(frame), int(frame["_subject"].nunique()))
+
+
+def ordinal_model(y: Sequence[float], factor: Sequence, *, levels: Sequence[str] | None = None,
+                  subject: Sequence | None = None) -> ModelResult:
+    """Proportional-odds cumulative logit model of ordinal answers ``y`` on one factor; the factor's
+    likelihood-ratio χ² against the thresholds-only model. Answers must be whole numbers."""
+    frame = _clean(y, {"factor": factor}, subject)
+    lv = _levels(frame, ["factor"], {"factor": levels or []})
+    why = _problem(frame, ["factor"], lv)
+    values = frame["y"].to_numpy()
+    if not why and np.any(values != np.round(values)):
+        why = ("answers are not whole numbers (repetitions averaged?): an ordinal model needs the answers "
+               "themselves (aggregate: none)")
+    if not why and len(np.unique(values)) < 2:
+        why = "every answer is the same: no thresholds to estimate"
+    if why:
+        return ModelResult("ordinal", (ModelTerm("factor", "", NAN, NAN, NAN, NAN, status="not_computed",
+                                                 reason=why),), len(frame), int(frame["_subject"].nunique()))
+    fit, llf0 = ordinal_fit(values, frame["factor"].to_numpy(), lv["factor"])
+    chi2 = max(2.0 * (fit["llf"] - llf0), 0.0)
+    df = float(len(lv["factor"]) - 1)
+    n_obs = len(values)
+    # Nagelkerke's pseudo-R² as the effect size (Cox-Snell scaled to a maximum of 1).
+    cs = 1 - math.exp(-chi2 / n_obs)
+    nag = cs / (1 - math.exp(2 * llf0 / n_obs))
+    warn = ("repeated answers of one participant treated as independent (no participant random effect)"
+            if _repeated(frame) else "")
+    term = ModelTerm("factor", "chi2 (LR)", chi2, df, NAN, float(_st.chi2.sf(chi2, df)), "nagelkerke_r2", nag,
+                     method="cumulative logit (proportional odds) model, statsmodels OrderedModel; likelihood-"
+                     "ratio χ² against the thresholds-only model", reason=warn)
+    return ModelResult("ordinal", (term,), len(frame), int(frame["_subject"].nunique()))
+
+
+def ordinal_fit(values: np.ndarray, factor: np.ndarray, levels: list[str]) -> tuple[dict, float]:
+    """The fitted cumulative logit model (treatment coding, first level as reference): coefficients,
+    thresholds (R's clm parameterisation: logit P(Y ≤ j) = θ_j − xβ), log-likelihood; and the null llf."""
+    from statsmodels.miscmodels.ordinal_model import OrderedModel
+
+    cats = np.unique(values)
+    yc = pd.Series(pd.Categorical(values, categories=cats, ordered=True))
+    x = pd.DataFrame({f"factor{lv}": (factor == lv).astype(float) for lv in levels[1:]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = OrderedModel(yc, x, distr="logit").fit(method="bfgs", disp=False, maxiter=5000, gtol=1e-10)
+    k = x.shape[1]
+    params = np.asarray(res.params)
+    cut = params[k:]
+    thresholds = np.cumsum(np.r_[cut[0], np.exp(cut[1:])])
+    # Thresholds only: the cumulative proportions, in closed form.
+    counts = np.array([(values == c).sum() for c in cats], dtype=float)
+    llf0 = float((counts * np.log(counts / counts.sum())).sum())
+    return {"coef": params[:k], "thresholds": thresholds, "llf": float(res.llf)}, llf0

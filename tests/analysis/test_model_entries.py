@@ -1,0 +1,104 @@
+"""The model tests as plan entries: group × condition through the runner, Likert items as ordinal data, a
+design that cannot be fitted as a flagged row, and plan mistakes at file:line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from studyctl.analysis import MetricTable, load_plan, run_plan
+from studyctl.errors import StudyctlError
+
+PLAN = """\
+version: 1
+study: toy
+title: Toy
+conditions: [A, B, C]
+groups: [novice, expert]
+metrics:
+  force: {metric: mean_contact_force}
+  score: {metric: likert}
+tests:
+  - id: art
+    test: art_anova
+    metrics: [force]
+    compare: condition
+    options: {factor: group}
+  - id: lmm
+    test: mixed_model
+    metrics: [force]
+    compare: condition
+    options: {factor: group}
+  - id: ord
+    test: ordinal
+    metrics: [score]
+    compare: condition
+    by: [item]
+"""
+
+
+def _table(rng: np.random.Generator, *, drop_expert_c: bool = False) -> pd.DataFrame:
+    rows = []
+    for i in range(14):
+        group = "novice" if i < 8 else "expert"
+        u = rng.normal(0, 0.4)
+        for k, c in enumerate("ABC"):
+            if drop_expert_c and group == "expert" and c == "C":
+                continue
+            base = {"participant": f"P{i:02d}", "group": group, "condition": c, "trial": f"{i}{c}",
+                    "repetition": 1, "denominator": np.nan}
+            rows.append({**base, "metric": "mean_contact_force", "level": None,
+                         "value": 3 + u + 0.5 * k + 0.3 * (group == "expert") + rng.gamma(2, 0.2)})
+            for item in ("easy", "confident"):
+                rows.append({**base, "metric": "likert", "level": item, "value": float(rng.integers(1, 6))})
+    return pd.DataFrame(rows)
+
+
+@pytest.fixture(scope="module")
+def plan(tmp_path_factory):
+    path = tmp_path_factory.mktemp("plan") / "plan.yaml"
+    path.write_text(PLAN)
+    return load_plan(path)
+
+
+def test_model_rows_one_per_term(plan):
+    frame = run_plan(plan, MetricTable(frame=_table(np.random.default_rng(3)), source="toy")).to_frame()
+    art = frame[frame.test_id == "art"]
+    assert list(art.groups) == ["group", "condition", "group × condition"]
+    assert set(art.status) == {"ok"} and art.p.notna().all()
+    assert list(art.statistic_name) == ["chi2 (LR)"] * 3  # repeated participants: random-intercept LR test
+    cond = art[art.groups == "condition"].iloc[0]
+    assert cond.df == 2 and cond.p < 0.05 and cond.n == 42
+    lmm = frame[frame.test_id == "lmm"]
+    assert list(lmm.groups) == ["group", "condition", "group × condition"] and lmm.p.notna().all()
+    ordinal = frame[frame.test_id == "ord"]
+    assert list(ordinal.split) == ["item=easy", "item=confident"] and list(ordinal.df) == [2, 2]
+    assert ordinal.effect_size_name.eq("nagelkerke_r2").all()
+
+
+def test_a_design_it_cannot_fit_is_a_flagged_row(plan):
+    frame = run_plan(plan, MetricTable(frame=_table(np.random.default_rng(3), drop_expert_c=True),
+                                       source="toy")).to_frame()
+    art = frame[frame.test_id == "art"]
+    assert set(art.status) == {"not_computed"} and art.warnings.str.contains("singular").all()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("options: {factor: group}\n  - id: lmm", "options: {factor: grup}\n  - id: lmm",
+         "plan.yaml:14:15: tests[0].options.factor: unknown factor 'grup'; did you mean 'group'?"),
+        ("options: {factor: group}\n  - id: lmm", "options: {factor: condition}\n  - id: lmm",
+         "plan.yaml:14:15: tests[0].options.factor: the second factor 'condition' is already compared"),
+        ("test: ordinal", "test: ordinl",
+         "plan.yaml:21:5: tests[2].test: unknown test 'ordinl'; did you mean 'ordinal'?"),
+    ],
+)
+def test_plan_mistakes_name_file_and_line(tmp_path, old, new, message):
+    path = tmp_path / "plan.yaml"
+    assert old in PLAN
+    path.write_text(PLAN.replace(old, new, 1))
+    with pytest.raises(StudyctlError) as err:
+        load_plan(path)
+    assert message in str(err.value), str(err.value)
