@@ -11,6 +11,7 @@ from studyctl.cli.common import DB_OPTION, WORKSPACE_OPTION, workspace_arg
 from studyctl.errors import IntegrityError
 from studyctl.store.anchor import parse_head
 from studyctl.store.integrity import verify_integrity
+from studyctl.store.records import SEAL_ACTION
 from studyctl.store.repository import StudyStore
 from studyctl.store.workspace import resolve_database
 
@@ -50,11 +51,16 @@ def register(app: typer.Typer) -> None:
         workspace: Path = WORKSPACE_OPTION,
         last: int = typer.Option(20, "--last", min=1, help="How many of the newest rows to show."),
         as_json: bool = typer.Option(False, "--json", help="Print JSON lines instead of text."),
+        seals: bool = typer.Option(False, "--seals", help="Also show the records.seal rows (the digests of the "
+                                   "records each transaction wrote; long)."),
     ) -> None:
         """Print the newest audit rows (time, actor, action, entity, details)."""
         url, _ = resolve_database(db, workspace_arg(workspace))
         with StudyStore.open(url) as store:
-            frame = store.audit_frame().tail(last)
+            frame = store.audit_frame()
+        if not seals:
+            frame = frame[frame.action != SEAL_ACTION]
+        frame = frame.tail(last)
         for row in frame.itertuples(index=False):
             if as_json:
                 typer.echo(json.dumps({"id": row.id, "at": row.at, "actor": row.actor, "action": row.action,

@@ -312,3 +312,11 @@ def test_event_list_in_seals_is_json(copy_url):
         engine.dispose()
     kinds = set().union(*details)
     assert {"trial", "event", "answer", "report", "chunk"} <= kinds
+
+
+def test_audit_show_hides_seals_unless_asked(copy_url, capsys):
+    assert main(["audit", "show", "--db", copy_url, "--last", "500"]) == 0
+    plain = capsys.readouterr().out
+    assert "session.update" in plain and "records.seal" not in plain
+    assert main(["audit", "show", "--db", copy_url, "--last", "500", "--seals"]) == 0
+    assert "records.seal" in capsys.readouterr().out
