@@ -20,6 +20,8 @@ import pytest
 from studyctl.errors import PluginError
 from studyctl.plugins.registry import load_plugin
 
+pytestmark = pytest.mark.slow  # spawns processes / runs whole sessions: CI runs it, plain pytest skips it
+
 PYPROJECT = """\
 [build-system]
 requires = ["setuptools>=61"]
@@ -57,8 +59,6 @@ class HalfLinear(Controller):
         f = obs.values["force_n"]
         return {"balloon_pct": 0.5 * 99.0 * min(max(f / 2.0, 0.0), 1.0), "vibration_pct": 0.0}
 '''
-
-pytestmark = pytest.mark.slow  # spawns processes / runs whole sessions: CI runs it, plain pytest skips it
 
 BROKEN = 'raise ImportError("gainplug_broken needs libfoo, which is not installed")\n'
 
