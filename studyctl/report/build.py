@@ -12,6 +12,7 @@ Layout of ``out_dir``::
     figures/<id>.png     one per plan figure, 300 dpi (and <id>.svg, <id>.pdf: ``figure_formats``)
     report.html          everything above in one file (figures embedded as base64 PNG)
     report.md            the same as Markdown (figures linked from figures/)
+    tables.tex           every table of the report as LaTeX (booktabs), captioned by its section
     summary.json         headline numbers, partial flag and problems (machine-readable)
 
 Files are written to temporary names and renamed into place, so a failure never leaves a half-written
@@ -191,6 +192,8 @@ def write_report(
     html = _atomic_write(out / "report.html", document.html(result, figures, problems, base=out))
     pngs = [p.name for p in figure_paths if p.suffix == ".png"]
     md = _atomic_write(out / "report.md", document.markdown(result, pngs, problems, base=out))
+    tex = _atomic_write(out / "tables.tex", document.latex_tables(result, problems, base=out))
+    tables.append(tex)
     summary = document.summary(result, problems, base=out)
     _atomic_write(out / "summary.json", json.dumps(summary, indent=2, default=_json_default) + "\n")
     timings["documents_s"] = time.perf_counter() - t2

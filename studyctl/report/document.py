@@ -25,7 +25,7 @@ from studyctl import __version__
 from studyctl.analysis import catalog
 from studyctl.report import apa
 from studyctl.report.compose import likert_items_table
-from studyctl.report.render import Block, render_html, render_markdown
+from studyctl.report.render import Block, render_html, render_latex, render_markdown
 from studyctl.report.style import fmt_num
 
 if TYPE_CHECKING:
@@ -506,6 +506,11 @@ def markdown(
     """The report as Markdown; figures are linked from ``figures/``."""
     ids = [re.sub(r"\.(png|svg|pdf)$", "", f) for f in figure_files]
     return render_markdown(blocks(result, list(dict.fromkeys(ids)), problems, base=base))
+
+
+def latex_tables(result: AnalysisResult, problems: Sequence[str], *, base: Path | str | None = None) -> str:
+    """Every table of the report as LaTeX (booktabs), captioned by its section."""
+    return render_latex(result.plan.title, blocks(result, [], problems, base=base))
 
 
 def summary(result: AnalysisResult, problems: Sequence[str], *, base: Path | str | None = None) -> dict[str, Any]:

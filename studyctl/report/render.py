@@ -84,3 +84,31 @@ def render_markdown(content: Sequence[Block]) -> str:
     blocks, toc = _normalise(content)
     text = _env().get_template("report.md.j2").render(blocks=blocks, toc=toc)
     return re.sub(r"\n{3,}", "\n\n", text)
+
+
+_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
+        "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}", "<": r"\textless{}",
+        ">": r"\textgreater{}"}
+
+
+def tex(text: Any) -> str:
+    """Text with LaTeX's special characters escaped."""
+    return "".join(_TEX.get(ch, ch) for ch in str(text))
+
+
+def render_latex(title: str, content: Sequence[Block]) -> str:
+    """Every table of the blocks as a booktabs ``table`` environment, captioned by its section heading."""
+    blocks, _ = _normalise(content)
+    tables, heading, anchor, count = [], "", "table", {}
+    for b in blocks:
+        if b["kind"] == "h" and b["level"] >= 2:
+            heading, anchor = b["text"], b["anchor"]
+        elif b["kind"] == "table" and b["rows"]:
+            count[heading] = count.get(heading, 0) + 1
+            label = anchor + (f"-{count[heading]}" if count[heading] > 1 else "")
+            tables.append({
+                "caption": tex(heading), "caption_plain": heading.replace("\n", " "), "label": label,
+                "head": [tex(h) for h in b["head"]], "rows": [[tex(c) for c in r] for r in b["rows"]],
+                "note": tex(b["caption"]),
+            })
+    return _env().get_template("tables.tex.j2").render(title=title, tables=tables)

@@ -334,3 +334,13 @@ def test_summary_of_findings_leads_with_the_agreement_of_a_simulated_study(resul
     title, anchor, lines = findings[1][0]
     assert (title, anchor) == ("Simulated vs published", "simulated-vs-published")
     assert lines[0].startswith("2/4 (50%) published targets agree on every check")
+
+
+def test_tables_tex_has_every_table_as_booktabs(written):
+    tex = (written.out_dir / "tables.tex").read_text()
+    html = written.html.read_text()
+    assert tex.count("\\begin{table}") == tex.count("\\end{table}") == html.count("<table>")
+    assert "\\toprule" in tex and "\\caption{kw}" in tex and "\\label{tab:kw}" in tex
+    assert "\\textless{} .001" in tex  # p as printed, special characters escaped
+    body = tex.split("\\begin{table}", 1)[1]
+    assert "_" not in body.replace("\\_", "")  # every underscore escaped
