@@ -143,8 +143,19 @@ PARAMS = (
     Param("report_fraction", 0.0, low=0.0, high=1.0,
           source="FITTED: a spot is reported only if it feels at least this fraction as stiff (contrast) as the "
           "clearest one: what a nodule feels like is known from the practice run with visible nodules"),
+    Param("expect_spots", 0, low=0, high=20, kind=int,
+          source="CHOSEN: how many nodules a person expects (seen in the practice run with visible nodules); a "
+          "targeted searcher stops surveying once it has felt that many clear spots (0: it surveys everything)"),
+    Param("stop_z", 8.0, low=1.0, high=1000.0,
+          source="FITTED: how clear (SDs of the press noise) each expected spot must feel before the survey stops; "
+          "very high for a systematic searcher who covers the whole surface anyway"),
     Param("follow_up_z", 1.5, low=0.0, high=50.0,
           source="CHOSEN: survey presses this suspicious are re-palpated"),
+    Param("follow_up_shrink", 0.5, low=0.05, high=1.0,
+          source="CHOSEN: the nodule contrast a re-palpated spot is tested for, as a share of its survey contrast "
+          "(the most suspicious survey presses overstate it)"),
+    Param("follow_up_min", 2, low=1, high=9, kind=int,
+          source="CHOSEN: presses a person makes at a suspicious spot before dismissing it"),
     Param("follow_up_count", 5, low=0, high=50, kind=int, source="CHOSEN: spots re-palpated at most"),
     Param("follow_up_spacing_mm", 4.0, low=0.5, high=20.0, unit="mm", source="CHOSEN: a 3 × 3 local grid"),
     Param("max_reports", 6, low=1, high=100, kind=int, source="CHOSEN: nobody marks more spots"),
@@ -285,7 +296,22 @@ class VirtualTissuePalpator(Participant):
         self._stage = "survey"
         self._next_press()
 
+    def _found_enough(self) -> bool:
+        """A targeted searcher ends its survey once it has felt as many clear spots as it expects nodules (known
+        from the practice run): ``expect_spots`` spots each above ``stop_z`` SDs. Checked every third press."""
+        p = self.params
+        if p["expect_spots"] <= 0 or len(self._presses) < 10 or len(self._presses) % 3:
+            return False
+        ev = self._evidence()
+        if ev is None:
+            return False
+        spots = self._clusters(*ev, threshold=p["stop_z"], limit=p["expect_spots"])
+        return len(spots) >= p["expect_spots"]
+
     def _next_press(self) -> None:
+        if self._stage == "survey" and self._plan and self._found_enough():
+            self.perceived["survey_stopped_early"] = len(self._plan)
+            self._plan = []
         if not self._plan and self._stage == "survey":
             self._stage = "follow_up"
             self._spots = self._follow_up_spots()
@@ -435,7 +461,7 @@ class VirtualTissuePalpator(Participant):
                 self._target = (press["x"], press["y"], press["h"] - max(depth, 0.2))
                 self._goal, self._settle_at = None, math.inf
                 self._phase, self._phase_t = "press", 0.0
-                press.update(track=[], last=None, f_sum=0.0, z_sum=0.0, x_sum=0.0, y_sum=0.0, n_held=0)
+                press.update(track=[], last=None, f_sum=0.0, f_max=0.0, z_sum=0.0, x_sum=0.0, y_sum=0.0, n_held=0)
         elif phase == "press":
             if cursor is not None and handle is not None:
                 last = press["last"]
@@ -465,9 +491,10 @@ class VirtualTissuePalpator(Participant):
             # (a rising force; a force that vanishes, as FF renders none while the tool retracts, is not settling)
             if last is not None and force - last > p["steady_rate_n_s"] * max(self._dt, 1e-6):
                 # the force still changes (the hand settling against the tissue): judge from when it is steady
-                press["f_sum"] = press["x_sum"] = press["y_sum"] = press["z_sum"] = 0.0
+                press["f_sum"] = press["f_max"] = press["x_sum"] = press["y_sum"] = press["z_sum"] = 0.0
                 press["n_held"], press["steady_t"] = 0, self._phase_t
             press["f_sum"] += force
+            press["f_max"] = max(press["f_max"], force)
             press["x_sum"] += ctrl[0]
             press["y_sum"] += ctrl[1]
             press["z_sum"] += ctrl[2]
@@ -529,7 +556,9 @@ class VirtualTissuePalpator(Participant):
         # where the press was held (the cursor or the hand, as the participant sees or feels it)
         x, y = (press["x_sum"] / n, press["y_sum"] / n) if n else (press["bx"], press["by"])
         row = {"x": x, "y": y, "force": math.nan, "ratio": math.nan, "stage": self._stage}
-        held = press["f_sum"] / n if n else 0.0
+        # The resistance felt is the strongest steady push of the hold: where the rendering drops the force
+        # whenever the tool backs off (seed 003's FF), the mean would count those gaps as softness.
+        held = press["f_max"] if n else 0.0
         # the indentation the participant sees (cursor) or feels (hand), held at the bottom
         depth = press["h"] - (press["z_sum"] / n if n else press["bz"])
         if held > 0.0 and depth > 0.2:
@@ -657,6 +686,9 @@ class VirtualTissuePalpator(Participant):
             w = 1.0 / sigma[near] ** 2
             mu = float((w * contrast[near]).sum() / w.sum()) if near.any() else 0.0
             todo = [g for g in grid if math.isfinite(self._height(*g))]
+            # the spot was picked for being the most suspicious: its survey contrast overstates what re-palpation
+            # will feel (regression to the mean), so the alternative is shrunk
+            mu *= p["follow_up_shrink"]
             out.append({"x": cx, "y": cy, "mu": max(mu, 1e-3), "todo": todo, "presses": 0})
         self._follow_up = {"follow_up_spots": [(sp["x"], sp["y"]) for sp in out], "follow_up_decisions": []}
         return out
@@ -681,7 +713,8 @@ class VirtualTissuePalpator(Participant):
         while self._spots:
             spot = self._spots[0]
             llr = self._spot_llr(spot)
-            if spot["todo"] and -bound < llr < bound:
+            undecided = -bound < llr < bound or (llr <= -bound and spot["presses"] < self.params["follow_up_min"])
+            if spot["todo"] and undecided:
                 spot["presses"] += 1
                 return [spot["todo"].pop(0)]
             verdict = "nodule" if llr >= bound else ("none" if llr <= -bound else "undecided")
