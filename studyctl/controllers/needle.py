@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import replace
 from typing import Any
 
 from studyctl.errors import ModelParameterError
@@ -15,7 +14,6 @@ from studyctl.models.needle import NeedleGeometry, NeedleTissueModel
 from studyctl.models.needle_params import UNITS, NeedleParams
 from studyctl.plugins.interfaces import Controller, Observation, Scene
 from studyctl.plugins.params import ParamProblem, unknown_param
-from studyctl.suggest import nearest
 
 
 class NeedleHybridController(Controller):
@@ -92,11 +90,12 @@ class NeedleHybridController(Controller):
         names = NeedleParams.names()
         for name, value in flat.items():
             if name not in names:
-                problem = unknown_param(paths[name], names)
-                near = nearest(name, names)  # liver.k_cutt is liver_k_cutt: suggest k_cut inside the block
-                if near is not None and len(paths[name]) == 2:
-                    near = near.removeprefix(name[: len(name) - len(paths[name][1])])
-                problems.append(replace(problem, suggestion=near))
+                if len(paths[name]) == 2:  # liver.k_cutt: name and suggest the keys of that block (k_cut, …)
+                    prefix = name[: len(name) - len(paths[name][1])]
+                    problems.append(unknown_param(paths[name], [n.removeprefix(prefix) for n in names
+                                                                if n.startswith(prefix)]))
+                else:
+                    problems.append(unknown_param(paths[name], names))
             elif isinstance(value, bool) or not isinstance(value, int | float):
                 problems.append(ParamProblem(paths[name], "not a number", f"a number in {UNITS[name]}"))
         if problems:

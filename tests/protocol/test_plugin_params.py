@@ -63,7 +63,7 @@ def test_needle_blocks_are_checked_at_the_key_that_holds_the_value(tmp_path):
     assert len(problems) == 3, problems
     bad_block = _line_of(path, "k_cutt")
     assert any(p.startswith(f"{path}:{bad_block}:") and "params.liver.k_cutt" in p and "did you mean 'k_cut'?" in p
-               for p in problems), problems
+               and "allowed one of 'c', 'f_dynamic', 'f_static', 'k_cut'" in p for p in problems), problems
     assert any("params.liver.c: controller 'needle_hybrid': not a number: found 'ten'" in p for p in problems)
     passivity = _line_of(path, "k_d: 0.1")
     assert any(p.startswith(f"{path}:{passivity}:") and "params.radial.k_d" in p and "K·T/2" in p
