@@ -3,7 +3,7 @@ phantoms of seeds 002 and 003.
 
 **These are not measurements.** They stand in for the rolling-indentation matrices so that studies,
 tests and benchmarks can run; a study that reports results on real phantoms should load the lab's own
-matrices with :func:`studyctl.models.stiffness_map.load_stiffness_map`.
+matrices with :func:`studyctl.models.stiffness_map_files.load_stiffness_map`.
 
 Force model (each step is an approximation and says so)
 -------------------------------------------------------

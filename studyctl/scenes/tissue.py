@@ -41,7 +41,8 @@ import numpy as np
 from studyctl.errors import ModelParameterError, NotFoundError
 from studyctl.models.force_render import Placement
 from studyctl.models.pseudo_haptics import DeformationView
-from studyctl.models.stiffness_map import StiffnessMap, load_stiffness_map
+from studyctl.models.stiffness_map import StiffnessMap
+from studyctl.models.stiffness_map_files import load_stiffness_map
 from studyctl.models.surface_mesh import SurfaceMesh, surface_from_point_cloud
 from studyctl.models.synthetic_phantom import PHANTOMS, Nodule
 from studyctl.plugins.interfaces import Channels, Scene

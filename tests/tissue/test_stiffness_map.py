@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from studyctl.errors import ModelParameterError, NotFoundError
-from studyctl.models.stiffness_map import StiffnessMap, load_stiffness_map
+from studyctl.models.stiffness_map import StiffnessMap
+from studyctl.models.stiffness_map_files import load_stiffness_map
 
 
 def _map(nd=3, nx=5, ny=4, horizontal=True) -> StiffnessMap:
