@@ -34,10 +34,10 @@ def _label(row: pd.Series) -> str:
 
 
 def population_text(population: Any) -> str:
-    """One line stating the simulated population's knobs (the figure caption and the CLI print it)."""
+    """One line stating the effect knobs shifted on top of the population (the figure caption and the CLI)."""
     if population is None or getattr(population, "is_empty", True):
-        return ("population: the protocol's virtual participant as configured, no extra effects stated "
-                "(differences come from the simulated feedback and perception alone)")
+        return ("effects: none stated beyond the population's people (differences come from the simulated "
+                "feedback, perception and between-person traits alone)")
     d = population.to_dict()
     bits = []
     for c, shifts in d["condition_effects"].items():
@@ -46,7 +46,7 @@ def population_text(population: Any) -> str:
         bits += [f"{g}: {p} {v:+g}" for p, v in shifts.items()]
     bits += [f"{p} = {v:g}" for p, v in d["baseline"].items()]
     bits += [f"SD({p}) = {v:g}" for p, v in d["between_sd"].items()]
-    return "population: " + "; ".join(bits)
+    return "effects (shifts on top of each person's traits): " + "; ".join(bits)
 
 
 def power_curve_figure(
