@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from studyctl.errors import UnknownKeyError, UsageError
 from studyctl.populations.targets import Target
 
 BOOTSTRAP = 400
@@ -46,7 +47,7 @@ class SimulatedStats:
         for v in self.values:
             if v.target == target_id:
                 return v
-        raise KeyError(target_id)
+        raise UnknownKeyError(f"no simulated value for target {target_id!r}")
 
     def to_frame(self) -> pd.DataFrame:
         return pd.DataFrame([[getattr(v, c) for c in COLUMNS] for v in self.values], columns=list(COLUMNS))
@@ -95,7 +96,7 @@ def _stat(num: np.ndarray, den: np.ndarray, statistic: str, scale: float) -> flo
         return float(np.sum(num) / np.sum(den))
     if statistic == "count_total":
         return float(np.sum(num) * scale)
-    raise ValueError(statistic)
+    raise UsageError(f"unknown statistic {statistic!r}")
 
 
 def _bootstrap(fn, n: int, rng: np.random.Generator) -> tuple[float, float, float]:  # noqa: ANN001

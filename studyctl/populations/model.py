@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from studyctl.errors import UnknownKeyError
+
 FORMAT = "studyctl-population/1"
 DISTS = ("normal", "lognormal", "logitnormal", "fixed")
 SOURCE_PREFIXES = ("CITED:", "CHOSEN:", "FITTED")
@@ -130,7 +132,8 @@ class TraitPopulation:
         for t in self.traits:
             if t.name == name:
                 return t
-        raise KeyError(name)
+        known = ", ".join(t.name for t in self.traits)
+        raise UnknownKeyError(f"no trait {name!r} in population {self.name!r}; traits are {known}")
 
     def draw(self, rng: np.random.Generator, stratum: str | None = None) -> dict[str, float]:
         """One person's traits: one standard normal per trait in sorted name order (see module docs)."""

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from studyctl.errors import NotFoundError, PopulationError
+from studyctl.errors import NotFoundError, PopulationError, UnknownKeyError
 from studyctl.suggest import did_you_mean
 
 TARGETS_FORMAT = "studyctl-targets/1"
@@ -142,7 +142,7 @@ class TargetSet:
         for t in self.targets:
             if t.id == target_id:
                 return t
-        raise KeyError(target_id)
+        raise UnknownKeyError(f"no target {target_id!r}; targets are {', '.join(t.id for t in self.targets)}")
 
 
 def load_targets_file(path: str | Path, *, plan: Any | None = None, protocol: Any | None = None) -> TargetSet:

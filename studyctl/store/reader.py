@@ -22,6 +22,7 @@ from typing import Any
 import pandas as pd
 from sqlalchemy import select
 
+from studyctl.errors import UnknownKeyError
 from studyctl.store.models import (
     Event,
     LocationReport,
@@ -309,7 +310,7 @@ class StudyReader:
         for tr in self.snapshot.trials:
             if tr.id == trial_id:
                 return tr
-        raise KeyError(trial_id)
+        raise UnknownKeyError(f"no trial {trial_id} in this study")
 
     def first_completed(self, conditions: tuple[str, ...] | list[str]) -> dict[str, TrialRow]:
         """The first completed trial (by id) of each of ``conditions`` that has one."""
