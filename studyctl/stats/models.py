@@ -191,13 +191,15 @@ def _mixed_llf(y: np.ndarray, x: np.ndarray, groups: np.ndarray) -> float:
         warnings.simplefilter("ignore", UserWarning)
         model = MixedLM(y, x, groups=groups)
         best = None
-        for method in (["lbfgs"], ["bfgs"], ["nm", "lbfgs"]):
+        for method in (["lbfgs"], ["bfgs"], ["nm", "lbfgs"]):  # the next optimiser only when one fails
             try:
                 fit = model.fit(reml=False, method=method)
             except (np.linalg.LinAlgError, ValueError):
                 continue
             if best is None or fit.llf > best.llf:
                 best = fit
+            if fit.converged and np.isfinite(fit.llf):
+                break
     if best is None:
         raise np.linalg.LinAlgError("the mixed model could not be fitted")
     return float(best.llf)
