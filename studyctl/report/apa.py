@@ -143,5 +143,9 @@ def line(row: Mapping[str, Any]) -> str:
         parts.append(p_text(p_adj, name=f"p_{method}"))
     es = effect_text(es_name, row.get("effect_size"))
     if es:
+        lo, hi = row.get("effect_ci_low"), row.get("effect_ci_high")
+        if not _nan(lo) and not _nan(hi):  # a bootstrap interval of the effect size, when the report has one
+            fmt = bounded if es_name in _BOUNDED else number
+            es += f" [{fmt(lo)}, {fmt(hi)}]"
         parts.append(es)
     return ", ".join(parts)

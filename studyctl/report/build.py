@@ -8,6 +8,7 @@ Layout of ``out_dir``::
     units.csv            the analysed value of every participant × condition (× level)
     proportions.csv      pooled proportions with Wilson intervals (proportion metrics)
     percent_change.csv, likert.csv, descriptives.csv   when the plan asks for them
+    effect_sizes.csv     bootstrap intervals of the effect sizes (when the caller computed them)
     missing.csv          every value that is missing, and why
     figures/<id>.png     one per plan figure, 300 dpi (and <id>.svg, <id>.pdf: ``figure_formats``)
     report.html          everything above in one file (figures embedded as base64 PNG)
@@ -157,7 +158,8 @@ def write_report(
     if on_step:
         on_step("tables")
     table("tests", result.to_frame())
-    for name in ("cells", "units", "proportions", "percent_change", "likert", "descriptives", "agreement"):
+    for name in ("cells", "units", "proportions", "percent_change", "likert", "descriptives", "agreement",
+                 "effect_sizes"):
         frame = result.tables.get(name)
         if frame is not None and not frame.empty:
             table(name, frame)

@@ -135,7 +135,8 @@ def _test_rows_table(entry: PlanTest, rows: pd.DataFrame, result: AnalysisResult
             stat_head = "Δ (second − first)"
         es_head = apa.EFFECT_SYMBOLS.get(next(iter(es_names)), "effect size") if len(es_names) == 1 else "effect size"
         p_adj_head = f"p ({next(iter(adjust))})" if len(adjust) == 1 else "p adj."
-        head += [stat_head, "df", "z", "W critical", "p", p_adj_head, es_head, "95% CI", "significant"]
+        head += [stat_head, "df", "z", "W critical", "p", p_adj_head, es_head, f"{es_head} 95% CI (bootstrap)",
+                 "95% CI", "significant"]
     head += ["method", "notes"]
     body = []
     for _, r in rows.iterrows():
@@ -160,9 +161,14 @@ def _test_rows_table(entry: PlanTest, rows: pd.DataFrame, result: AnalysisResult
                 apa.effect_text(r["effect_size_name"], r["effect_size"]).split(" = ", 1)[1] if len(es_names) == 1
                 else apa.effect_text(r["effect_size_name"], r["effect_size"]))
             p_adj = _p_cell(r["p_adj"]) if len(adjust) <= 1 else apa.p_text(r["p_adj"], name=f"p_{r['p_adjust']}")
+            es_ci = ""
+            if not _isnan(r.get("effect_ci_low")) and not _isnan(r.get("effect_ci_high")):
+                bounded = abs(r["effect_ci_low"]) <= 1 and abs(r["effect_ci_high"]) <= 1
+                fmt = apa.bounded if bounded else apa.number
+                es_ci = f"[{fmt(r['effect_ci_low'])}, {fmt(r['effect_ci_high'])}]"
             cells += [stat, df, "" if _isnan(r["z"]) else apa.number(r["z"]),
                       "" if _isnan(r["critical_value"]) else apa.number(r["critical_value"]), _p_cell(r["p"]), p_adj,
-                      es, ci, _sig(r["significant"])]
+                      es, es_ci, ci, _sig(r["significant"])]
         note = str(r["warnings"] or "")
         cells += [str(r["method"] or ""), ("NOT COMPUTED: " + note) if r["status"] != "ok" else note]
         body.append(cells)
@@ -189,6 +195,18 @@ def _descriptive_table(frame: pd.DataFrame, result: AnalysisResult, level_name: 
     return tidy(head, body, keep=("metric",))
 
 
+def tests_frame(result: AnalysisResult) -> pd.DataFrame:
+    """The tests table with the bootstrap intervals of the effect sizes (``effect_ci_low/high``) when the
+    result has them (table ``effect_sizes``)."""
+    frame = result.to_frame()
+    ci = result.tables.get("effect_sizes")
+    if ci is None or ci.empty:
+        return frame.assign(effect_ci_low=np.nan, effect_ci_high=np.nan)
+    keys = ["test_id", "metric", "split", "groups"]
+    ci = ci[keys + ["ci_low", "ci_high"]].rename(columns={"ci_low": "effect_ci_low", "ci_high": "effect_ci_high"})
+    return frame.merge(ci, on=keys, how="left")
+
+
 # ------------------------------------------------------------------------------------------- headlines
 
 
@@ -203,7 +221,7 @@ def _where(r: Any, result: AnalysisResult, with_metric: bool = True) -> str:
 
 def headline_lines(entry: PlanTest, result: AnalysisResult) -> list[str]:
     """The entry's headline: one APA line per test (up to four), else the count significant and the strongest."""
-    frame = result.to_frame()
+    frame = tests_frame(result)
     rows = frame[(frame["test_id"] == entry.id) & (frame["kind"].isin(["omnibus", "two_sample"]))]
     name = catalog.ALIASES.get(entry.test, entry.test)
     if name in ("percent_change", "likert_table", "descriptive"):  # tables, not tests: read in their section
@@ -297,6 +315,11 @@ def methods_text(result: AnalysisResult) -> list[str]:
         if entry.effect_size:
             text += f"; effect size: {', '.join(apa.EFFECT_SYMBOLS.get(e, e) for e in entry.effect_size)}"
         paras.append(text + ".")
+    ci = result.tables.get("effect_sizes")
+    if ci is not None and not ci.empty:
+        paras.append(f"Effect sizes are given with 95% percentile-bootstrap intervals ({int(ci['replicates'].max())} "
+                     f"resamples, seeded generator, seed {int(ci['seed'].iloc[0])}; participants resampled within "
+                     "each level for independent samples and as whole blocks for paired designs).")
     paras.append(f"Computed with {_versions()}.")
     return paras
 
@@ -309,7 +332,7 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
     blocks: list[Block] = [("h", 3, entry.title or entry.id, entry.id)]
     if entry.description:
         blocks.append(("p", entry.description))
-    frame = result.to_frame()
+    frame = tests_frame(result)
     rows = frame[frame["test_id"] == entry.id]
     if name == "percent_change":
         pct = result.tables.get("percent_change", pd.DataFrame())

@@ -32,13 +32,15 @@ def build_report(
     on_step: Callable[[str], None] | None = None,
     targets: str | Path | None = None,
     figure_formats: tuple[str, ...] = ("png", "svg", "pdf"),
+    effect_size_ci: bool = True,
 ) -> ReportRun:
     """Analyse ``plan`` (database or CSV data) and write its report into ``out_dir``.
 
     The output folder is checked for writability before anything is computed. The plan is loaded and
     the study opened once, by :func:`studyctl.analysis.analyze`, for the tests and the figures' data. A simulated
     study's report gets a "simulated vs published" section and ``agreement.csv`` (``targets``: a targets file;
-    default: the protocol's shipped one).
+    default: the protocol's shipped one). ``effect_size_ci``: bootstrap intervals of the effect sizes
+    (:mod:`studyctl.analysis.effect_ci`, ``effect_sizes.csv``).
     """
     ensure_writable(out_dir)
     check_figure_formats(figure_formats)
@@ -55,6 +57,14 @@ def build_report(
             frame, info = compared
             extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
             result = replace(result, tables={**result.tables, **extra})
+    if effect_size_ci:
+        from dataclasses import replace
+
+        from studyctl.analysis.effect_ci import effect_size_intervals
+
+        if on_step:
+            on_step("effect-size intervals")
+        result = replace(result, tables={**result.tables, "effect_sizes": effect_size_intervals(result)})
     t2 = time.perf_counter()
     files = write_report(result, out_dir, on_step=on_step, figure_formats=figure_formats)
     t3 = time.perf_counter()

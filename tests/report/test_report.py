@@ -344,3 +344,25 @@ def test_tables_tex_has_every_table_as_booktabs(written):
     assert "\\textless{} .001" in tex  # p as printed, special characters escaped
     body = tex.split("\\begin{table}", 1)[1]
     assert "_" not in body.replace("\\_", "")  # every underscore escaped
+
+
+def test_effect_sizes_get_seeded_bootstrap_intervals(result):
+    import dataclasses
+
+    from studyctl.analysis.effect_ci import effect_size_intervals
+    from studyctl.report.document import blocks
+
+    ci = effect_size_intervals(result, replicates=300)
+    assert list(ci["test_id"]) == ["groups", "groups", "groups", "kw"]  # rank-sum per condition, Kruskal-Wallis
+    assert ((ci["ci_low"] <= ci["effect_size"]) & (ci["effect_size"] <= ci["ci_high"])).all()
+    assert (ci["ci_low"] < ci["ci_high"]).all() and (ci["replicates"] == 300).all()
+    pd.testing.assert_frame_equal(ci, effect_size_intervals(result, replicates=300))  # seeded: same intervals
+    other = effect_size_intervals(result, replicates=300, seed=21)
+    assert not np.allclose(other["ci_low"], ci["ci_low"])
+    sim = dataclasses.replace(result, tables={**result.tables, "effect_sizes": ci})
+    content = blocks(sim, [], [])
+    (findings,) = [b for b in content if b[0] == "findings"]
+    kw_line = next(lines for title, _, lines in findings[1] if title == "kw")[0]
+    assert kw_line.startswith("Completion time: H(2) = ") and "ε² = .53 [." in kw_line
+    methods = " ".join(b[1] for b in content if b[0] == "p")
+    assert "percentile-bootstrap intervals (300 resamples, seeded generator, seed 20" in methods
