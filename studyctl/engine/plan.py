@@ -158,6 +158,7 @@ class ConditionSpec:
     visual: str = "none"
     manual: bool = False
     rate_hz: float | None = None  # None → the controller's rate, else 50 Hz
+    view_label: str = ""  # the participant view's neutral name for it ("" → only "Trial N")
 
 
 @dataclass(frozen=True)
@@ -268,7 +269,7 @@ class SessionPlan:
             "requests": list(self.requests),
             "checkpoint": self.checkpoint,
             "report": _plain(asdict(self.report)),
-            "conditions": {k: _plain(asdict(v)) for k, v in self.conditions.items()},
+            "conditions": {k: _condition_json(v) for k, v in self.conditions.items()},
             "instruments": {k: _plain(asdict(v)) for k, v in self.instruments.items()},
             "steps": [_plain(asdict(s)) for s in self.steps],
         }
@@ -335,3 +336,11 @@ def likert(
     """Scale points for a Likert item: ``likert(range(1, 6), {1: "strongly disagree", 5: "strongly agree"})``."""
     anchors = anchors or {}
     return tuple(ScalePoint(int(c), anchors.get(int(c), "")) for c in codes)
+
+
+def _condition_json(spec: ConditionSpec) -> dict[str, Any]:
+    # A blank view label is left out: plans stored before it existed keep their exact JSON.
+    out = _plain(asdict(spec))
+    if not out.get("view_label"):
+        out.pop("view_label", None)
+    return out

@@ -91,6 +91,7 @@ def plan_for_participant(protocol: Protocol, schedule: Schedule) -> SessionPlan:
             params=dict(c.params),
             visual=c.visual,
             manual=bool(c.manual),
+            view_label=c.view_label,
         )
         for c in protocol.conditions
     }

@@ -148,9 +148,16 @@ class _Checker:
                 self.check_finite(value, (*path, index))
 
     def check_conditions(self) -> None:
+        names = {str(n).lower() for _, c in _items(self.d, "conditions") if isinstance(c, dict)
+                 for n in (c.get("id"), c.get("label")) if isinstance(n, str) and n}
         for index, cond in _items(self.d, "conditions"):
             if not isinstance(cond, dict):
                 continue
+            shown = cond.get("view_label")
+            if isinstance(shown, str) and shown.strip().lower() in names:
+                # the participant view shows it: a condition's own id or label would unblind the participant
+                self.add(("conditions", index, "view_label"), "view label names a condition", show(shown),
+                         "a neutral name that is no condition's id or label", "e.g. 'Session A'")
             manual, controller = cond.get("manual", False), cond.get("controller")
             if manual is True and controller is not None:
                 self.add(("conditions", index, "controller"), "a manual condition runs no controller",

@@ -105,6 +105,9 @@ class Condition(StrictModel):
     params: dict[str, Any] = Field(default_factory=dict)
     visual: VisualMode = "none"
     manual: bool = False
+    # What the participant's screen may call this condition (e.g. "Session A"); blank: nothing, only
+    # "Trial N". Never the id or label by default, so the participant stays blind to the condition.
+    view_label: str = Field("", max_length=40)
 
 
 class Counterbalance(StrictModel):

@@ -62,7 +62,6 @@ class ViewParticipant(Participant):
             visual=info.visual,
             requests=list(requests),
             report=_report_fields(spec),
-            time_limit_s=_finite(info.time_limit_s),
         )
         self._scans = 0
         self._prev = None
@@ -155,6 +154,7 @@ class ViewUI:
             self._term.answer_source = hub.take_answer
         hub.answerable = self._term is not None
         self._trial_label: dict[str, Any] = {}
+        self._step: Step | None = None
 
     # -- log ---------------------------------------------------------------------------------------
     def flush(self, trial_id: int | None = None, trial: TrialView | None = None, *, practice: bool = False) -> int:
@@ -182,11 +182,13 @@ class ViewUI:
 
     def instructions(self, step: Step, text: str) -> None:
         self.flush()
+        self._step = step
         if step.kind == "end":
             self.hub.show("done", text=text)
             self.inner.instructions(step, text)
             return
-        self.hub.show("instructions", prompt="ready", text=text, title=_instructions_title(step))
+        title = self._practice_title() if step.kind == "familiarisation" else "Instructions"
+        self.hub.show("instructions", prompt="ready", text=text, title=title, condition=step.condition)
         try:
             self.inner.instructions(step, text)
         finally:
@@ -194,9 +196,11 @@ class ViewUI:
 
     def timer(self, title: str, duration_s: float, clock: Clock, *, can_end_early: bool, purpose: str) -> TimerResult:
         self.flush()
+        # The engine's title names the condition ("Familiarisation: <label>"); the page gets a neutral one.
+        page_title = "Break" if purpose == "break" else self._practice_title()
         self.hub.show(
             "timer",
-            title=title,
+            title=page_title,
             duration_s=float(duration_s),
             purpose=purpose,
             started=self.hub.clock(),
@@ -247,7 +251,7 @@ class ViewUI:
 
     def manual_outcome(self, step: Step, report: ReportSpec, clock: Clock) -> ManualOutcome:
         self.flush()
-        self.hub.show("manual", trial=step.trial_index, condition=step.condition)
+        self.hub.show("hands_on", trial=step.trial_index, label=self._page_label(step), condition=step.condition)
         try:
             return self.inner.manual_outcome(step, report, clock)
         finally:
@@ -255,11 +259,14 @@ class ViewUI:
 
     def trial_begin(self, step: Step, time_limit_s: float) -> None:
         self.flush()
+        practice = step.kind == "familiarisation"
         self._trial_label = {
             "trial": step.trial_index,
-            "condition": step.condition,
-            "practice": step.kind == "familiarisation",
-            "time_limit_s": _finite(time_limit_s),
+            "condition": step.condition,  # kept off the page by the hub; logged with the screen
+            "label": self._page_label(step),
+            "practice": practice,
+            # The protocol's limit, not the engine's unattended cap: no limit, no countdown.
+            "time_limit_s": _finite(step.duration_s) if step.duration_s and not practice else None,
         }
         self.hub.show("trial_ready", prompt="start", **self._trial_label)
         try:
@@ -313,6 +320,27 @@ class ViewUI:
         return getattr(self.inner, name)
 
     # -- helpers --------------------------------------------------------------------------------------
+    def _view_label(self, condition: str | None) -> str:
+        """The protocol's neutral name of a condition for the participant ('' when it declares none)."""
+        if condition is None or self.rec is None:
+            return ""
+        try:
+            spec = self.rec.state().plan.conditions.get(condition)
+        except AttributeError:
+            return ""
+        return str(getattr(spec, "view_label", "") or "")
+
+    def _page_label(self, step: Step) -> str:
+        """What the page's heading calls a trial: "Trial 3" (· the protocol's neutral label), never the code."""
+        what = "Practice" if step.kind == "familiarisation" else f"Trial {step.trial_index}"
+        extra = self._view_label(step.condition)
+        return f"{what} · {extra}" if extra else what
+
+    def _practice_title(self) -> str:
+        step = self._step
+        extra = self._view_label(step.condition) if step is not None else ""
+        return f"Practice · {extra}" if extra else "Practice"
+
     def _done_prompt(self, kind: str, step: Step) -> None:
         prompt = self.hub.prompt
         self.hub.clear_prompt()
@@ -321,10 +349,6 @@ class ViewUI:
                 "view_answer",
                 {"prompt": kind, "position": step.position, "source": "view" if prompt.taken else "terminal"},
             )
-
-
-def _instructions_title(step: Step) -> str:
-    return "Practice" if step.kind == "familiarisation" else "Instructions"
 
 
 def _trial_rows(

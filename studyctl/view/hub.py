@@ -40,6 +40,9 @@ MAX_LOGGED_REFUSALS = 200
 SENT_MEMORY = 1024
 
 
+# Screen fields kept off the participant's page (logged only): the condition would unblind the participant.
+PRIVATE_FIELDS = ("condition",)
+
 class FrameState(NamedTuple):
     """What the trial loop dropped into the slot: the scene's frame and when its state was taken.
 
@@ -140,6 +143,8 @@ class ViewHub:
     # ================================================================ engine thread: screens
     def show(self, screen: str, *, prompt: str | None = None, codes: tuple[int, ...] = (), **fields: Any) -> int | None:
         """Replace what the participant sees; returns the new prompt's id when ``prompt`` is given."""
+        # Blinding: the condition goes to the session's log (what was shown when), never onto the page.
+        private = {k: fields.pop(k) for k in PRIVATE_FIELDS if k in fields}
         with self.lock:
             self.prompt = Prompt(next(self._prompt_ids), prompt, tuple(codes)) if prompt else None
             body: dict[str, Any] = {"screen": screen, **fields}
@@ -148,12 +153,13 @@ class ViewHub:
             self.screen = body
             self.screen_version += 1
             self._screen_summary[self.screen_version] = {
-                k: body[k] for k in ("screen", "item", "instrument", "trial", "condition") if k in body
-            } | ({"prompt": prompt} if prompt else {})
+                k: body[k] for k in ("screen", "item", "instrument", "trial") if k in body
+            } | private | ({"prompt": prompt} if prompt else {})
             return self.prompt.id if self.prompt else None
 
     def update(self, **fields: Any) -> None:
         """Change fields of the current screen (keeps its prompt)."""
+        fields = {k: v for k, v in fields.items() if k not in PRIVATE_FIELDS}
         with self.lock:
             self.screen = {**self.screen, **fields}
             self.screen_version += 1

@@ -3,6 +3,8 @@ pseudo-haptic tissue in real time) whose records are then read back from the stu
 
 from __future__ import annotations
 
+import re
+import time
 import urllib.request
 
 import pytest
@@ -51,6 +53,32 @@ def ct_pixels(driver) -> dict:
     """)
 
 
+def assert_blind(driver, plan) -> None:
+    """No condition id or label in the page's text or in the screen it received."""
+    seen = driver.execute_script("return document.body.innerText + JSON.stringify(window.studyctlView.state().screen)")
+    for c in plan.conditions.values():
+        assert not re.search(rf"(?<![A-Za-z0-9_]){re.escape(c.id)}(?![A-Za-z0-9_])", seen), c.id
+        assert c.label.lower() not in seen.lower(), c.label
+
+
+def at_sizes(driver, shots, name: str) -> None:
+    """Screenshots at 1920×1080 and 1280×720; the visual and the controls lie fully inside the window."""
+    for w, h in ((1920, 1080), (1280, 720)):
+        # the page's own viewport at exactly w × h (a window size would include the browser's frame)
+        driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
+                               {"width": w, "height": h, "deviceScaleFactor": 1, "mobile": False})
+        time.sleep(0.3)
+        boxes = driver.execute_script("""const out = {}, vw = innerWidth, vh = innerHeight;
+            for (const id of ['cv-tissue', 'ct', 'btn-finish', 'btn-scan', 'report', 'heading', 'countdown']) {
+              const el = document.getElementById(id); if (!el || el.offsetWidth === 0) continue;
+              const r = el.getBoundingClientRect();
+              out[id] = [r.left >= 0 && r.top >= 0 && r.right <= vw + 0.5 && r.bottom <= vh + 0.5, r.width, r.height];
+            } return out;""")
+        assert boxes and all(inside for inside, *_ in boxes.values()), (w, h, boxes)
+        shots(driver, f"{name}_{w}x{h}")
+    driver.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
+
+
 def test_needle_session_scans_likert_reload_and_records(store, browser, new_browser, shots):
     plan = short_plan("needle_insertion", "ES", time_limit_s=60.0)
     trial_step = next(s for s in plan.steps if s.kind == "trial")
@@ -80,12 +108,20 @@ def test_needle_session_scans_likert_reload_and_records(store, browser, new_brow
         wait_for(lambda: browser.find_element(By.ID, "btn-scan").is_displayed(), 5, "scan button")
         assert browser.execute_script("return document.getElementById('visual').dataset.kind") == "hint"
         wait_for(lambda: ":" in browser.find_element(By.ID, "countdown").text, 5, "countdown")
+        assert browser.find_element(By.ID, "heading").text == "Trial 1"
+        assert_blind(browser, plan)
 
         click(browser, "#btn-scan")
         wait_for(lambda: caption(browser).startswith("Scan 1"), 10, "scan 1 drawn")
         px = ct_pixels(browser)
         assert px["shown"] and px["grey"] > 50_000 and px["bright"] > 50  # liver texture, needle and tumour
-        shots(browser, "04_ct_scan_1")
+        # the scale bar is 10 mm at the slices' resolution
+        panel = browser.execute_script("return window.studyctlView.state().lastFrame.panels[0]")
+        bar = browser.execute_script("""const b = document.getElementById('ct-scale').getBoundingClientRect(),
+            c = document.getElementById('cv-ct'); return [b.width, c.getBoundingClientRect().width, c.width,
+            getComputedStyle(document.getElementById('ct-scale')).display];""")
+        assert bar[3] != "none" and bar[0] == pytest.approx(10 / panel["mm_per_px"] * bar[1] / bar[2], rel=0.05)
+        at_sizes(browser, shots, "04_ct_scan_1")
 
         browser.refresh()  # the participant's browser reloads mid-trial
         wait_screen(browser, "trial")
@@ -134,7 +170,7 @@ def test_needle_session_scans_likert_reload_and_records(store, browser, new_brow
 
 
 def test_tissue_realtime_view_and_position_report(store, browser, shots):
-    plan = short_plan("pseudo_haptic_palpation", "PHF", time_limit_s=30.0, questionnaire=False)
+    plan = short_plan("pseudo_haptic_palpation", "PHF", time_limit_s=None, questionnaire=False)
     trial_step = next(s for s in plan.steps if s.kind == "trial")
     placement = dict(trial_step.data["placement"])
     with ParticipantView() as view:
@@ -151,7 +187,15 @@ def test_tissue_realtime_view_and_position_report(store, browser, shots):
         profile_js = "const f = window.studyctlView.state().lastFrame; return f && f.deformation && " \
             "f.deformation.profile.length"
         wait_for(lambda: (browser.execute_script(profile_js) or 0) > 3, 10, "a deformation in the frames")
-        shots(browser, "08_tissue_phf_realtime")
+        assert browser.find_element(By.ID, "heading").text == "Trial 1"
+        assert browser.find_element(By.ID, "countdown").text == ""  # no time limit: no clock
+        assert_blind(browser, plan)
+        # mm rulers: tick labels in the left margin of the top view (black before them)
+        margin = browser.execute_script("""const cv = document.getElementById('cv-tissue');
+            const d = cv.getContext('2d').getImageData(0, 40, 56, cv.height - 100).data; let n = 0;
+            for (let i = 0; i < d.length; i += 4) if (d[i] > 150 && d[i + 1] > 150) n++; return n;""")
+        assert margin > 200
+        at_sizes(browser, shots, "08_tissue_phf_realtime")
         seqs = [browser.execute_script("return window.studyctlView.state().lastFrame.seq")]
         wait_for(lambda: browser.execute_script("return window.studyctlView.state().lastFrame.seq") > seqs[0] + 20,
                  5, "frames keep coming")

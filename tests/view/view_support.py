@@ -38,7 +38,7 @@ def _full_plan(protocol_name: str):
     return plan_for_participant(protocol, schedule)
 
 
-def short_plan(protocol_name: str, condition: str, *, time_limit_s: float, questionnaire: bool = True):
+def short_plan(protocol_name: str, condition: str, *, time_limit_s: float | None, questionnaire: bool = True):
     """Instructions → one trial of ``condition`` → (its first questionnaire, first item only) → end."""
     plan = _full_plan(protocol_name)
     steps = list(plan.steps)

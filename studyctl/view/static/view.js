@@ -132,20 +132,19 @@
     document.body.dataset.answerable = answerable ? "yes" : "no";
     promptShownAt = pageNow();
     if (s.screen !== "trial") notice("");
-    const trialKey = (s.practice ? "p" : "t") + s.trial + s.condition;
+    const trialKey = (s.practice ? "p" : "t") + s.trial + (s.label || "");
     if (s.screen === "trial_ready" || (s.screen === "trial" && trialKey !== shownTrial)) {
       // a new trial: nothing of the previous one stays on screen
       shownTrial = trialKey; lastFrame = null; lastT = null; reportMark = null;
     }
-    const what = s.practice ? "Practice" : s.trial ? "Trial " + s.trial : "";
-    const label = what ? what + (s.condition ? " · " + s.condition : "") : "studyctl";
-    $("heading").textContent = label;
+    // The server sends a neutral label ("Trial 3", or the protocol's view_label): never a condition code.
+    const label = s.label || (s.practice ? "Practice" : s.trial ? "Trial " + s.trial : "");
+    $("heading").textContent = label || "studyctl";
     if (s.screen === "instructions") {
       $("ins-title").textContent = s.title || "Instructions";
       $("ins-text").textContent = s.text || "";
     } else if (s.screen === "trial_ready") {
-      $("ready-title").textContent = (s.practice ? "Practice" : "Trial " + (s.trial || "")) +
-        (s.condition ? " — " + s.condition : "");
+      $("ready-title").textContent = label;
       $("btn-start").textContent = s.practice ? "Start the practice" : "Start the trial";
       $("ready-limit").textContent = s.time_limit_s ? "Time limit " + fmt(s.time_limit_s) : "No time limit";
     } else if (s.screen === "timer") {
@@ -154,7 +153,7 @@
       renderTrial(s);
     } else if (s.screen === "trial_over") {
       const how = { finish: "finished", time_limit: "time limit reached" }[s.ended_by] || (s.status || "");
-      $("over-text").textContent = (s.practice ? "Practice" : "Trial " + (s.trial || "")) + ": " + how +
+      $("over-text").textContent = label + ": " + how +
         (s.duration_s != null ? " after " + Number(s.duration_s).toFixed(1) + " s" : "");
     } else if (s.screen === "item") {
       renderItem(s);
@@ -337,6 +336,16 @@
       el.style.left = (100 * p.col0 / w) + "%";
       box.append(el);
     }
+    // Scale bar: 10 mm at the slices' own resolution, bottom-left of the first slice.
+    const bar = $("ct-scale");
+    const mpp = panels.length ? Number(panels[0].mm_per_px) : NaN;
+    if (isFinite(mpp) && mpp > 0) {
+      bar.style.display = "";
+      bar.style.left = (100 * (panels[0].col0 + 8) / w) + "%";
+      bar.style.width = (100 * (10 / mpp) / w) + "%";
+    } else {
+      bar.style.display = "none";
+    }
   }
 
   function heightsColour(v, lo, hi) {
@@ -354,9 +363,9 @@
     let lo = Infinity, hi = -Infinity;
     for (const row of hs) for (const v of row) if (v !== null) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
     const x0 = xs[0], x1 = xs[xs.length - 1], y0 = ys[0], y1 = ys[ys.length - 1];
-    const half = W / 2 - 20;
-    const s = Math.min(half / (x1 - x0), (H - 40) / (y1 - y0));
-    const ox = 10, oy = 20;
+    // Margins hold the mm rulers; the cursor circle (radius r) stays inside them at every corner.
+    const ox = 64, oy = 40, half = W / 2 - ox - 34;
+    const s = Math.min(half / (x1 - x0), (H - oy - 54) / (y1 - y0));
     const px = (x) => ox + (x - x0) * s, py = (y) => oy + (y1 - y) * s;
     if (!surfaceBitmap) {
       const off = document.createElement("canvas");
@@ -377,9 +386,10 @@
     }
     ctx.imageSmoothingEnabled = true;
     ctx.drawImage(surfaceBitmap, px(x0), py(y1), (x1 - x0) * s, (y1 - y0) * s);
-    ctx.fillStyle = "#9fb3c8"; ctx.font = "16px sans-serif";
-    ctx.fillText("top view", ox, 15);
-    ctx.fillText("side view (section through the cursor)", W / 2 + 10, 15);
+    drawRulers(ctx, px, py, x0, x1, y0, y1);
+    ctx.fillStyle = "#9fb3c8"; ctx.font = "16px sans-serif"; ctx.textAlign = "left"; ctx.textBaseline = "alphabetic";
+    ctx.fillText("top view (x y in mm: type these to report)", 8, 18);
+    ctx.fillText("side view (section through the cursor)", W / 2 + 10, 18);
     const c = f.cursor_mm;
     const def = f.deformation;
     const r = f.indenter_radius_mm || 5;
@@ -427,14 +437,44 @@
       if (started) { ctx.lineTo(qx(x1), qz(zlo)); ctx.closePath(); ctx.fill(); }
       ctx.strokeStyle = f.depth_mm > 0 ? "#ffb347" : "#4aa3ff";
       ctx.beginPath(); ctx.arc(qx(c[0]), qz(c[2] + r), r * s2, 0, 2 * Math.PI); ctx.stroke();
+      // below the title, clear of the profile and the indenter
       ctx.fillStyle = "#e8ecf0"; ctx.font = "18px sans-serif";
-      ctx.fillText("depth " + f.depth_mm.toFixed(1) + " mm", W / 2 + 10, H - 10);
+      ctx.fillText("depth " + f.depth_mm.toFixed(1) + " mm", W / 2 + 10, 44);
+      ctx.fillStyle = "#9fb3c8"; ctx.font = "15px sans-serif";
+      ctx.fillText("cursor " + c[0].toFixed(1) + " " + c[1].toFixed(1) + " mm", W / 2 + 170, 44);
     }
     setVisual("tissue");
     tissueGeom = { px, py, s, x0, y1, ox, oy, W };
     return true;
   }
   let tissueGeom = null;
+
+  // mm grid over the top view and ruler ticks (every 5 mm, labelled every 10/20 mm) on its left and bottom edges.
+  function drawRulers(ctx, px, py, x0, x1, y0, y1) {
+    const span = Math.max(x1 - x0, y1 - y0);
+    const major = span > 150 ? 20 : 10, minor = major / 2;
+    ctx.save();
+    ctx.lineWidth = 1; ctx.font = "13px sans-serif"; ctx.fillStyle = "#c8d3de";
+    for (let v = Math.ceil(x0 / minor) * minor; v <= x1 + 1e-9; v += minor) {
+      const isMajor = Math.abs(v / major - Math.round(v / major)) < 1e-9, X = px(v);
+      ctx.strokeStyle = isMajor ? "rgba(255,255,255,0.28)" : "rgba(255,255,255,0.12)";
+      ctx.beginPath(); ctx.moveTo(X, py(y1)); ctx.lineTo(X, py(y0)); ctx.stroke();
+      ctx.strokeStyle = "#c8d3de";
+      ctx.beginPath(); ctx.moveTo(X, py(y0)); ctx.lineTo(X, py(y0) + (isMajor ? 9 : 5)); ctx.stroke();
+      if (isMajor) { ctx.textAlign = "center"; ctx.textBaseline = "top"; ctx.fillText(String(Math.round(v)), X, py(y0) + 11); }
+    }
+    for (let v = Math.ceil(y0 / minor) * minor; v <= y1 + 1e-9; v += minor) {
+      const isMajor = Math.abs(v / major - Math.round(v / major)) < 1e-9, Y = py(v);
+      ctx.strokeStyle = isMajor ? "rgba(255,255,255,0.28)" : "rgba(255,255,255,0.12)";
+      ctx.beginPath(); ctx.moveTo(px(x0), Y); ctx.lineTo(px(x1), Y); ctx.stroke();
+      ctx.strokeStyle = "#c8d3de";
+      ctx.beginPath(); ctx.moveTo(px(x0), Y); ctx.lineTo(px(x0) - (isMajor ? 9 : 5), Y); ctx.stroke();
+      if (isMajor) { ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.fillText(String(Math.round(v)), px(x0) - 12, Y); }
+    }
+    ctx.textAlign = "left"; ctx.textBaseline = "alphabetic";
+    ctx.fillText("x mm", px(x1) - 30, py(y0) + 40);
+    ctx.restore();
+  }
 
   function drawValues(f) {
     const tb = $("tb-values");
@@ -456,7 +496,7 @@
     let text = "";
     if (s.screen === "trial") {
       const t = lastT || 0;
-      text = s.time_limit_s ? fmt(s.time_limit_s - t) : fmt(t);
+      text = s.time_limit_s ? fmt(s.time_limit_s - t) : ""; // no limit: no clock to race against
       el.classList.toggle("low", !!s.time_limit_s && s.time_limit_s - t < 10);
     } else if (s.screen === "timer" && s.duration_s != null) {
       const now = serverNow();

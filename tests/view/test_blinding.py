@@ -1,0 +1,153 @@
+"""Blinding: the participant's page never receives a condition code or name.
+
+Every step of each reference protocol's plan goes through the view's UI as the session runner would
+call it; every screen body the server would stream (``hub.screen``, sent as-is in the SSE ``screen``
+message) is collected and searched for the protocol's condition ids and labels."""
+
+from __future__ import annotations
+
+import json
+import re
+from types import SimpleNamespace
+
+import pytest
+from view_support import _full_plan
+
+from studyctl.engine.plan import ConditionSpec
+from studyctl.engine.ui import ManualOutcome, TimerResult
+from studyctl.view.frontend import ViewUI
+from studyctl.view.hub import ViewHub
+
+PROSE = ("text", "intro")
+PROTOCOLS = ["bio_inspired_palpation", "needle_insertion", "data_driven_palpation", "pseudo_haptic_palpation"]
+
+
+class _Inner:
+    """A coordinator UI that answers at once (the view only mirrors what it is asked)."""
+
+    interactive = False
+
+    def message(self, text): ...
+    def instructions(self, step, text): ...
+    def timer(self, title, duration_s, clock, *, can_end_early, purpose):
+        return TimerResult(elapsed_s=duration_s, ended_early=False, paused_s=0.0)
+    def ask_item(self, instrument, item, number, context):
+        return item.codes()[0], 1.0
+    def manual_outcome(self, step, report, clock):
+        return ManualOutcome(duration_s=1.0, reports=())
+    def trial_begin(self, step, time_limit_s): ...
+    def trial_tick(self, t): ...
+    def trial_end(self, step, summary): ...
+    def poll_control(self): return None
+    def wait_unpause(self): ...
+    def close(self): ...
+
+
+class _Rec:
+    """Just enough of the session recorder for the view: the plan and no stored attempts."""
+
+    def __init__(self, plan):
+        self._state = SimpleNamespace(plan=plan, attempts=lambda position: [])
+
+    def state(self):
+        return self._state
+
+    def event(self, *a, **k): ...
+
+
+def drive(plan) -> list[dict]:
+    """Every screen body the page would receive while ``plan`` runs."""
+    hub = ViewHub()
+    seen: list[dict] = []
+    show, update = hub.show, hub.update
+
+    def show_and_keep(*a, **k):
+        out = show(*a, **k)
+        seen.append(dict(hub.screen))
+        return out
+
+    def update_and_keep(**k):
+        update(**k)
+        seen.append(dict(hub.screen))
+
+    hub.show, hub.update = show_and_keep, update_and_keep
+    ui = ViewUI(_Inner(), hub, _Rec(plan))
+    for step in plan.steps:
+        if step.kind in ("instructions", "end"):
+            ui.instructions(step, str(step.data.get("text", "")))
+        elif step.kind == "break":
+            ui.timer("Break", 1.0, None, can_end_early=False, purpose="break")
+        elif step.kind == "familiarisation":
+            if step.data.get("instructions"):
+                ui.instructions(step, str(step.data["instructions"]))
+            # the engine's own title names the condition: the view must not pass it on
+            label = plan.conditions[step.condition].label
+            ui.timer(f"Familiarisation: {label}", 1.0, None, can_end_early=True, purpose="familiarisation")
+            ui.trial_begin(step, float("inf"))
+            ui.trial_end(step, {"status": "completed", "ended_by": "finish", "duration_s": 1.0})
+        elif step.kind == "trial":
+            if plan.conditions[step.condition].manual:
+                ui.manual_outcome(step, plan.report, None)
+                continue
+            ui.trial_begin(step, step.duration_s or 1800.0)
+            ui.trial_end(step, {"status": "completed", "ended_by": "finish", "duration_s": 1.0})
+        elif step.kind == "questionnaire":
+            inst = plan.instruments[step.data["instrument"]]
+            for n, item in enumerate(inst.items, start=1):
+                ui.ask_item(inst, item, n, {"position": step.position})
+    return seen
+
+
+def leaks(screens: list[dict], conditions: dict[str, ConditionSpec]) -> list[str]:
+    found = []
+    for body in screens:
+        text = json.dumps(body, ensure_ascii=False)
+        # The protocol's own prose for participants (study-wide instructions) may use a plain word that is
+        # also an id ("haptic palpation of a tissue model"); every other field is checked for ids too.
+        fields = json.dumps({k: v for k, v in body.items() if k not in PROSE}, ensure_ascii=False)
+        if "condition" in body:
+            found.append(f"condition field in {text[:120]}")
+        for c in conditions.values():
+            # ids as whole words, case-sensitive ("ES", "manual"); labels anywhere, any case
+            if re.search(rf"(?<![A-Za-z0-9_]){re.escape(c.id)}(?![A-Za-z0-9_])", fields):
+                found.append(f"id {c.id!r} in {text[:160]}")
+            if c.label and c.label.lower() in text.lower():
+                found.append(f"label {c.label!r} in {text[:160]}")
+    return found
+
+
+@pytest.mark.parametrize("name", PROTOCOLS)
+def test_no_condition_code_or_name_reaches_the_page(name):
+    plan = _full_plan(name)
+    screens = drive(plan)
+    kinds = {s["screen"] for s in screens}
+    assert {"instructions", "done"} <= kinds and ({"trial", "hands_on"} & kinds)
+    assert leaks(screens, dict(plan.conditions)) == []
+    trials = [s for s in screens if s["screen"] in ("trial_ready", "trial") and not s.get("practice")]
+    assert trials and all(re.fullmatch(r"Trial \d+", s["label"]) for s in trials)
+
+
+def test_the_leak_check_sees_a_code_and_a_protocol_label_is_shown():
+    plan = _full_plan("pseudo_haptic_palpation")
+    # the check itself can fail: a condition's label on the page is found
+    assert leaks([{"screen": "trial", "title": plan.conditions["PHF"].label}], dict(plan.conditions))
+    assert leaks([{"screen": "trial", "label": "Trial 1 · PHF_FF"}], dict(plan.conditions))
+    # a protocol's neutral view_label is what the page shows beside the trial number
+    labelled = {k: ConditionSpec(**{**v.__dict__, "view_label": f"Session {chr(65 + i)}"})
+                for i, (k, v) in enumerate(plan.conditions.items())}
+    import dataclasses
+
+    plan = dataclasses.replace(plan, conditions=labelled)
+    screens = drive(plan)
+    assert leaks(screens, labelled) == []
+    labels = {s["label"] for s in screens if s["screen"] == "trial" and not s.get("practice")}
+    assert labels and all(re.fullmatch(r"Trial \d+ · Session [A-D]", x) for x in labels)
+
+
+def test_no_countdown_limit_without_a_protocol_limit():
+    # The pseudo-haptic protocol sets no limit: the engine's unattended cap must not become a 30:00 clock.
+    screens = drive(_full_plan("pseudo_haptic_palpation"))
+    assert all(s.get("time_limit_s") is None for s in screens if s["screen"] == "trial")
+    screens = drive(_full_plan("needle_insertion"))
+    assert {s.get("time_limit_s") for s in screens if s["screen"] == "trial" and not s.get("practice")} == {90.0}
+
