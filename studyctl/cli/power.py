@@ -72,6 +72,12 @@ def register(app: typer.Typer) -> None:
         baseline: list[str] = typer.Option([], "--baseline",
                                            help="PARAM=VALUE base value of a parameter (repeatable)."),
         show_posthoc: bool = typer.Option(False, "--posthoc", help="Also list post-hoc pairs in the printed table."),
+        target: float = typer.Option(None, "--target",
+                                     help="Target power in (0, 1), e.g. 0.8: report per test the smallest size run "
+                                          "that reaches it (with its Wilson interval); every size must then "
+                                          "complete the protocol's counterbalancing blocks."),
+        as_json: bool = typer.Option(False, "--json", help="Print the results as one JSON document on stdout "
+                                                           "(power table, target sizes, files)."),
     ) -> None:
         """Estimate power per test and sample size by simulating the study with virtual participants.
 
@@ -91,18 +97,19 @@ def register(app: typer.Typer) -> None:
         from studyctl.errors import SessionInterrupted
         from studyctl.power import prepare_power
         from studyctl.report.power_figures import population_text
-        from studyctl.report.terminal import power_table
+        from studyctl.report.power_json import power_json
+        from studyctl.report.terminal import power_table, target_table
         from studyctl.workflows.power import run_power
 
-        console = Console(highlight=False)
         err = Console(stderr=True, highlight=False)
+        console = err if as_json else Console(highlight=False)
         from studyctl.populations import describe_choice
 
         trait_file = _is_trait_file(population)
         pop = _population(None if trait_file else population, effect, group_effect, between_sd, baseline)
         spec = prepare_power(protocol, plan, sizes=participants, replicates=replicates, seed=seed,
                              population=pop, memory_limit=memory_limit,
-                             traits=population if trait_file else "shipped")
+                             traits=population if trait_file else "shipped", target=target)
         console.print(describe_choice(spec.traits, spec.study_id, trait_file), markup=False)
         sizes = ", ".join(map(str, spec.sizes))
         console.print(f"power: {spec.study_id}, plan {spec.plan.title!r}; participants {sizes}; "
@@ -135,9 +142,17 @@ def register(app: typer.Typer) -> None:
                                      f"kept in {out}; run the same command again to continue") from None
         finally:
             progress.stop()
+        if as_json:
+            import json
+            import sys
+
+            sys.stdout.write(json.dumps(power_json(result), indent=2, default=str) + "\n")
+            return
         console.print(power_table(result, show_posthoc))
+        if result.target is not None:
+            console.print(target_table(result.target))
         console.print(f"simulated {result.ran} replicate(s), reused {result.reused}, in {result.seconds:.1f} s "
                       f"({result.backend})", markup=False)
-        for kind in ("table", "figure", "population", "replicates"):
+        for kind in ("table", "target", "figure", "population", "replicates"):
             if kind in result.files:
                 console.print(f"{kind}: {result.files[kind]}", markup=False)

@@ -24,6 +24,7 @@ from studyctl.engine.preflight import preflight
 from studyctl.errors import UsageError
 from studyctl.power.population import Population, population_model
 from studyctl.power.seeds import check_master_seed
+from studyctl.power.target import check_complete_blocks, check_target
 from studyctl.protocol import Planner, load_protocol, resolve_protocol
 
 #: Row kinds of a plan's result that are hypothesis tests (intervals and descriptives are not).
@@ -57,6 +58,8 @@ class PowerSpec:
     traits: Any = None
     #: Loop-rate cap of the simulated sessions (engine.api.run_session's sim_rate_hz); None: the protocol's rates.
     sim_rate_hz: float | None = None
+    #: Target power (``--target``): the run reports per test the smallest size reaching it; None: no target.
+    target: float | None = None
 
     def fingerprint(self) -> dict[str, Any]:
         """What every replicate's result depends on (a results file from other settings cannot be reused)."""
@@ -194,6 +197,7 @@ def prepare_power(
     population: Population | None = None,
     memory_limit: str | int | None = None,
     traits: Any = "shipped",
+    target: float | None = None,
 ) -> PowerSpec:
     """Check every input of a power analysis and return the spec the replicates run from.
 
@@ -217,6 +221,9 @@ def prepare_power(
     traits
         The population the virtual people are drawn from: ``"shipped"`` (default: the protocol's shipped,
         calibrated population when there is one), a population file, a ``TraitPopulation``, or None.
+    target
+        Target power in (0, 1): every size must then complete the counterbalancing blocks
+        (:func:`studyctl.power.target.check_complete_blocks`), so the answer is a balanced design.
 
     Raises
     ------
@@ -240,6 +247,9 @@ def prepare_power(
             f"protocol {proto.study.id!r} ({proto.counterbalance.scheme}); with fewer participants "
             f"some orders are never used and the design is unbalanced: use at least {nseq}"
         )
+    target = check_target(target)
+    if target is not None:
+        check_complete_blocks(proto, size_tuple)
     master = check_master_seed(
         proto.study.seed if seed is None and proto.study.seed is not None else (0 if seed is None else seed)
     )
@@ -263,4 +273,5 @@ def prepare_power(
         sequences=nseq,
         memory_limit=parse_memory(memory_limit),
         traits=traits,
+        target=target,
     )

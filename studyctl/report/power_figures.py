@@ -57,6 +57,8 @@ def power_curve_figure(
     replicates: int | None = None,
     population: Any = None,
     max_lines: int = 16,
+    target: pd.DataFrame | None = None,
+    target_power: float | None = None,
 ) -> Figure:
     """Power curves: one panel per test id, lines per metric/split, Wilson-interval error bars.
 
@@ -72,6 +74,9 @@ def power_curve_figure(
         The :class:`~studyctl.power.population.Population` (stated in the caption).
     max_lines
         Lines per panel at most (the ones with the highest power at the largest sample size).
+    target, target_power
+        The smallest sizes reaching the target power (:class:`studyctl.power.target.TargetTable` frame): each
+        drawn as a ringed star on its curve; the target is the dashed line (0.8 without one).
     """
     from matplotlib.figure import Figure
 
@@ -117,7 +122,15 @@ def power_curve_figure(
                 linewidth=1.4,
                 label=_label(g.iloc[0]),
             )
-        ax.axhline(TARGET_POWER, color="0.45", linestyle="--", linewidth=0.9)
+            hit = _target_size(target, test_id, key)
+            if hit is not None:
+                at = np.flatnonzero(g["participants"].to_numpy() == hit)
+                if at.size:
+                    ax.plot(x[at], y[at], marker="*", markersize=13, markerfacecolor="none",
+                            markeredgecolor=PALETTE[i % len(PALETTE)], markeredgewidth=1.4, linestyle="none")
+                    ax.annotate(f"n={hit}", (x[at][0], y[at][0]), textcoords="offset points", xytext=(4, -11),
+                                fontsize=7, color=PALETTE[i % len(PALETTE)])
+        ax.axhline(TARGET_POWER if target_power is None else target_power, color="0.45", linestyle="--", linewidth=0.9)
         if alpha is not None:
             ax.axhline(alpha, color="0.6", linestyle=":", linewidth=0.9)
         first = sub.iloc[0]
@@ -136,11 +149,26 @@ def power_curve_figure(
     detail = []
     if replicates is not None:
         detail.append(f"{replicates} simulated studies per sample size")
+    goal = TARGET_POWER if target_power is None else target_power
     if alpha is not None:
-        detail.append(f"alpha = {alpha:g} (dotted); 0.8 dashed; bars: 95% Wilson intervals")
+        detail.append(f"alpha = {alpha:g} (dotted); {goal:g} dashed; bars: 95% Wilson intervals")
+    if target is not None:
+        detail.append(f"star: smallest size reaching power {goal:g}")
     fig.suptitle(caption[0], fontsize=11)
     fig.supxlabel("; ".join(detail) + "\n" + population_text(population), fontsize=8)
     return fig
+
+
+def _target_size(target: pd.DataFrame | None, test_id: str, key: tuple[str, str, str]) -> int | None:
+    """The smallest size reaching the target for one curve (metric, split, groups), or None."""
+    if target is None or target.empty:
+        return None
+    t = target.copy()
+    for col in ("test_id", "metric", "split", "groups"):
+        t[col] = t[col].fillna("").astype(str)
+    m = t[(t["test_id"] == test_id) & (t["metric"] == key[0]) & (t["split"] == key[1]) & (t["groups"] == key[2])]
+    m = m[m["participants"].notna()]
+    return None if m.empty else int(m["participants"].iloc[0])
 
 
 def write_png(fig: Figure, path: str | Path) -> Path:

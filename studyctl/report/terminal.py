@@ -94,6 +94,22 @@ def power_table(run: Any, show_posthoc: bool) -> Table:
     return table
 
 
+def target_table(target: Any) -> Table:
+    """Per test: the smallest size run reaching the target power (a :class:`~studyctl.power.target.TargetTable`)."""
+    table = Table(title=f"Smallest sample size reaching power {target.target:g} (among the sizes run; "
+                        "95% Wilson interval over the replicates)", title_justify="left")
+    for col in ("test", "metric", "split / levels", "participants", "power [95% CI]", "replicates"):
+        table.add_column(col, overflow="fold")
+    for r in target.to_records():
+        where = " ".join(x for x in (r["split"], r["groups"]) if x)
+        if r["reached"]:
+            n, p = str(r["participants"]), f"{r['power']:.2f} [{r['power_ci_low']:.2f}, {r['power_ci_high']:.2f}]"
+        else:
+            n, p = f"> {r['largest_run']} (not reached)", f"{r['power_at_largest']:.2f} at n={r['largest_run']}"
+        table.add_row(r["test_id"], r["metric"], where, n, p, str(r["replicates"]))
+    return table
+
+
 def demo_table(result: Any) -> Table:
     """The per-study summary of a :class:`~studyctl.workflows.demo.DemoResult`."""
     table = Table(

@@ -18,6 +18,7 @@ from studyctl.power.replicate import ReplicateResult
 from studyctl.power.results import ResultsFile
 from studyctl.power.spec import PowerSpec
 from studyctl.power.summary import PowerTable, summarise
+from studyctl.power.target import TargetTable, smallest_sizes
 from studyctl.protocol import load_protocol_text
 from studyctl.report.power_figures import power_curve_figure, write_png
 
@@ -28,6 +29,7 @@ FIGURE_FILE = "power_curve.png"
 POPULATION_FILE = "power_population.csv"
 REPLICATES_FILE = "power_replicates.csv"
 SETTINGS_FILE = "power_run.json"
+TARGET_FILE = "power_target.csv"
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,8 @@ class PowerRun:
     backend: str
     population: pd.DataFrame = field(repr=False)
     replicates: pd.DataFrame = field(repr=False)
+    #: Per test, the smallest size run reaching ``spec.target`` (None without a target).
+    target: TargetTable | None = None
 
     def to_frame(self) -> pd.DataFrame:
         """The power table (:data:`studyctl.power.summary.COLUMNS`)."""
@@ -124,11 +128,12 @@ def run_power(
             backend.close()
     per_size = {n: int((reps["participants"] == n).sum()) for n in spec.sizes}
     table = summarise(rows, spec.sizes, per_size)
+    target = None if spec.target is None else smallest_sizes(table.frame, spec.target)
 
     population = population_model(
         spec.population, load_protocol_text(spec.protocol_text, spec.protocol_name)
     ).to_frame()
-    files = _write(out, spec, table, population, reps, backend_desc, figure)
+    files = _write(out, spec, table, population, reps, backend_desc, figure, target)
     return PowerRun(
         table=table,
         out_dir=out,
@@ -139,6 +144,7 @@ def run_power(
         backend=backend_desc,
         population=population,
         replicates=reps,
+        target=target,
     )
 
 
@@ -159,6 +165,7 @@ def _write(
     reps: pd.DataFrame,
     backend: str,
     figure: bool,
+    target: TargetTable | None = None,
 ) -> dict[str, Path]:
     files = {
         "table": out / TABLE_FILE,
@@ -170,6 +177,9 @@ def _write(
     _atomic(files["table"], lambda p: table.to_frame().to_csv(p, index=False))
     _atomic(files["population"], lambda p: population.to_csv(p, index=False))
     _atomic(files["replicates"], lambda p: reps.to_csv(p, index=False))
+    if target is not None:
+        files["target"] = out / TARGET_FILE
+        _atomic(files["target"], lambda p: target.to_frame().to_csv(p, index=False))
     settings = {
         "protocol": spec.protocol_name,
         "study": spec.study_id,
@@ -178,6 +188,7 @@ def _write(
         "alpha": spec.plan.alpha,
         "participants": list(spec.sizes),
         "replicates": spec.replicates,
+        "target": spec.target,
         "seed": spec.seed,
         "population": spec.population.to_dict(),
         "memory_limit_bytes": spec.memory_limit,
@@ -194,6 +205,8 @@ def _write(
             alpha=spec.plan.alpha,
             replicates=spec.replicates,
             population=spec.population,
+            target=None if target is None else target.to_frame(),
+            target_power=spec.target,
         )
         files["figure"] = out / FIGURE_FILE
         _atomic(files["figure"], lambda p: write_png(fig, p))
