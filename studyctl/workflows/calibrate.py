@@ -549,6 +549,8 @@ def _final_run(spec: CalibrationSpec, values: dict[str, float], client: Any) -> 
             pass
     paper = replace(spec, replicates=1)
     ev = evaluate(paper, values, participants=spec.paper_participants, client=client)
+    if ev.distance >= FAILED_DISTANCE:
+        return ev  # a failed run is not kept: the next run of the command tries again
     _atomic_text(cache, json.dumps({"key": key, "distance": ev.distance,
                                     "z": {k: (v if math.isfinite(v) else None) for k, v in ev.z.items()},
                                     "stats": json.loads(ev.stats.to_json(orient="records")),

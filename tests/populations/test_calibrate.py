@@ -143,3 +143,22 @@ def test_replicates_run_on_a_dask_scheduler(tmp_path, protocol):
     # the same seeds on the cluster and locally: the same simulated statistics
     pd.testing.assert_frame_equal(remote.stats, local.stats)
     assert remote.distance == local.distance
+
+
+def test_a_failed_simulation_costs_a_large_distance_and_is_not_cached(tmp_path, protocol, monkeypatch):
+    import studyctl.workflows.calibrate as cal
+    from studyctl.errors import SessionError
+
+    spec = cal.prepare_calibration(protocol, TARGETS, population=POPULATION, free="report_z", participants=2,
+                                   evaluations=2, out=tmp_path / "f.yaml")
+
+    def broken(*args, **kwargs):
+        raise SessionError("device fault in the test")
+
+    monkeypatch.setattr(cal, "_evaluate", broken)
+    ev = cal.evaluate(spec, {"report_z": 3.0})
+    assert ev.distance == cal.FAILED_DISTANCE
+    assert all("simulation failed: device fault in the test" in n for n in ev.stats["note"])
+    final = cal._final_run(spec, {"report_z": 3.0}, None)
+    assert final.distance == cal.FAILED_DISTANCE
+    assert not (tmp_path / "f.yaml.final.json").exists()  # the next run tries again
