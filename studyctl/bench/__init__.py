@@ -68,3 +68,13 @@ def time_calls(fn: Callable[[], object], repeat: int, warmup: int = 3) -> np.nda
         fn()
         out[i] = clock() - t0
     return out
+
+
+def busy_python(stop: Any) -> None:
+    """Stand-in for a coordinator's UI/logging thread: pure-Python work that wants the interpreter lock until
+    ``stop`` (a threading.Event) is set."""
+    x = 0
+    while not stop.is_set():
+        for i in range(2000):
+            x += i * i
+        x %= 1_000_003

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from studyctl.bench import BenchResult
+from studyctl.bench import BenchResult, busy_python
 from studyctl.controllers.needle import NeedleHybridController
 from studyctl.devices.force3d import SimulatedForceDevice
 from studyctl.engine.clock import SimulatedClock
@@ -173,13 +173,6 @@ def _virtual_trial(limit_s: float) -> tuple[float, float, int]:
     return time.process_time() - c0, time.perf_counter() - w0, out.ticks
 
 
-def _busy_ui(stop: threading.Event) -> None:
-    """A stand-in for a UI/logging thread: pure-Python work that wants the interpreter lock."""
-    x = 0
-    while not stop.is_set():
-        for i in range(2000):
-            x += i * i
-        x %= 1_000_003
 
 
 def _jitter_in_process(seconds: float) -> dict[str, float]:
@@ -243,7 +236,7 @@ def run(quick: bool = False) -> BenchResult:
     cpu_s, wall_s, ticks = _virtual_trial(limit)
     jitter_s = 1.0 if quick else 10.0
     stop = threading.Event()
-    ui = threading.Thread(target=_busy_ui, args=(stop,), daemon=True)
+    ui = threading.Thread(target=busy_python, args=(stop,), daemon=True)
     ui.start()
     try:
         servo = _jitter_servo(jitter_s)

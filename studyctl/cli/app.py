@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "studyctl.cli.audit",
     "studyctl.cli.analysis",
     "studyctl.cli.power",
+    "studyctl.cli.device",
 )
 
 app = typer.Typer(

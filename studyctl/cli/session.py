@@ -23,6 +23,8 @@ VIEW_OPTION = typer.Option(
     False, "--view", help="Also show the session on the participant's screen: serves the participant view on this "
     "machine and prints its URL (instructions, countdown, CT/cursor view, prompts; the terminal stays in control).")
 VIEW_PORT_OPTION = typer.Option(0, "--view-port", help="Port of the participant view (default: a free one).")
+LSL_OPTION = typer.Option(False, "--lsl", help="Also publish events (markers) and device samples to the Lab Streaming "
+                          "Layer, to align with EEG/EMG/eye tracking (pip install 'studyctl\\[lsl]').")
 
 
 class _Bar:
@@ -69,6 +71,16 @@ def _live(db: str | None, workspace: Path | None, study: str | None, view: bool,
                        "frontend": pv.attach if pv else None}
 
 
+INPUT_HELP = (
+    "Scripted answers (YAML or JSON) for a rehearsal or test run without a terminal. Keys, all optional: "
+    "trials: {TRIAL_NUMBER: \\[{t: SECONDS, request: scan|report|finish, answer: 'C 3'}]} (requests at trial time t); "
+    "likert: {ITEM_ID: \\[code, ...]} or {INSTRUMENT_ID: {ITEM_ID: \\[...]}} (used in order); default_likert: CODE; "
+    "outcomes: \\[{duration_s: S, reports: \\['C 3']}] (manual trials, in order); "
+    "controls: \\[{trial: N, t: S, action: abort|pause|invalid, reason: TEXT}]; "
+    "familiarisation: end_early|full. See README 'Rehearsals and scripted sessions'."
+)
+
+
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
@@ -76,12 +88,16 @@ def register(app: typer.Typer) -> None:
         virtual: bool = typer.Option(False, "--virtual", help="Run the protocol's virtual participant (simulated "
                                      "device and clock) instead of a person."),
         seed: int = typer.Option(None, "--seed", help="Session seed (default: from the study seed and the code)."),
-        input_file: Path = typer.Option(None, "--input", help="Scripted answers (YAML/JSON) for a rehearsal or test "
-                                        "run without a terminal."),
+        input_file: Path = typer.Option(None, "--input", help=INPUT_HELP),
+        rehearse: bool = typer.Option(False, "--rehearse", help="A rehearsal: every hardware device is replaced by "
+                                      "its emulator (started and stopped here, in its own process); recorded in the "
+                                      "study marked as rehearsal and left out of analysis. With a person at the "
+                                      "prompts, or a script (--input)."),
         speed: float = typer.Option(None, "--speed", help="Virtual/scripted runs: at most this many times real "
-                                    "time (default: as fast as possible)."),
+                                    "time (default: as fast as possible; hardware trials always run in real time)."),
         view: bool = VIEW_OPTION,
         view_port: int = VIEW_PORT_OPTION,
+        lsl: bool = LSL_OPTION,
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
@@ -90,7 +106,7 @@ def register(app: typer.Typer) -> None:
         unattended = virtual or input_file is not None
         with _live(db, workspace, study, view, view_port, lambda _: unattended) as (opened, hooks):
             result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
-                                 script=input_file, speed=speed, **hooks)
+                                 script=input_file, speed=speed, rehearse=rehearse, lsl=lsl, **hooks)
             _summary(result, opened)
 
     @app.command("resume")
@@ -106,6 +122,7 @@ def register(app: typer.Typer) -> None:
                                        "without it."),
         view: bool = VIEW_OPTION,
         view_port: int = VIEW_PORT_OPTION,
+        lsl: bool = LSL_OPTION,
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
@@ -114,7 +131,7 @@ def register(app: typer.Typer) -> None:
         bar_when = lambda opened: input_file is not None or session_is_virtual(opened.store, session)  # noqa: E731
         with _live(db, workspace, study, view, view_port, bar_when) as (opened, hooks):
             result = resume_session(opened.store, session, script=input_file, speed=speed, take_over=take_over,
-                                    **hooks)
+                                    lsl=lsl, **hooks)
             _summary(result, opened)
 
     @app.command("export")

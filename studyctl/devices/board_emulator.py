@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import select
 import signal
 import socket
@@ -89,6 +90,7 @@ class Board:
         if pkt.type == bp.HELLO:
             rate, wd = pkt.fields
             self.host, self.hello_at, self.last_command = addr, now, now
+            self.status_flags = 0  # a new session starts clean (a previous one may have tripped the watchdog)
             self.rate_hz = float(rate) if rate else self.rate_hz
             self.watchdog_ms = int(wd) if wd else self.watchdog_ms
             self.seq += 1
@@ -159,6 +161,51 @@ class Board:
         self.status_flags &= ~bp.ST_REJECTED
 
 
+class PtyLink:
+    """The board's end of a serial line: a pseudo-terminal whose other end (``path``) a host opens as a serial port;
+    the datagrams travel SLIP-framed. ``recvfrom``/``sendto`` mimic the UDP socket so the board code is the same."""
+
+    def __init__(self) -> None:
+        import tty  # noqa: PLC0415
+
+        self.master, slave = os.openpty()
+        tty.setraw(slave)  # bytes pass unchanged (no echo, no line discipline)
+        self.path = os.ttyname(slave)
+        self._slave = slave  # kept open so the line exists before the host opens it
+        os.set_blocking(self.master, False)
+        self._decoder = bp.SlipDecoder()
+        self._frames: list[bytes] = []
+
+    def fileno(self) -> int:
+        return self.master
+
+    def recvfrom(self, size: int) -> tuple[bytes | None, tuple[str, int]]:
+        if not self._frames:
+            try:
+                chunk = os.read(self.master, 4096)
+            except (BlockingIOError, OSError):
+                raise BlockingIOError from None
+            if not chunk:
+                raise BlockingIOError
+            self._frames.extend(self._decoder.feed(chunk))
+            if not self._frames:
+                return None, ("serial", 0)
+        return self._frames.pop(0), ("serial", 0)
+
+    def sendto(self, data: bytes, addr: object) -> None:
+        try:
+            os.write(self.master, bp.slip_encode(data))
+        except (BlockingIOError, OSError):
+            pass  # nobody reads the line: as a real UART, bytes are lost
+
+    def close(self) -> None:
+        for fd in (self.master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
 def _numbers(text: str, count: int) -> tuple[float, ...]:
     """``count`` colon-separated numbers; ValueError when there are more or fewer or one is not a number."""
     parts = text.split(":")
@@ -199,9 +246,12 @@ def serve(args: argparse.Namespace) -> int:
         silence_after=args.silence_after,
         log_path=args.log,
     )
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind((args.host, args.port))
-    sock.setblocking(False)
+    if args.serial:
+        sock = PtyLink()
+    else:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind((args.host, args.port))
+        sock.setblocking(False)
     stop = {"flag": False}
 
     def _stop(*_):
@@ -209,10 +259,14 @@ def serve(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    print(f"READY {sock.getsockname()[1]}", flush=True)
+    print(f"READY {sock.path if args.serial else sock.getsockname()[1]}", flush=True)
     next_tick = board.now()
-    deadline = board.now() + args.max_runtime
+    # a board serves session after session (HELLO … BYE, then the next HELLO) until it is stopped
+    deadline = board.now() + args.max_runtime if args.max_runtime > 0 else math.inf
+    parent = os.getppid() if args.exit_with_parent else None
     while not stop["flag"] and board.now() < deadline:
+        if parent is not None and os.getppid() != parent:
+            break  # the rehearsal that started this board is gone
         timeout = max(0.0, next_tick - board.now())
         ready, _, _ = select.select([sock], [], [], timeout)
         if ready:
@@ -221,6 +275,8 @@ def serve(args: argparse.Namespace) -> int:
                     data, addr = sock.recvfrom(2048)
                 except BlockingIOError:
                     break
+                if data is None:
+                    continue  # a partial serial frame
                 board.receive(data, addr, sock)
         if board.now() >= next_tick:
             board.tick(sock)
@@ -239,14 +295,19 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
     parser.add_argument("--port", type=int, default=0, help="UDP port (0: any free port, printed as READY <port>)")
+    parser.add_argument("--serial", action="store_true",
+                        help="a serial line instead of UDP: a pseudo-terminal, printed as READY /dev/pts/N")
     parser.add_argument("--rate", type=float, default=50.0, help="sensor packets per second before HELLO sets it")
     parser.add_argument("--watchdog-ms", type=int, default=250, help="output watchdog before HELLO sets it")
     parser.add_argument("--force", type=float, default=0.0, help="constant force on the sensor, N")
     parser.add_argument("--profile", help="trapezoid:PEAK_N:RATE_N_S:HOLD_S:REST_S (repeats)")
     parser.add_argument("--adc-glitch", help="START_S:DURATION_S (after HELLO) of out-of-range ADC values")
     parser.add_argument("--silence-after", type=float, help="stop sending sensor packets S seconds after HELLO")
+    parser.add_argument("--exit-with-parent", action="store_true",
+                        help="exit when the process that started the emulator ends (rehearsals)")
     parser.add_argument("--log", help="append received commands and events to this JSON-lines file")
-    parser.add_argument("--max-runtime", type=float, default=120.0, help="exit after this many seconds")
+    parser.add_argument("--max-runtime", type=float, default=0.0,
+                        help="exit after this many seconds (default 0: run until stopped, session after session)")
     args = parser.parse_args(argv)
     if not math.isfinite(args.force):
         parser.error("--force must be finite")

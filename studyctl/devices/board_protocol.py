@@ -100,3 +100,46 @@ def decode(data: bytes) -> Packet:
     if crc != zlib.crc32(data[: expected - CRC.size]) & 0xFFFFFFFF:
         raise DatagramError("CRC mismatch")
     return Packet(kind, seq, body.unpack_from(data, HEADER.size))
+
+
+# -- serial framing ---------------------------------------------------------------------------------------------
+# Over a serial line the same datagrams travel SLIP-framed (RFC 1055): END ends a frame; END and ESC inside a
+# frame are escaped. A receiver that starts mid-frame loses only that frame (its CRC fails).
+SLIP_END, SLIP_ESC, SLIP_ESC_END, SLIP_ESC_ESC = 0xC0, 0xDB, 0xDC, 0xDD
+
+
+def slip_encode(datagram: bytes) -> bytes:
+    out = bytearray([SLIP_END])
+    for b in datagram:
+        if b == SLIP_END:
+            out += bytes([SLIP_ESC, SLIP_ESC_END])
+        elif b == SLIP_ESC:
+            out += bytes([SLIP_ESC, SLIP_ESC_ESC])
+        else:
+            out.append(b)
+    out.append(SLIP_END)
+    return bytes(out)
+
+
+class SlipDecoder:
+    """Feed bytes as they arrive; get the complete frames back."""
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self._esc = False
+
+    def feed(self, data: bytes) -> list[bytes]:
+        frames = []
+        for b in data:
+            if self._esc:
+                self._buf.append(SLIP_END if b == SLIP_ESC_END else SLIP_ESC if b == SLIP_ESC_ESC else b)
+                self._esc = False
+            elif b == SLIP_ESC:
+                self._esc = True
+            elif b == SLIP_END:
+                if self._buf:
+                    frames.append(bytes(self._buf))
+                    self._buf.clear()
+            else:
+                self._buf.append(b)
+        return frames

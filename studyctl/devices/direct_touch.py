@@ -33,15 +33,13 @@ person knows that too).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
-import numpy as np
-
+from studyctl.devices.base import ParamDevice
 from studyctl.errors import DeviceError, ModelParameterError
 from studyctl.models.force_render import INTERPOLATIONS, ForceRenderer, RenderParams
-from studyctl.plugins.interfaces import Channels, Device, DeviceLimits, Observation, Scene
-from studyctl.plugins.params import Param, validate_params
+from studyctl.plugins.interfaces import Channels, DeviceLimits, Observation, Scene
+from studyctl.plugins.params import Param
 
 PARAMS = (
     Param(
@@ -81,7 +79,7 @@ def _tissue_scene(scene: Scene | None) -> Any:
     return scene
 
 
-class DirectTouchDevice(Device):
+class DirectTouchDevice(ParamDevice):
     """A fingertip on the scene's phantom; ``params`` as in :data:`PARAMS`, ``scene`` a stiffness tissue.
 
     Observation channels: ``x_mm``/``y_mm``/``z_mm`` (fingertip, device frame), ``vx_mm_s``/``vy_mm_s``/
@@ -93,17 +91,9 @@ class DirectTouchDevice(Device):
     simulated = True
     PARAMS: ClassVar[tuple[Param, ...]] = PARAMS
 
-    def __init__(
-        self,
-        params: Mapping[str, Any] | None = None,
-        scene: Scene | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        super().__init__(params, scene, rng)
-        p = validate_params("device direct_touch", params, PARAMS)
-        tissue = _tissue_scene(scene)
+    def setup(self, p: dict[str, Any]) -> None:
+        tissue = _tissue_scene(self.scene)
         self.params = p
-        self.scene = scene
         render = RenderParams(
             max_force_n=float(p["max_force_n"]),
             interpolation=p["interpolation"],

@@ -21,14 +21,12 @@ safe state: zero force from then on (latched), the reason in :attr:`fault` and i
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
+from studyctl.devices.base import ParamDevice
 from studyctl.errors import DeviceError
-from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
-from studyctl.plugins.params import Param, validate_params
+from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits, Observation
+from studyctl.plugins.params import Param
 
 _ROUND = 6755399441055744.0  # 1.5 * 2**52
 
@@ -36,7 +34,7 @@ _ROUND = 6755399441055744.0  # 1.5 * 2**52
 DEVICE_CLASSES = {"omni": 3.3, "omega6": 12.0}
 
 
-class SimulatedForceDevice(Device):
+class SimulatedForceDevice(ParamDevice):
     """Simulated 3-DoF force device; parameters in :attr:`PARAMS`, ``scene`` optional.
 
     When a scene is given its :meth:`~studyctl.plugins.interfaces.Scene.sense` channels are added to every
@@ -63,18 +61,10 @@ class SimulatedForceDevice(Device):
         Param("max_force_rate_n_per_s", None, 1.0, 1e6, unit="N/s", source="None: no slew limit"),
     )  # fmt: skip
 
-    def __init__(
-        self,
-        params: Mapping[str, Any] | None = None,
-        scene: Scene | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        p = validate_params("device sim_force3d", params, self.PARAMS)
-        super().__init__(p, scene, rng)
+    def setup(self, p: dict[str, Any]) -> None:
         if p["max_force_n"] is None:
             p["max_force_n"] = DEVICE_CLASSES[p["device_class"]]
         self.params = p
-        self.scene = scene
         self.max_force_n = float(p["max_force_n"])
         self.rate_hz = float(p["rate_hz"])
         rate_limit = p["max_force_rate_n_per_s"]

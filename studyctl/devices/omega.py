@@ -16,20 +16,25 @@ own process and measures the period jitter.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import contextlib
+from collections.abc import Iterator, Mapping
 from typing import Any
 
-import numpy as np
-
+from studyctl.devices.base import ParamDevice
 from studyctl.errors import DeviceError, ModelParameterError
-from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
-from studyctl.plugins.params import Param, validate_params
+from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits, Observation
+from studyctl.plugins.params import Param
 
 EXTRA_HINT = "pip install 'studyctl[omega]'"
 
 
-def load_sdk() -> Any:
-    """The ``forcedimension_core.dhd`` module, or a DeviceError naming the extra to install."""
+def load_sdk(emulator: str = "") -> Any:
+    """The ``forcedimension_core.dhd`` module, or a DeviceError naming the extra to install.
+
+    ``emulator``: the name of a running device emulator (:mod:`studyctl.devices.emulators.shm_device`); the SDK is
+    then studyctl's stand-in with the same API, driving that emulator."""
+    if emulator:
+        use_emulated_sdk("forcedimension_core", "STUDYCTL_FD_EMULATOR", emulator)
     try:
         from forcedimension_core import dhd  # noqa: PLC0415 - optional dependency, imported on open
     except ImportError as exc:
@@ -45,7 +50,22 @@ def load_sdk() -> Any:
     return dhd
 
 
-class Omega6Device(Device):
+def use_emulated_sdk(package: str, env: str, emulator: str) -> None:
+    """Make ``import package`` find studyctl's stand-in (emulators/sdk) driving ``emulator`` in this process."""
+    import os  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    from studyctl.devices.emulators import SDK_DIR  # noqa: PLC0415
+
+    loaded = sys.modules.get(package)
+    if loaded is not None and not getattr(loaded, "EMULATED", False):
+        raise DeviceError(f"the real {package} is already loaded in this process; an emulated device needs its own")
+    os.environ[env] = emulator
+    if SDK_DIR not in sys.path:
+        sys.path.insert(0, SDK_DIR)
+
+
+class Omega6Device(ParamDevice):
     """omega.6 (3 active translational DoF, passive wrist) behind the plugin Device interface."""
 
     name = "omega6"
@@ -63,16 +83,10 @@ class Omega6Device(Device):
         Param("max_force_rate_n_per_s", 2000.0, 1.0, 1e6, unit="N/s",
               source="CHOSEN: a puncture drop takes at least 0.5 ms per newton"),
         Param("device_id", -1, -1, 64, kind=int, source="-1: the first available device"),
+        Param("emulator", "", kind=str, source="a running emulator's name (rehearsals, tests); empty: the real device"),
     )  # fmt: skip
 
-    def __init__(
-        self,
-        params: Mapping[str, Any] | None = None,
-        scene: Scene | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        p = validate_params("device omega6", params, self.PARAMS)
-        super().__init__(p, scene, rng)
+    def setup(self, p: dict[str, Any]) -> None:
         if len(p["offset_mm"]) != 3:
             raise ModelParameterError(f"device omega6: offset_mm = {list(p['offset_mm'])} must be [x, y, z] in mm")
         axis = p["pen_axis"]
@@ -103,8 +117,26 @@ class Omega6Device(Device):
         if ret is not None and ret < 0:
             raise DeviceError(f"device omega6: {op} failed: {self._dhd.errorGetLastStr()}")
 
+    @classmethod
+    def check_installed(cls) -> None:
+        """Raise DeviceError naming the extra to install when the vendor package is missing (before a session)."""
+        load_sdk()
+
+    @classmethod
+    @contextlib.contextmanager
+    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
+        """Start an omega.6 emulator (:mod:`studyctl.devices.emulators.shm_device`, its own process) and yield
+        the params that drive it through the SDK's own API (a rehearsal's device)."""
+        from studyctl.devices.emulation import start_emulator  # noqa: PLC0415
+
+        args = ["--model", "omega6", "--exit-with-parent"]
+        if hang_after_s is not None:  # tests: a device that stops answering
+            args += ["--hang-after", str(hang_after_s)]
+        with start_emulator("studyctl.devices.emulators.shm_device", args, what="omega.6") as name:
+            yield {**dict(params), "emulator": name}
+
     def open(self) -> None:
-        dhd = load_sdk()
+        dhd = load_sdk(str(self.params.get("emulator") or ""))
         self._dhd = dhd
         want = int(self.params["device_id"])
         self._id = dhd.open() if want < 0 else dhd.openID(want)
@@ -119,6 +151,39 @@ class Omega6Device(Device):
         if watchdog > 0 and expert is not None and hasattr(expert, "setWatchdog"):
             self._check(expert.setWatchdog(max(1, round(watchdog * 8)), ID=self._id), "setWatchdog")  # 125 µs units
         self._check(dhd.enableForce(True, ID=self._id), "enableForce")
+
+    def identity(self) -> dict[str, Any]:
+        """The SDK's account of the open device: model, serial number, communication rate, force limit."""
+        dhd = self._dhd
+        if dhd is None:
+            return {}
+        out: dict[str, Any] = {"model": dhd.getSystemName(ID=self._id), "serial": dhd.getSerialNumber(ID=self._id)}
+        for key, fn in (("com_khz", "getComFrequency"), ("max_force_n", "getMaxForce")):
+            if hasattr(dhd, fn):
+                out[key] = getattr(dhd, fn)(ID=self._id)
+        return out
+
+    def calibrate(self, seconds: float) -> dict[str, Any]:
+        """Zero the position: hold the handle at the scene's reference point; its mean position over ``seconds``
+        then reads as the configured ``offset_mm``."""
+        import time  # noqa: PLC0415
+
+        dhd = self._dhd
+        if dhd is None:
+            raise DeviceError("device omega6: calibrate before open()")
+        pts = []
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self._check(dhd.getPosition(out=self._pos, ID=self._id), "getPosition")
+            pts.append(tuple(self._pos))
+            time.sleep(0.002)
+        k = 1000.0 * self._scale
+        mean = [sum(p[i] for p in pts) / len(pts) for i in range(3)]
+        spread = [max(p[i] for p in pts) - min(p[i] for p in pts) for i in range(3)]
+        offset = [round(self._offset[i] - k * mean[i], 6) for i in range(3)]
+        return {"params": {"offset_mm": offset},
+                "detail": {"what": "position zero: mean handle position at the reference point", "samples": len(pts),
+                           "mean_m": mean, "spread_mm": [1000.0 * x for x in spread]}}
 
     def read(self, t: float) -> Observation:
         dhd = self._dhd

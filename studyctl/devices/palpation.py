@@ -30,10 +30,11 @@ from typing import Any
 
 import numpy as np
 
+from studyctl.devices.base import ParamDevice
 from studyctl.errors import DeviceError, ModelParameterError
 from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
-from studyctl.plugins.interfaces import ChannelLimit, Channels, Device, DeviceLimits, Observation, Scene
-from studyctl.plugins.params import Param, validate_params
+from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits, Observation
+from studyctl.plugins.params import Param
 from studyctl.scenes.sponge import SpongePhantomScene
 
 FAULT_KINDS = ("stale", "adc_out_of_range", "nan")
@@ -67,7 +68,7 @@ def palpation_limits(ramp_up_s: float = 0.2, sensor_stale_s: float = 0.1,
     )
 
 
-class SimulatedPalpationDevice(Device):
+class SimulatedPalpationDevice(ParamDevice):
     """Simulated force-sensing forceps with pneumatic balloon and vibration motor (seed 000 hardware)."""
 
     name = "sim_palpation"
@@ -86,15 +87,8 @@ class SimulatedPalpationDevice(Device):
                      "gives it); the visible yield is the no-feedback stiffness cue"),
     )
 
-    def __init__(
-        self,
-        params: Mapping[str, Any] | None = None,
-        scene: Scene | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        checked = validate_params("sim_palpation device", params, self.PARAMS)
-        super().__init__(checked, scene, rng)
-        self.rng = rng if rng is not None else np.random.default_rng(0)
+    def setup(self, checked: dict[str, Any]) -> None:
+        self.rng = self.rng if self.rng is not None else np.random.default_rng(0)
         self.limits = palpation_limits(checked["ramp_up_s"], checked["sensor_stale_s"], checked["max_balloon_psi"])
         self.sensor = A201
         self.balloon = BalloonModel(tau_s=checked["balloon_tau_s"])

@@ -12,24 +12,24 @@ Test against the emulator: ``python -m studyctl.devices.board_emulator --port 0`
 
 from __future__ import annotations
 
+import contextlib
 import math
 import select
 import socket
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
-import numpy as np
-
 from studyctl.devices import board_protocol as bp
+from studyctl.devices.base import ParamDevice
 from studyctl.devices.palpation import palpation_limits
 from studyctl.errors import DatagramError, DeviceError
 from studyctl.models.palpation_hw import A201
-from studyctl.plugins.interfaces import Channels, Device, Observation, Scene
-from studyctl.plugins.params import Param, validate_params
+from studyctl.plugins.interfaces import Channels, Observation
+from studyctl.plugins.params import Param
 
 
-class UdpDriverBoard(Device):
+class UdpDriverBoard(ParamDevice):
     """The palpation driver board (balloon valves, vibration motor, force sensor ADC) over UDP."""
 
     name = "udp_driver_board"
@@ -42,25 +42,55 @@ class UdpDriverBoard(Device):
         Param("connect_timeout_s", 1.0, 0.05, 30.0, unit="s", source="CHOSEN"),
         Param("sensor_stale_s", 0.1, 0.005, 10.0, unit="s", source="CHOSEN: 5 missed 50 Hz samples"),
         Param("ramp_up_s", 0.2, 0.0, 5.0, unit="s", source="CHOSEN: output ramp after enable"),
+        Param("zero_n", 0.0, -5.0, 5.0, unit="N", source="sensor reading at rest (studyctl device calibrate)"),
     )
 
-    def __init__(
-        self,
-        params: Mapping[str, Any] | None = None,
-        scene: Scene | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        checked = validate_params("udp_driver_board device", params, self.PARAMS)
-        super().__init__(checked, scene, rng)
+    def setup(self, checked: dict[str, Any]) -> None:
         self.limits = palpation_limits(checked["ramp_up_s"], checked["sensor_stale_s"])
-        self.address = (checked["host"], checked["port"])
+        self.address = (checked.get("host"), checked.get("port"))
+        self._zero = float(checked["zero_n"])
         self.sensor = A201
-        self._sock: socket.socket | None = None
+        self._sock: Any = None  # the open link (a UDP socket, or a serial port)
         self._seq = 0
         self.dropped = 0
         self.status: dict[str, int] = {}
         self._latest: tuple[int, int, int, int, int, int] | None = None  # seq, time_us, adc, status, b, v
         self._sample_t: float | None = None
+
+    @classmethod
+    @contextlib.contextmanager
+    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
+        """Start the board emulator (:mod:`studyctl.devices.board_emulator`) on loopback; yield the params
+        that reach it (a rehearsal's device)."""
+        from studyctl.devices.emulation import start_emulator  # noqa: PLC0415
+
+        args = ["--max-runtime", "0", "--exit-with-parent"]
+        if hang_after_s is not None:  # tests: a board that stops answering
+            args += ["--silence-after", str(hang_after_s)]
+        with start_emulator("studyctl.devices.board_emulator", args, what="driver board") as port:
+            yield {**dict(params), "host": "127.0.0.1", "port": int(port)}
+
+    def identity(self) -> dict[str, Any]:
+        """What the board reported in its STATUS (firmware, ADC bits, rate, watchdog) and where it is."""
+        return {"model": "palpation driver board (UDP)", "address": f"{self.address[0]}:{self.address[1]}",
+                **self.status}
+
+    def calibrate(self, seconds: float) -> dict[str, Any]:
+        """Zero the force sensor: with nothing touching it, the mean force over ``seconds`` becomes ``zero_n``."""
+        forces = []
+        end = time.monotonic() + seconds
+        t0 = time.monotonic()
+        while time.monotonic() < end:
+            obs = self.read(time.monotonic() - t0)
+            if not obs.faults and math.isfinite(obs.values["force_n"]):
+                forces.append(obs.values["force_n"] + self._zero)
+            time.sleep(0.01)
+        if not forces:
+            raise DeviceError(f"{self.name}: no valid sensor reading while calibrating; check the sensor cable")
+        mean = sum(forces) / len(forces)
+        sd = (sum((f - mean) ** 2 for f in forces) / max(1, len(forces) - 1)) ** 0.5
+        return {"params": {"zero_n": round(mean, 6)},
+                "detail": {"what": "force sensor zero: mean force at rest", "samples": len(forces), "sd_n": sd}}
 
     # -- Device --------------------------------------------------------------------------------------
     def open(self) -> None:
@@ -68,11 +98,9 @@ class UdpDriverBoard(Device):
             return
         self._latest = None
         self.status = {}
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock.setblocking(False)
+        link = self._connect()
         try:
-            sock.connect(self.address)
-            self._send(sock, bp.HELLO, int(self.params["rate_hz"]), int(self.params["watchdog_ms"]))
+            self._send(link, bp.HELLO, int(self.params["rate_hz"]), int(self.params["watchdog_ms"]))
             deadline = time.monotonic() + self.params["connect_timeout_s"]
             # Wait for the board's STATUS and its first SENSOR packet, so the first tick has a fresh sample.
             while self._latest is None or not self.status:
@@ -80,51 +108,76 @@ class UdpDriverBoard(Device):
                 if remaining <= 0:
                     what = "no answer from" if not self.status else "no sensor data from"
                     raise DeviceError(
-                        f"udp_driver_board: {what} the board at {self.address[0]}:{self.address[1]} within "
-                        f"{self.params['connect_timeout_s']:g} s; check that it is powered, on this network and the "
-                        "port is right"
+                        f"{self.name}: {what} the board at {self._where()} within "
+                        f"{self.params['connect_timeout_s']:g} s; check that it is powered, {self._check_hint()}"
                     )
-                ready, _, _ = select.select([sock], [], [], remaining)
+                ready, _, _ = select.select([link], [], [], remaining)
                 if not ready:
                     continue
-                try:
-                    data = sock.recv(2048)
-                except ConnectionRefusedError:
+                for data in self._recv(link, opening=True):
+                    pkt = self._parse(data)
+                    if pkt is None:
+                        continue
+                    if pkt.type == bp.STATUS:
+                        fw, bits, rate, wd, rejected = pkt.fields
+                        self.status = {"firmware": fw, "adc_bits": bits, "rate_hz": rate, "watchdog_ms": wd,
+                                       "rejected": rejected}
+                        if bits != self.sensor.adc_bits:
+                            raise DeviceError(
+                                f"{self.name}: the board reports a {bits}-bit ADC; studyctl's A201 calibration "
+                                f"expects {self.sensor.adc_bits} bits"
+                            )
+                    elif pkt.type == bp.SENSOR:
+                        self._latest = (pkt.seq, *pkt.fields)
+        except BaseException:
+            self._close_link(link)
+            raise
+        self._sock = link
+        self._sample_t = None  # the first read() stamps the sample that arrived during open()
+
+    # -- transport (UDP here; the serial board overrides these) -------------------------------------------------
+    def _connect(self) -> Any:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setblocking(False)
+        sock.connect(self.address)
+        return sock
+
+    def _recv(self, link: Any, opening: bool = False) -> list[bytes]:
+        """Every datagram waiting now (never blocks)."""
+        out = []
+        while True:
+            try:
+                out.append(link.recv(2048))
+            except BlockingIOError:
+                return out
+            except ConnectionRefusedError:  # ICMP port unreachable: nobody listens (or the board went away)
+                if opening:
                     raise DeviceError(
                         f"udp_driver_board: nothing listens at {self.address[0]}:{self.address[1]} (connection "
                         "refused); start the board or its emulator"
                     ) from None
-                pkt = self._parse(data)
-                if pkt is None:
-                    continue
-                if pkt.type == bp.STATUS:
-                    fw, bits, rate, wd, rejected = pkt.fields
-                    self.status = {"firmware": fw, "adc_bits": bits, "rate_hz": rate, "watchdog_ms": wd,
-                                   "rejected": rejected}
-                    if bits != self.sensor.adc_bits:
-                        raise DeviceError(
-                            f"udp_driver_board: the board reports a {bits}-bit ADC; studyctl's A201 calibration "
-                            f"expects {self.sensor.adc_bits} bits"
-                        )
-                elif pkt.type == bp.SENSOR:
-                    self._latest = (pkt.seq, *pkt.fields)
-        except BaseException:
-            sock.close()
-            raise
-        self._sock = sock
-        self._sample_t = None  # the first read() stamps the sample that arrived during open()
+                return out
+
+    def _send_raw(self, link: Any, datagram: bytes) -> None:
+        try:
+            link.send(datagram)
+        except (ConnectionRefusedError, BlockingIOError):
+            pass  # the board is gone or busy; the stale-sensor watchdog will act
+
+    def _close_link(self, link: Any) -> None:
+        link.close()
+
+    def _where(self) -> str:
+        return f"{self.address[0]}:{self.address[1]}"
+
+    def _check_hint(self) -> str:
+        return "on this network and the port is right"
 
     def read(self, t: float) -> Observation:
         if self._sock is None:
-            raise DeviceError("udp_driver_board: read before open(); the engine must open the device first")
+            raise DeviceError(f"{self.name}: read before open(); the engine must open the device first")
         fresh = False
-        while True:
-            try:
-                data = self._sock.recv(2048)
-            except BlockingIOError:
-                break
-            except ConnectionRefusedError:  # ICMP port unreachable: the board went away
-                break
+        for data in self._recv(self._sock):
             pkt = self._parse(data)
             if pkt is None or pkt.type != bp.SENSOR:
                 continue
@@ -141,7 +194,7 @@ class UdpDriverBoard(Device):
         _seq, _time_us, adc, status, b, v = self._latest
         faults: list[str] = []
         if 0 <= adc <= self.sensor.adc_max:
-            force = self.sensor.force_of_count(adc)
+            force = self.sensor.force_of_count(adc) - self._zero
         else:
             force = math.nan
             faults.append(f"adc_out_of_range: {adc} not in 0..{self.sensor.adc_max}")
@@ -155,7 +208,7 @@ class UdpDriverBoard(Device):
 
     def write(self, command: Channels) -> None:
         if self._sock is None:
-            return
+            raise DeviceError(f"{self.name}: write before open(); the engine must open the device first")
         b = _wire(command.get("balloon_pct", 0.0))
         v = _wire(command.get("vibration_pct", 0.0))
         self._send(self._sock, bp.COMMAND, b, v)
@@ -173,15 +226,12 @@ class UdpDriverBoard(Device):
             for kind in (bp.SAFE, bp.SAFE, bp.BYE):  # SAFE twice: UDP may drop one
                 self._send(sock, kind)
         finally:
-            sock.close()
+            self._close_link(sock)
 
     # -- internals -----------------------------------------------------------------------------------
-    def _send(self, sock: socket.socket, kind: int, *fields: int) -> None:
+    def _send(self, link: Any, kind: int, *fields: int) -> None:
         self._seq = (self._seq + 1) & 0xFFFFFFFF
-        try:
-            sock.send(bp.encode(kind, self._seq, *fields))
-        except (ConnectionRefusedError, BlockingIOError):
-            pass  # the board is gone or busy; the stale-sensor watchdog will act
+        self._send_raw(link, bp.encode(kind, self._seq, *fields))
 
     def _parse(self, data: bytes) -> bp.Packet | None:
         try:

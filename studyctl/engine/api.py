@@ -13,6 +13,8 @@ Example: a virtual participant's whole session, deterministic given the seed::
 
 from __future__ import annotations
 
+import contextlib
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +22,7 @@ from typing import Any
 
 from sqlalchemy import select
 
+from studyctl.devices.emulation import emulated
 from studyctl.engine.clock import Clock, PacedClock, RealClock, SimulatedClock
 from studyctl.engine.factory import EntryPointFactory, PluginFactory, build_participant
 from studyctl.engine.plan import SessionPlan, Step
@@ -120,27 +123,71 @@ def _launch(
     log: Callable[[str], None] | None,
     frontend: Frontend | None,
     person_params: Mapping[str, Any] | None = None,
+    rehearse: bool = False,
+    servo: bool | None = None,
+    calibrations: tuple[StudyStore, int] | None = None,
+    lsl: bool = False,
 ) -> SessionResult:
     """Prepare everything, then ``begin()`` the stored session (create or reopen it) and run it.
 
     Plugins, terminal and clock are ready before ``begin`` writes anything: a failure leaves no half-started
-    session, and the terminal is restored whatever happens.
+    session, and the terminal is restored whatever happens. A rehearsal starts the emulator of the plan's
+    hardware device first and stops it at the end, whatever happens.
     """
     if isinstance(script, (str, Path)):
         script = Script.load(script)
     factory = factory or EntryPointFactory()
+    if rehearse and virtual:
+        raise UsageError("--rehearse runs a person or a script (--input) on emulated hardware; a virtual participant "
+                         "runs on the simulated device (use --virtual without --rehearse)")
+    if plan.hardware_device and not virtual and not rehearse:  # a missing SDK: one error before anything is written
+        check = getattr(factory.load("device", plan.hardware_device["plugin"]), "check_installed", None)
+        if callable(check):
+            check()
+    if lsl:  # before anything is written: a missing extra is a usage error, not a half-started session
+        from studyctl.devices.lsl import load_pylsl  # noqa: PLC0415
+
+        load_pylsl()
     setup = _prepare(plan, seed, virtual=virtual, factory=factory, participant=participant, ui=ui,
                      clock=clock or _paced(speed), script=script, log=log, person_params=person_params)
     rec = None
     try:
-        rec = begin()
-        if rec.lease is not None:
-            rec.lease.start_heartbeat()
-        if frontend is not None:
-            setup.participant, setup.ui = frontend(setup.participant, setup.ui, rec)
-        runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock, factory=factory,
-                               virtual=rec.state().virtual, progress=progress)
-        return runner.run()
+        with contextlib.ExitStack() as stack:
+            device_ref = None
+            if rehearse and plan.hardware_device:
+                device_ref = stack.enter_context(emulated(plan.hardware_device))
+                if log is not None:
+                    log(f"rehearsal: device {device_ref['plugin']} is emulated "
+                        f"({', '.join(f'{k}={v}' for k, v in sorted(device_ref['params'].items()))})")
+            elif rehearse and log is not None:
+                log("rehearsal: the protocol names no hardware device; trials run on the simulated device "
+                    f"{(plan.simulated_device or {}).get('plugin', '?')}")
+            calibration = None
+            if calibrations is not None and plan.hardware_device and not virtual:
+                from studyctl.engine.device_check import latest_calibration  # noqa: PLC0415
+
+                base = device_ref or dict(plan.hardware_device)
+                calibration = latest_calibration(calibrations[0], calibrations[1], base["plugin"], emulated=rehearse)
+                if calibration is not None:  # the newest zero/calibration of this device in the study
+                    device_ref = {**base, "params": {**dict(base.get("params") or {}), **calibration.params}}
+            rec = begin()
+            if rec.lease is not None:
+                rec.lease.start_heartbeat()
+            if lsl:
+                from studyctl.devices.lsl import LslRecorder, LslStreams  # noqa: PLC0415
+
+                rec = LslRecorder(rec, LslStreams(f"studyctl:{plan.study}:{rec.state().session_id}"))
+                stack.callback(time.sleep, 0.5)  # let recorders fetch the last samples before the outlets close
+            if calibration is not None:
+                rec.event("device_calibration", {"calibration_id": calibration.id, "device": calibration.device,
+                                                 "created_at": calibration.created_at, "params": calibration.params},
+                          t=rec.state().last_t)
+            if frontend is not None:
+                setup.participant, setup.ui = frontend(setup.participant, setup.ui, rec)
+            runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock,
+                                   factory=factory, virtual=rec.state().virtual, progress=progress,
+                                   device_ref=device_ref, servo=servo)
+            return runner.run()
     finally:
         try:
             if rec is not None:
@@ -169,6 +216,9 @@ def run_session(
     sim_rate_hz: float | None = None,
     population: Any | None = None,
     traits: Mapping[str, float] | None = None,
+    rehearse: bool = False,
+    servo: bool | None = None,
+    lsl: bool = False,
 ) -> SessionResult:
     """Run an enrolled participant's whole session, from instructions to the end-of-study questionnaire.
 
@@ -217,6 +267,17 @@ def run_session(
         The population's name, version, sha256 and the person's traits are stored as a ``population`` event in
         the transaction that starts the session; a resume rebuilds the same person from it.
 
+    servo
+        Hardware trials run in the servo process (None, the default) or, with False, in this process (for
+        comparison; a 1 kHz loop beside prompts and the store keeps worse time, see ``studyctl bench servo``).
+    lsl
+        Also publish the session's events (markers) and samples to the Lab Streaming Layer
+        (:mod:`studyctl.devices.lsl`; extra ``lsl``).
+    rehearse
+        A rehearsal: every hardware device is replaced by its emulator (started here in its own process and
+        stopped at the end); the session is recorded in the study marked ``rehearsal`` and analysis leaves it
+        out. The participant's status does not change and earlier rehearsals do not count as taking part.
+
     Returns
     -------
     SessionResult
@@ -243,8 +304,9 @@ def run_session(
     if person.status == "withdrawn":
         raise SessionError(f"participant {participant_code} has withdrawn; their sessions cannot be run")
     # early, readable refusal; StoreRecorder.create checks again inside the transaction that starts the session
-    with store.reading() as s:
-        refuse_second_session(store, s, person)
+    if not rehearse:  # rehearsals are not taking part: any number of them, before or after the real session
+        with store.reading() as s:
+            refuse_second_session(store, s, person)
     if not person.schedule:
         raise SessionError(f"participant {participant_code} has no stored schedule; enroll with `studyctl enroll`")
     protocol = study_protocol(target)
@@ -270,9 +332,10 @@ def run_session(
         person_params = population.params(traits)
     return _launch(plan, seed, virtual,
                    lambda: StoreRecorder.create(store, person.id, plan, seed=seed, virtual=virtual, site=site,
-                                                population=record, lease=True),
+                                                population=record, lease=True, rehearsal=rehearse),
                    participant=participant, ui=ui, clock=clock, script=script, factory=factory, progress=progress,
-                   speed=speed, log=log, frontend=frontend, person_params=person_params)
+                   speed=speed, log=log, frontend=frontend, person_params=person_params, rehearse=rehearse,
+                   servo=servo, calibrations=(store, int(target.id)), lsl=lsl)
 
 
 def check_sim_rate(sim_rate_hz: float) -> float:
@@ -297,12 +360,21 @@ def simulation_rates(plan: SessionPlan, factory: PluginFactory, sim_rate_hz: flo
     return rates
 
 
-def session_is_virtual(store: StudyStore, session_id: int) -> bool:
-    """Whether a stored session is run by a virtual participant (False for people, or an unknown session)."""
+def _session_head(store: StudyStore, session_id: int) -> dict:
     with store.reading() as s:
         payload = s.scalar(select(Event.payload).where(Event.session_id == session_id, Event.kind == "session_plan")
                            .order_by(Event.seq).limit(1))
-    return bool(payload and payload.get("virtual", False))
+    return dict(payload or {})
+
+
+def session_is_virtual(store: StudyStore, session_id: int) -> bool:
+    """Whether a stored session is run by a virtual participant (False for people, or an unknown session)."""
+    return bool(_session_head(store, session_id).get("virtual", False))
+
+
+def session_is_rehearsal(store: StudyStore, session_id: int) -> bool:
+    """Whether a stored session is a rehearsal on emulated hardware (recorded, never analysed)."""
+    return bool(_session_head(store, session_id).get("rehearsal", False))
 
 
 def resume_session(
@@ -319,6 +391,7 @@ def resume_session(
     log: Callable[[str], None] | None = None,
     frontend: Frontend | None = None,
     take_over: bool = False,
+    lsl: bool = False,
 ) -> SessionResult:
     """Continue an interrupted session from its stored plan (see :func:`run_session` for parameters).
 
@@ -348,10 +421,12 @@ def resume_session(
     state = rec.state()
     stored = stored_population(store, session_id) if state.virtual else None
     person_params = {**stored.get("fixed", {}), **stored.get("traits", {})} if stored else None
+    study_id = store.get_participant_by_id(rec.participant_id).study_id
     try:
         return _launch(state.plan, state.seed, state.virtual, lambda: rec, participant=participant, ui=ui,
                        clock=clock, script=script, factory=factory, progress=progress, speed=speed, log=log,
-                       frontend=frontend, person_params=person_params)
+                       frontend=frontend, person_params=person_params, rehearse=state.rehearsal,
+                       calibrations=(store, int(study_id)), lsl=lsl)
     finally:
         rec.close()
 

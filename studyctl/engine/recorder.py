@@ -50,6 +50,7 @@ class SessionState:
     resumes: int = 0
     last_t: float = 0.0  # latest session-clock time recorded (a resumed clock continues from here)
     virtual: bool = True  # run by a virtual participant (a resume keeps the mode)
+    rehearsal: bool = False  # a rehearsal on emulated hardware: recorded, never analysed
     memory: dict[str, Any] | None = None  # the participant's memory stored with its last finished trial
 
     def attempts(self, position: int) -> list[TrialRecord]:

@@ -8,16 +8,31 @@ samples and events in small batches to store them. The child measures its own pa
 ``servo_timing`` event: tick lateness against the schedule and period jitter (|period − T|) percentiles.
 
 Everything the child needs travels as plain data (:class:`ServoSpec`: plugin names and parameters, the
-scene's spec and placement), so plugins are rebuilt in the child through the same entry points.
+scene's spec and placement, the trial's random generators), so plugins are rebuilt in the child through the
+same entry points.
+
+Real-time hygiene in the child (:func:`realtime_setup`): garbage collection is frozen and disabled for the
+trial (a collection of the young generation can take milliseconds), buffers are preallocated (tick times,
+the sample batch), the wait is hybrid (sleep until ~0.3 ms before the tick, then spin), the process is pinned
+to one CPU and asks for the highest scheduling priority the OS grants (SCHED_FIFO when permitted, else a
+lower nice value). What it actually got is measured and reported in the ``servo_timing`` event (``rt``).
+
+Faults: if the parent dies the child notices within ~10 ms (its parent pid changes), ends the trial and puts
+the device in its safe state; if the child dies the parent raises :class:`~studyctl.errors.DeviceError`
+after putting the device in its safe state from its side (:func:`make_device_safe`), so the engine records
+the trial as aborted and the session stays resumable.
 """
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import logging
 import math
 import multiprocessing as mp
 import os
 import queue
+import sys
 import time
 import traceback
 from collections.abc import Callable, Mapping
@@ -28,7 +43,7 @@ import numpy as np
 
 from studyctl.engine.clock import RealClock
 from studyctl.engine.trial_loop import run_trial
-from studyctl.errors import DeviceError
+from studyctl.errors import DeviceError, StudyctlError
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 from studyctl.plugins.registry import load_plugin
 
@@ -52,6 +67,13 @@ class ServoSpec:
     participant_params: Mapping[str, Any] = field(default_factory=dict)
     seed: int = 0
     nice: int = -10  # scheduling priority for the servo process (best effort; 0 leaves it unchanged)
+    # The trial's random streams (Generators pickle with their state); None: from ``seed``.
+    scene_rng: np.random.Generator | None = None
+    device_rng: np.random.Generator | None = None
+    participant_rng: np.random.Generator | None = None
+    realtime: bool = True  # gc freeze, CPU affinity, SCHED_FIFO/nice (see realtime_setup)
+    cpu: int | None = None  # CPU to pin the loop to (None: the last one this process may use)
+    parent_pid: int = 0  # set by run_trial_in_servo_process: the child stops when its parent goes away
 
 
 @dataclass(frozen=True)
@@ -67,6 +89,7 @@ class ServoTiming:
     period_jitter_us_p99: float
     period_jitter_us_max: float
     overruns: int  # ticks that started more than one period late
+    late_1ms: int = 0  # ticks that started more than 1 ms after they were due
 
     @classmethod
     def from_starts(cls, starts: np.ndarray, period_s: float, scheduled: np.ndarray | None = None) -> ServoTiming:
@@ -91,25 +114,40 @@ class ServoTiming:
             period_jitter_us_p99=float(np.percentile(jitter, 99)),
             period_jitter_us_max=float(jitter.max()),
             overruns=int(np.sum(late > period_s * 1e6)),
+            late_1ms=int(np.sum(late > 1000.0)),
         )
 
     def as_dict(self) -> dict[str, float]:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-class TimedClock(RealClock):
-    """A real clock that records when each tick actually started (the return of ``sleep_until``)."""
+SPIN_S = 0.0003  # the hybrid wait sleeps until this long before a tick is due, then spins
+# SCHED_FIFO priority of the loop: above every normal process, below the kernel's own threads at 99
+FIFO_PRIORITY = 80
+SWITCH_INTERVAL_S = 1e-4
 
-    def __init__(self, capacity: int = 1 << 20) -> None:
+
+class TimedClock(RealClock):
+    """A real clock with a hybrid sleep/spin wait that records when each tick actually started.
+
+    The tick times go into preallocated arrays (no allocation per tick)."""
+
+    def __init__(self, capacity: int = 1 << 20, spin_s: float = SPIN_S) -> None:
         super().__init__()
         self.starts = np.empty(capacity)
         self.due = np.empty(capacity)
         self.n = 0
+        self.spin_s = spin_s
 
     def sleep_until(self, t: float) -> None:
-        super().sleep_until(t)
+        now = self.now
+        remaining = t - now()
+        if remaining > self.spin_s:
+            time.sleep(remaining - self.spin_s)
+        while now() < t:
+            pass
         if self.n < len(self.starts):
-            self.starts[self.n] = self.now()
+            self.starts[self.n] = now()
             self.due[self.n] = t
             self.n += 1
 
@@ -124,10 +162,11 @@ class _RemoteParticipant(Participant):
     name = "remote"
     virtual = False
 
-    def __init__(self, inbox: Any, poll_every: int) -> None:
+    def __init__(self, inbox: Any, poll_every: int, parent_pid: int = 0) -> None:
         super().__init__({})
         self.inbox = inbox
         self.poll_every = poll_every
+        self.parent_pid = parent_pid
         self.stop_reason: str | None = None
         self._k = 0
         self._idle = Action()
@@ -137,6 +176,9 @@ class _RemoteParticipant(Participant):
 
     def poll(self) -> list[Request]:
         out: list[Request] = []
+        if self.parent_pid and os.getppid() != self.parent_pid and self.stop_reason is None:
+            self.stop_reason = "abort"  # the parent died: end the trial, the device goes to its safe state
+            return out
         while True:
             try:
                 kind, payload = self.inbox.get_nowait()
@@ -165,42 +207,105 @@ def _construct(cls: type, **kwargs: Any) -> Any:
     return cls(**{k: v for k, v in kwargs.items() if k in params})
 
 
+def _load(kind: str, name: str) -> type:
+    """A plugin by entry-point name, or a class by ``module:Class`` (tools such as ``studyctl device check``)."""
+    if ":" in name:
+        import importlib  # noqa: PLC0415
+
+        module, _, attr = name.partition(":")
+        return getattr(importlib.import_module(module), attr)
+
+
+    return load_plugin(kind, name)
+
+
+def realtime_setup(cpu: int | None = None, nice: int = -10) -> dict[str, Any]:
+    """Give this process the best real-time footing the OS allows; return what it actually got.
+
+    Pins the process to one CPU (``cpu``, default the last allowed one), asks for SCHED_FIFO at the
+    highest priority (needs root or CAP_SYS_NICE; else lowers the nice value by ``-nice`` as far as
+    permitted), and freezes then disables the garbage collector. Every step is best effort: the report
+    says which took effect, measured after the fact (``sched``, ``priority``, ``nice``, ``cpus``, ``gc``).
+    """
+    report: dict[str, Any] = {}
+    if hasattr(os, "sched_setaffinity"):
+        try:
+            allowed = sorted(os.sched_getaffinity(0))
+            target = cpu if cpu is not None and cpu in allowed else allowed[-1]
+            os.sched_setaffinity(0, {target})
+        except OSError:
+            pass
+        report["cpus"] = sorted(os.sched_getaffinity(0))
+    fifo = False
+    if hasattr(os, "SCHED_FIFO"):
+        try:
+            # RESET_ON_FORK: threads started later (queue feeder, watchdog) run at normal priority, so they never
+            # hold the loop's CPU at equal priority while it waits to run
+            policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+            os.sched_setscheduler(0, policy, os.sched_param(FIFO_PRIORITY))
+            fifo = True
+        except (OSError, PermissionError):
+            fifo = False
+    if not fifo and nice:
+        with contextlib.suppress(OSError):
+            _renice(nice)
+    if hasattr(os, "sched_getscheduler"):
+        policy = os.sched_getscheduler(0)
+        policy &= ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+        names = {getattr(os, n): n for n in ("SCHED_OTHER", "SCHED_FIFO", "SCHED_RR", "SCHED_BATCH", "SCHED_IDLE")
+                 if hasattr(os, n)}
+        report["sched"] = names.get(policy, str(policy))
+        report["priority"] = os.sched_getparam(0).sched_priority
+    report["nice"] = os.nice(0)
+    # A helper thread holding the interpreter lock when the loop wakes is asked to drop it after this interval
+    # (default 5 ms: a whole tick and more lost)
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    report["switch_interval_us"] = sys.getswitchinterval() * 1e6
+    gc.collect()
+    gc.freeze()  # everything allocated so far is never scanned again
+    gc.disable()  # and nothing new is collected until the trial ends
+    report["gc"] = "frozen+disabled"
+    return report
+
+
 def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
     """The child process: build the plugins, run the trial on a real clock, stream everything back."""
     # Safety events travel to the parent as events; printing each one here would cost the loop its time.
     quiet = logging.getLogger("studyctl")
     quiet.addHandler(logging.NullHandler())
     quiet.propagate = False
+    device = None
     try:
-        niced = 0
-        if spec.nice:
-            try:  # a haptic servo runs above the UI, as CHAI3D's haptics thread does; needs the privilege
-                niced = _renice(spec.nice)
-            except OSError:
-                niced = 0
         rng = np.random.default_rng(spec.seed)
         scene = None
         if spec.scene:
             scene = load_plugin("scene", spec.scene).build(
-                dict(spec.scene_spec), dict(spec.scene_placement), frozenset(spec.scene_needs), rng
+                dict(spec.scene_spec), dict(spec.scene_placement), frozenset(spec.scene_needs),
+                spec.scene_rng if spec.scene_rng is not None else rng,
             )
         controller = None
         if spec.controller:
-            controller = load_plugin("controller", spec.controller)(dict(spec.controller_params), scene)
-        device = _construct(load_plugin("device", spec.device), params=dict(spec.device_params), scene=scene, rng=rng)
-        remote = _RemoteParticipant(inbox, poll_every=max(1, round(spec.info.rate_hz * 0.01)))
+            controller = _load("controller", spec.controller)(dict(spec.controller_params), scene)
+        device = _construct(load_plugin("device", spec.device), params=dict(spec.device_params), scene=scene,
+                            rng=spec.device_rng if spec.device_rng is not None else rng)
+        remote = _RemoteParticipant(inbox, poll_every=max(1, round(spec.info.rate_hz * 0.01)),
+                                    parent_pid=spec.parent_pid)
         if spec.participant:
             participant = _construct(load_plugin("participant", spec.participant), params=dict(spec.participant_params))
         else:
             participant = remote
-        batch: list[tuple[float, tuple[float, ...]]] = []
+        # The sample batch is a preallocated ring of rows flushed every BATCH_S (no list growth per tick).
+        cap = max(64, int(spec.info.rate_hz * BATCH_S * 4) + 8)
+        rows: list[Any] = [None] * cap
+        fill = [0]
         names: list[tuple[str, ...]] = [()]
         last_flush = [time.perf_counter()]
 
         def flush() -> None:
-            if batch:
-                outbox.put(("samples", names[0], list(batch)))
-                batch.clear()
+            n = fill[0]
+            if n:
+                outbox.put(("samples", names[0], rows[:n]))
+                fill[0] = 0
             last_flush[0] = time.perf_counter()
 
         def on_sample(t: float, values: Mapping[str, float]) -> None:
@@ -208,8 +313,9 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
             if keys != names[0]:
                 flush()
                 names[0] = keys
-            batch.append((t, tuple(values.values())))
-            if time.perf_counter() - last_flush[0] >= BATCH_S:
+            rows[fill[0]] = (t, tuple(values.values()))
+            fill[0] += 1
+            if fill[0] >= cap or time.perf_counter() - last_flush[0] >= BATCH_S:
                 flush()
 
         def on_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
@@ -228,6 +334,13 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
 
         clock = TimedClock(capacity=int(spec.info.time_limit_s * spec.info.rate_hz) + 16)
         device.open()
+        identity = getattr(device, "identity", None)
+        if callable(identity):  # what the device says it is (model, serial, firmware): for the record
+            outbox.put(("event", 0.0, "device_identity", _plain(dict(identity()))))
+        rt: dict[str, Any] = realtime_setup(spec.cpu, spec.nice) if spec.realtime else {}
+        cpu0 = time.process_time()
+        # trial time 0 on the monotonic clock (LSL's local_clock), so the parent can place batched samples in time
+        outbox.put(("event", 0.0, "servo_clock", {"monotonic_zero": time.monotonic()}))
         try:
             outcome = run_trial(
                 info=spec.info,
@@ -235,26 +348,51 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
                 device=device,
                 participant=participant,
                 clock=clock,
-                rng=rng,
+                rng=spec.participant_rng if spec.participant_rng is not None else rng,
                 on_event=on_event,
                 on_sample=on_sample,
                 view=scene.view if (scene is not None and spec.participant) else None,
                 should_stop=should_stop,
             )
         finally:
+            if spec.realtime:
+                gc.enable()
+                gc.unfreeze()
             device.close()
         flush()
+        rt["cpu_s"] = time.process_time() - cpu0
         timing = clock.timing(1.0 / spec.info.rate_hz)
-        outbox.put(("event", outcome.duration_s, "servo_timing", {**timing.as_dict(), "nice": niced}))
+        outbox.put(("event", outcome.duration_s, "servo_timing", {**timing.as_dict(), "rt": rt,
+                                                                    "nice": rt.get("nice", 0)}))
         outbox.put(("outcome", _plain(outcome.__dict__)))
     except BaseException as exc:  # the parent must learn why the child ended
-        outbox.put(("error", f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+        if device is not None:
+            with contextlib.suppress(Exception):
+                device.close()  # safe state: close() commands it and must be safe to call twice
+        user = isinstance(exc, StudyctlError)
+        outbox.put(("error", f"{type(exc).__name__}: {exc}" if not user else str(exc),
+                    "" if user else traceback.format_exc()))
 
 
 def _renice(delta: int) -> int:
     """Change this process's niceness by ``delta``; return the change actually made."""
     before = os.nice(0)
     return os.nice(delta) - before
+
+
+def make_device_safe(spec: ServoSpec) -> str | None:
+    """From the parent, after the servo child died: open the device and close it again, which commands its safe
+    state (the device's own watchdog is the backstop when this fails). Returns None or why it could not."""
+
+
+    try:
+        device = _construct(load_plugin("device", spec.device), params=dict(spec.device_params), scene=None,
+                            rng=np.random.default_rng(0))
+        device.open()
+        device.close()
+    except Exception as exc:  # the device may be the reason the child died
+        return f"{type(exc).__name__}: {exc}"
+    return None
 
 
 def _plain(value: Any) -> Any:
@@ -279,6 +417,10 @@ class ServoResult:
     reports: list[dict[str, Any]]
     events: list[dict[str, Any]]
     timing: ServoTiming | None
+    rt: dict[str, Any] = field(default_factory=dict)
+
+
+_TIMING_FIELDS = frozenset(ServoTiming.__dataclass_fields__)
 
 
 def run_trial_in_servo_process(
@@ -295,15 +437,22 @@ def run_trial_in_servo_process(
 
     ``requests`` is polled every ``poll_s`` for the person's requests (scan, report, finish), which are
     forwarded to the loop; ``should_stop`` likewise (a reason string ends the trial). Raises
-    :class:`~studyctl.errors.DeviceError` if the child fails (its traceback is in the message).
+    :class:`~studyctl.errors.DeviceError` if the child fails (a plugin bug's traceback is in the message; a
+    device's own error is passed on as it is) or dies; the device is then put in its safe state from here.
     """
+    if not spec.parent_pid:
+        from dataclasses import replace  # noqa: PLC0415
+
+        spec = replace(spec, parent_pid=os.getpid())
     ctx = mp.get_context("spawn")
     inbox, outbox = ctx.Queue(), ctx.Queue()
     proc = ctx.Process(target=_servo_main, args=(spec, inbox, outbox), name="studyctl-servo", daemon=True)
     proc.start()
     outcome: dict[str, Any] | None = None
     timing: ServoTiming | None = None
+    rt: dict[str, Any] = {}
     error: tuple[str, str] | None = None
+    died = False
     started = time.monotonic()
     stop_sent = False
     try:
@@ -320,10 +469,17 @@ def run_trial_in_servo_process(
                 msg = outbox.get(timeout=poll_s)
             except queue.Empty:
                 if not proc.is_alive():
-                    error = ("servo process ended without a result", f"exit code {proc.exitcode}")
+                    try:  # its last messages may still be on their way through the pipe
+                        msg = outbox.get(timeout=1.0)
+                    except queue.Empty:
+                        died = True
+                        error = (f"the servo process ended without a result (exit code {proc.exitcode})", "")
+                        continue
                 elif time.monotonic() - started > start_timeout_s + spec.info.time_limit_s:
-                    error = ("servo process did not finish in time", "")
-                continue
+                    error = ("the servo process did not finish in time", "")
+                    continue
+                else:
+                    continue
             kind = msg[0]
             if kind == "samples" and on_sample is not None:
                 names = msg[1]
@@ -332,13 +488,17 @@ def run_trial_in_servo_process(
             elif kind == "event":
                 _, t, ev_kind, payload = msg
                 if ev_kind == "servo_timing":
-                    timing = ServoTiming(**{k: v for k, v in payload.items() if k != "nice"})
+                    timing = ServoTiming(**{k: v for k, v in payload.items() if k in _TIMING_FIELDS})
+                    rt = dict(payload.get("rt") or {})
                 if on_event is not None:
                     on_event(t, ev_kind, payload)
             elif kind == "outcome":
                 outcome = msg[1]
             elif kind == "error":
                 error = (msg[1], msg[2])
+    except BaseException:
+        inbox.put(("stop", "abort"))  # Ctrl-C or a failing sink in the parent: the child ends the trial safely
+        raise
     finally:
         proc.join(timeout=5.0)
         if proc.is_alive():
@@ -346,7 +506,13 @@ def run_trial_in_servo_process(
             proc.join(timeout=2.0)
     if error is not None or outcome is None:
         what, detail = error or ("no outcome", "")
-        raise DeviceError(f"servo process failed: {what}\n{detail}")
+        if died or detail:
+            why = make_device_safe(spec)
+            what += " (safe state commanded from this process)" if why is None else (
+                f"; putting the device in its safe state from here failed ({why}), its own watchdog is the backstop")
+        if not died and not detail:  # the device's own error (absent, busy …), already worded for the user
+            raise DeviceError(what)
+        raise DeviceError(f"servo process failed: {what}" + (f"\n{detail}" if detail else ""))
     return ServoResult(
         ended_by=outcome["ended_by"],
         duration_s=outcome["duration_s"],
@@ -355,4 +521,5 @@ def run_trial_in_servo_process(
         reports=outcome["reports"],
         events=outcome["events"],
         timing=timing,
+        rt=rt,
     )

@@ -19,15 +19,17 @@ Rules the runner keeps:
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import pandas as pd
 
-from studyctl.engine.clock import Clock, SimulatedClock
+from studyctl.engine.clock import Clock, RealClock, SimulatedClock
 from studyctl.engine.factory import (
     MANUAL_TOUCH_DEVICE,
+    EntryPointFactory,
     PluginFactory,
     build_controller,
     build_device,
@@ -37,6 +39,7 @@ from studyctl.engine.factory import (
 from studyctl.engine.plan import ConditionSpec, SessionPlan, Step
 from studyctl.engine.recorder import MEMORY_EVENT, Recorder, SessionState
 from studyctl.engine.seeding import TrialStreams, person_rng, trial_streams
+from studyctl.engine.servo import ServoSpec, run_trial_in_servo_process
 from studyctl.engine.trial_loop import TrialOutcome, run_trial
 from studyctl.engine.ui import Control, ManualOutcome, SessionUI
 from studyctl.errors import DeviceError, InvalidAnswer, SessionError, SessionInterrupted, StudyctlError
@@ -102,6 +105,11 @@ class SessionRunner:
         scene with the simulated bare finger (``direct_touch``) and its reports become the manual outcome.
     progress
         Called after each step with (steps done, steps in plan, step).
+    servo
+        Run hardware trials in the servo process (:mod:`studyctl.engine.servo`). None (default): yes when
+        plugins come from entry points (the child loads them by name); False: in this process.
+    device_ref
+        ``{"plugin": …, "params": …}`` replacing the plan's hardware device (a rehearsal's emulator).
     """
 
     def __init__(
@@ -114,8 +122,12 @@ class SessionRunner:
         factory: PluginFactory,
         virtual: bool,
         progress: ProgressFn | None = None,
+        servo: bool | None = None,
+        device_ref: Mapping[str, Any] | None = None,
     ) -> None:
         self.rec = recorder
+        self.servo = servo
+        self.device_override = dict(device_ref) if device_ref else None
         self.ui = ui
         self.participant = participant
         self.clock = clock
@@ -647,10 +659,21 @@ class SessionRunner:
 
     def _device_ref(self) -> Mapping[str, Any]:
         plan = self.plan
+        if self.device_override is not None and not self.virtual:
+            return self.device_override
         ref = plan.simulated_device if self.virtual else (plan.hardware_device or plan.simulated_device)
         if not ref:
             raise SessionError(f"the plan of study {plan.study!r} names no device to run trials on")
         return ref
+
+    def _uses_servo(self, device_name: str) -> bool:
+        """Hardware trials run in the servo process (the loop's own process); simulated ones in this one."""
+        if self.servo is not None:
+            return self.servo and not self.virtual_device(device_name)
+        return isinstance(self.factory, EntryPointFactory) and not self.virtual_device(device_name)
+
+    def virtual_device(self, name: str) -> bool:
+        return bool(getattr(self.factory.load("device", name), "simulated", True))
 
     def _execute(
         self, step, cond, info, streams: TrialStreams, tid, should_stop, on_event, trial_clock: Clock,
@@ -659,34 +682,59 @@ class SessionRunner:
         plan = self.plan
         controller_name = None if cond.manual else cond.controller
         needs = controller_needs(self.factory, controller_name, cond.params, cond.visual)
+        ref = {"plugin": MANUAL_TOUCH_DEVICE} if cond.manual else self._device_ref()
+        servo = self._uses_servo(ref["plugin"])
+        # the servo child builds its own scene and device from the same streams: copies taken before use here
+        child_rngs = (copy.deepcopy(streams.scene), copy.deepcopy(streams.device)) if servo else None
         scene = None
+        placement = step.data.get("placement") or {}
         if plan.scene:
-            placement = step.data.get("placement") or {}
             scene = build_scene(self.factory, plan.scene, plan.scene_spec, placement, needs, streams.scene)
             if tid is not None:
                 self._record_truth(scene, tid)
         if scene is not None and callable(getattr(scene, "public", None)):
             # what a participant may know about the scene (grid, visible surface), never its hidden truth
             info = replace(info, public={**dict(scene.public() or {}), **dict(info.public)})
-        controller = build_controller(self.factory, controller_name, cond.params, scene) if controller_name else None
-        ref = {"plugin": MANUAL_TOUCH_DEVICE} if cond.manual else self._device_ref()
-        device = build_device(self.factory, ref["plugin"], ref.get("params", {}), scene, streams.device)
         # a manual trial has no instrument to log; practice is not data
         sink = None if cond.manual or not samples else self.rec.samples(tid, [])
+        if servo:
+            spec = ServoSpec(
+                info=info, device=ref["plugin"], device_params=dict(ref.get("params", {})),
+                controller=controller_name, controller_params=dict(cond.params) if controller_name else {},
+                scene=plan.scene, scene_spec=dict(plan.scene_spec or {}), scene_placement=dict(placement),
+                scene_needs=needs, scene_rng=child_rngs[0], device_rng=child_rngs[1],
+                participant_rng=copy.deepcopy(streams.participant),
+            )
+            try:
+                return self._execute_in_servo(spec, scene, info, streams, should_stop, on_event, sink, trial_clock)
+            finally:
+                if sink is not None:
+                    sink.close()
+        controller = build_controller(self.factory, controller_name, cond.params, scene) if controller_name else None
+        device = build_device(self.factory, ref["plugin"], ref.get("params", {}), scene, streams.device)
+        # hardware keeps real time whatever the session's clock (a scripted rehearsal's is simulated): on a
+        # simulated clock its sensor would look stale after a few ticks of computation
+        loop_clock = RealClock() if trial_clock.simulated and not self.virtual_device(ref["plugin"]) else trial_clock
         try:
             device.open()
-            return run_trial(
+            identity = getattr(device, "identity", None)
+            if callable(identity):  # as the servo process does: what the device says it is, for the record
+                on_event(0.0, "device_identity", dict(identity()))
+            outcome = run_trial(
                 info=info,
                 controller=controller,
                 device=device,
                 participant=self.participant,
-                clock=trial_clock,
+                clock=loop_clock,
                 rng=streams.participant,
                 on_event=on_event,
                 on_sample=sink.write if sink is not None else None,
                 view=scene.view if scene is not None else None,
                 should_stop=should_stop,
             )
+            if loop_clock is not trial_clock:
+                trial_clock.sleep_until(trial_clock.now() + outcome.duration_s)
+            return outcome
         finally:
             try:
                 device.close()
@@ -694,3 +742,48 @@ class SessionRunner:
                 self.rec.event("device_close_failed", {"error": f"{type(exc).__name__}: {exc}"}, trial_id=tid)
             if sink is not None:
                 sink.close()
+
+    def _execute_in_servo(
+        self, spec: ServoSpec, scene: Any, info: TrialInfo, streams: TrialStreams, should_stop, on_event, sink,
+        trial_clock: Clock,
+    ) -> TrialOutcome:
+        """Run the trial's loop in the servo process; here the participant's requests are polled (a person at the
+        terminal or view, or a script), scan and real-time views are rendered from the poses the loop reports,
+        and samples and events are stored. A simulated trial clock (scripted rehearsal) follows the loop's time."""
+        participant = self.participant
+        participant.begin_trial(info, copy.deepcopy(streams.participant))
+        t_start = trial_clock.now()
+        latest: dict[str, Any] = {"t": 0.0, "sample": {}, "scan": None}
+        realtime_view = info.visual == "realtime" and scene is not None
+        last_view = [-1.0]
+
+        def follow(t: float) -> None:
+            latest["t"] = t
+            if trial_clock.simulated and t_start + t > trial_clock.now():
+                trial_clock.sleep_until(t_start + t)
+
+        def on_sample(t: float, values: Mapping[str, float]) -> None:
+            follow(t)
+            latest["sample"] = values
+            if sink is not None:
+                sink.write(t, values)
+
+        def on_child_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
+            if kind == "scan" and scene is not None:
+                latest["scan"] = scene.view(payload.get("pose") or {})
+            on_event(t, kind, payload)
+
+        def requests() -> list:
+            percept: dict[str, Any] = {}
+            if latest["scan"] is not None:
+                percept["scan"], latest["scan"] = latest["scan"], None
+            if realtime_view and latest["t"] - last_view[0] >= 1 / 30:  # the screen's rate, not the loop's
+                last_view[0] = latest["t"]
+                percept["view"] = scene.view(latest["sample"])
+            return list(participant.act(latest["t"], percept).requests)
+
+        result = run_trial_in_servo_process(spec, on_event=on_child_event, on_sample=on_sample, requests=requests,
+                                            should_stop=should_stop)
+        follow(result.duration_s)
+        return TrialOutcome(result.ended_by, result.duration_s, result.ticks, result.scans, result.reports,
+                            result.events)

@@ -149,6 +149,11 @@ def refuse_second_session(store: StudyStore, tx, participant: Participant) -> No
     running is refused with its lease holder (pid, host, since).
     """
     sessions = list(tx.scalars(select(Session).where(Session.participant_id == participant.id).order_by(Session.id)))
+    if sessions:  # rehearsals (`studyctl run --rehearse`) are not taking part: any number, before or after
+        heads = tx.execute(select(Event.session_id, Event.payload).where(
+            Event.session_id.in_([x.id for x in sessions]), Event.kind == "session_plan")).all()
+        rehearsals = {sid for sid, payload in heads if (payload or {}).get("rehearsal")}
+        sessions = [x for x in sessions if x.id not in rehearsals]
     for sess in sessions:
         if sess.status == "completed":
             raise SessionError(f"participant {participant.code} already completed session {sess.id}; a participant "
@@ -206,6 +211,7 @@ class StoreRecorder:
         site: str | None = None,
         population: Mapping[str, Any] | None = None,
         lease: bool = False,
+        rehearsal: bool = False,
     ) -> StoreRecorder:
         """Start a new session: the session row, its plan and one planned row per trial, in one transaction.
 
@@ -220,27 +226,27 @@ class StoreRecorder:
             if participant is None:
                 raise NotFoundError(f"no participant with id {participant_id}")
             code = participant.code
-            if lease:
+            if lease and not rehearsal:
                 refuse_second_session(store, tx, participant)
             sess = store.start_session(participant_id, seed=seed, site=site, tx=tx)
             if lease:
                 handle = take_lease(store.db, tx, sess.id)
-            store.append_event(sess.id, "session_plan", {"plan": plan.to_json(), "virtual": bool(virtual)},
-                               t_mono=0.0, tx=tx)
+            head = {"plan": plan.to_json(), "virtual": bool(virtual), **({"rehearsal": True} if rehearsal else {})}
+            store.append_event(sess.id, "session_plan", head, t_mono=0.0, tx=tx)
             if population is not None:
                 store.append_event(sess.id, "population", dict(population), t_mono=0.0, tx=tx)
             trials: list[TrialRecord] = []
             for step in plan.trials():
                 row = _add_trial_row(store, tx, sess.id, step, "planned", 1)
                 trials.append(TrialRecord(row.id, step.position, 1, "planned", condition=step.condition))
-            if participant.status == "enrolled":
+            if participant.status == "enrolled" and not rehearsal:  # a rehearsal is not taking part
                 store.set_participant_status(participant_id, "active", tx=tx)
             mark = SealMark()
             sealed = seal_session(tx, sess.id, mark)
         if sealed:
             mark.fold(sealed)
         state = SessionState(session_id=sess.id, participant=code, seed=seed, status="running", plan=plan,
-                             trials=trials, virtual=bool(virtual))
+                             trials=trials, virtual=bool(virtual), rehearsal=bool(rehearsal))
         rec = cls(store, state, participant_id, mark)
         rec.lease = handle
         return rec
@@ -263,6 +269,7 @@ class StoreRecorder:
             mark = load_mark(s, session_id)
         plan_json = None
         virtual = True
+        rehearsal = False
         completed: set[int] = set()
         started: set[int] = set()
         last_t = 0.0
@@ -272,6 +279,7 @@ class StoreRecorder:
                 plan_json = (payload or {}).get("plan")
                 if kind == "session_plan":
                     virtual = bool((payload or {}).get("virtual", True))
+                    rehearsal = bool((payload or {}).get("rehearsal", False))
             elif kind == "step_enter":
                 started.add(int(payload["position"]))
             elif kind == "step_done":
@@ -296,6 +304,7 @@ class StoreRecorder:
             answers={(int(c.split(":", 1)[1]), item): int(code) for c, item, code in answers
                      if c and c.startswith("step:")},
             resumes=int(sess.resume_count or 0), last_t=last_t, virtual=virtual, memory=memory,
+            rehearsal=rehearsal,
         )
         return cls(store, state, participant.id, mark)
 
@@ -349,7 +358,7 @@ class StoreRecorder:
                 fields["ended_at"] = utcnow()
             self.store.update_session(self.session_id, tx=tx, **fields)
             self._append(tx, "session_status", {"status": status, "reason": reason}, None, None)
-            if status == "completed":
+            if status == "completed" and not self._state.rehearsal:
                 self.store.set_participant_status(self.participant_id, "completed", tx=tx)
         self._state.status = status
 

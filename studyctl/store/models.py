@@ -272,6 +272,20 @@ class LocationReport(Base):
     correct: Mapped[bool | None] = mapped_column(Boolean)
 
 
+class DeviceCalibration(Base):
+    """A device's zero/calibration, measured by ``studyctl device calibrate``; sessions that used it record its id
+    in a ``device_calibration`` event."""
+
+    __tablename__ = "device_calibration"
+
+    id: Mapped[int] = mapped_column(IdType, primary_key=True)
+    study_id: Mapped[int] = mapped_column(ForeignKey("study.id"), index=True)
+    device: Mapped[str] = mapped_column(String(100))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    params: Mapped[Any] = mapped_column(JsonType)  # device parameters the calibration sets (applied to sessions)
+    detail: Mapped[Any | None] = mapped_column(JsonType)  # identity, what was measured and how
+
+
 class AuditLog(Base):
     """An append-only, hash-chained audit row: ``hash = sha256(prev_hash + canonical JSON of the row)``.
 

@@ -205,7 +205,8 @@ class StudyReader:
     # -- the snapshot -----------------------------------------------------------------------------
     @cached_property
     def snapshot(self) -> StudySnapshot:
-        """Participants, sessions and trials (with events and reports) of the study, read once."""
+        """Participants, sessions and trials (with events and reports) of the study, read once. Rehearsal sessions
+        (``studyctl run --rehearse``) are left out: they are recorded, never analysed."""
         with self.store.reading() as s:
             participants = list(
                 s.scalars(select(Participant).where(Participant.study_id == self.study.id).order_by(Participant.id))
@@ -240,6 +241,14 @@ class StudyReader:
                 if tids
                 else []
             )
+        # rehearsals (emulated hardware, `studyctl run --rehearse`) are recorded in the study but are not data
+        rehearsals = {sid for sid, tid, _t, kind, payload in events
+                      if tid is None and kind == "session_plan" and (payload or {}).get("rehearsal")}
+        if rehearsals:
+            sessions = [x for x in sessions if x.id not in rehearsals]
+            trials = [tr for tr in trials if tr.session_id not in rehearsals]
+            events = [e for e in events if e[0] not in rehearsals]
+        self._rehearsals = frozenset(rehearsals)
         plans: dict[int, JSON] = {}
         trial_events: dict[int, list[EventRow]] = {}
         for sid, tid, t, kind, payload in events:
@@ -338,7 +347,8 @@ class StudyReader:
         )
         with self.store.reading() as s:
             rows = s.execute(stmt).all()
-        return pd.DataFrame([tuple(r) for r in rows], columns=list(ANSWER_COLUMNS))
+        rehearsals = getattr(self, "_rehearsals", frozenset())  # set by the snapshot read above
+        return pd.DataFrame([tuple(r) for r in rows if r.session_id not in rehearsals], columns=list(ANSWER_COLUMNS))
 
 
 __all__ = [

@@ -1,0 +1,160 @@
+"""3D Systems Touch / PHANToM Omni adapter through ``pyOpenHaptics`` (PyPI ``pyopenhaptics``, optional extra).
+
+Install with ``pip install 'studyctl[openhaptics]'`` and the OpenHaptics SDK (libHD). The wrapper is imported when
+the device is opened, never at import time.
+
+OpenHaptics runs its own servo thread at 1 kHz; the wrapper schedules a Python callback in it (begin frame, the
+callback, end frame). Here the callback only copies the newest handle state into this adapter and applies the
+newest force command, so the engine's loop (in the servo process) and the HD thread meet in two small buffers:
+``read`` returns the state the callback stored (``sample_t`` = when, so a stopped HD servo shows up as a stale
+sensor and the safety layer's watchdog acts), ``write`` sets the force the next callback applies. The wrapper
+stops the callback on any HD error (research/haptics.md), which is then exactly such a stale sensor.
+
+Frames and units: OpenHaptics reports the pose as a 4x4 transform in mm (translation in the last row); forces are
+in N in the device frame, clamped by the safety layer to 3.3 N (the Omni/Touch peak, CHAI3D's driver table).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+from studyctl.devices.base import ParamDevice
+from studyctl.devices.omega import use_emulated_sdk
+from studyctl.errors import DeviceError
+from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits, Observation
+from studyctl.plugins.params import Param
+
+EXTRA_HINT = "pip install 'studyctl[openhaptics]'"
+
+
+def load_sdk(emulator: str = "") -> Any:
+    """The ``pyOpenHaptics`` modules (hd, hd_callback, hd_device), or a DeviceError naming the extra."""
+    if emulator:
+        use_emulated_sdk("pyOpenHaptics", "STUDYCTL_HD_EMULATOR", emulator)
+    try:
+        from pyOpenHaptics import hd, hd_callback, hd_device  # noqa: PLC0415 - optional dependency
+    except ImportError as exc:
+        raise DeviceError(f"device touch needs the OpenHaptics wrapper (pyopenhaptics): {EXTRA_HINT} and install "
+                          f"the OpenHaptics SDK ({exc})") from None
+    except OSError as exc:  # the wrapper loads libHD at import
+        raise DeviceError(f"device touch: the OpenHaptics library (libHD) could not be loaded ({exc}); install the "
+                          f"OpenHaptics SDK and {EXTRA_HINT}") from None
+    return hd, hd_callback, hd_device
+
+
+class TouchDevice(ParamDevice):
+    """PHANToM Omni / 3D Systems Touch (3 active translational DoF) behind the plugin Device interface."""
+
+    name = "touch"
+    simulated = False
+    EXTRA = "pip install 'studyctl[openhaptics]' + the OpenHaptics SDK"
+    PARAMS = (
+        Param("max_force_n", 3.3, 1e-3, 3.3, unit="N", source="Omni/Touch peak force (CHAI3D driver table)"),
+        Param("device_name", "Default Device", kind=str, source="the OpenHaptics device configuration name"),
+        Param("scale", 1.0, 1e-3, 100.0, source="device mm → scene mm"),
+        Param("offset_mm", (0.0, 0.0, 0.0), kind=tuple, unit="mm", source="scene position of the device origin"),
+        Param("ramp_up_s", 1.0, 0.0, 10.0, unit="s", source="CHOSEN: CHAI3D ramps over 2 s"),
+        Param("sensor_stale_s", 0.01, 0.002, 1.0, unit="s", source="CHOSEN: 10 missed HD servo ticks"),
+        Param("emulator", "", kind=str, source="a running emulator's name (rehearsals, tests); empty: the device"),
+    )  # fmt: skip
+
+    def setup(self, p: dict[str, Any]) -> None:
+        self.max_force_n = float(p["max_force_n"])
+        self.limits = DeviceLimits(
+            outputs=tuple(ChannelLimit(ch, -self.max_force_n, self.max_force_n, 0.0, None, "N")
+                          for ch in ("fx_n", "fy_n", "fz_n")),
+            max_force_n=self.max_force_n, sensor_stale_s=float(p["sensor_stale_s"]), ramp_up_s=float(p["ramp_up_s"]),
+        )
+        self._k = float(p["scale"])
+        self._offset = tuple(float(v) for v in p["offset_mm"])
+        self._hd: Any = None
+        self._device: Any = None
+        self._cmd = [0.0, 0.0, 0.0]
+        self._pose = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]  # x y z vx vy vz buttons (mm, mm/s)
+        self._stamp = 0.0  # perf_counter of the last HD callback
+        self._t0 = 0.0
+        self._feedback = {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0}
+
+    @classmethod
+    def check_installed(cls) -> None:
+        """Raise DeviceError naming the extra to install when the vendor package is missing (before a session)."""
+        load_sdk()
+
+    @classmethod
+    @contextlib.contextmanager
+    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
+        """Start a Touch emulator (:mod:`studyctl.devices.emulators.shm_device`, its own process) and yield the
+        params that drive it through the wrapper's own API."""
+        from studyctl.devices.emulation import start_emulator  # noqa: PLC0415
+
+        args = ["--model", "touch", "--exit-with-parent"]
+        if hang_after_s is not None:  # tests: a device that stops answering
+            args += ["--hang-after", str(hang_after_s)]
+        with start_emulator("studyctl.devices.emulators.shm_device", args, what="Touch") as name:
+            yield {**dict(params), "emulator": name}
+
+    def identity(self) -> dict[str, Any]:
+        hd = self._hd
+        return {"model": hd.get_model(), "vendor": hd.get_vendor()} if hd is not None else {}
+
+    def open(self) -> None:
+        hd, hd_callback, hd_device = load_sdk(str(self.params.get("emulator") or ""))
+        self._hd = hd
+        velocity = getattr(hd, "_get_velocity", None)
+
+        def servo() -> None:  # runs in the HD servo thread, every tick
+            m = hd.get_transform()
+            pose = self._pose
+            pose[0], pose[1], pose[2] = m[3][0], m[3][1], m[3][2]
+            if velocity is not None:
+                v = velocity()
+                pose[3], pose[4], pose[5] = v[0], v[1], v[2]
+            pose[6] = float(hd.get_buttons())
+            hd.set_force(self._cmd)
+            self._stamp = time.perf_counter()
+
+        self._t0 = time.perf_counter()
+        self._stamp = 0.0
+        device = hd_device.HapticDevice(hd_callback.hd_callback(servo), str(self.params["device_name"]), "async")
+        if getattr(device, "id", None) is None:
+            self._hd = None
+            raise DeviceError(f"device touch: OpenHaptics could not initialise {self.params['device_name']!r}; check "
+                              "the cable, that Touch Setup/Diagnostic sees it, and that no other program holds it")
+        self._device = device
+        deadline = time.monotonic() + 1.0
+        while self._stamp == 0.0:  # the first servo tick: a fresh sample for the first read
+            if time.monotonic() > deadline:
+                self.close()
+                raise DeviceError("device touch: the OpenHaptics servo loop did not start within 1 s")
+            time.sleep(0.001)
+
+    def read(self, t: float) -> Observation:
+        if self._hd is None:
+            raise DeviceError("device touch: read before open()")
+        x, y, z, vx, vy, vz, buttons = self._pose
+        k, o = self._k, self._offset
+        values = {"x_mm": o[0] + k * x, "y_mm": o[1] + k * y, "z_mm": o[2] + k * z,
+                  "vx_mm_s": k * vx, "vy_mm_s": k * vy, "vz_mm_s": k * vz, "button": 1.0 if buttons else 0.0}
+        age = time.perf_counter() - self._stamp  # how old the HD thread's newest sample is
+        return Observation(t, values, sample_t=t - age)
+
+    def write(self, command: Channels) -> None:
+        if self._hd is None:
+            raise DeviceError("device touch: write before open()")
+        self._cmd = [float(command.get("fx_n", 0.0)), float(command.get("fy_n", 0.0)), float(command.get("fz_n", 0.0))]
+        fb = self._feedback
+        fb["fx_n"], fb["fy_n"], fb["fz_n"] = self._cmd
+
+    def feedback(self) -> dict[str, float]:
+        return self._feedback
+
+    def close(self) -> None:
+        device, self._device = self._device, None
+        self._cmd = [0.0, 0.0, 0.0]
+        if device is not None:
+            time.sleep(0.003)  # a few servo ticks apply the zero force before the scheduler stops
+            device.close()
+        self._hd = None

@@ -1,0 +1,96 @@
+"""`studyctl device list|check` as a user runs them: emulated devices pass, a missing SDK is one Error: line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+STUDYCTL = str(Path(sys.executable).parent / "studyctl")
+
+
+def _run(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
+    return subprocess.run([STUDYCTL, *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_device_list_names_hardware_and_emulators():
+    out = _run("device", "list", "--json")
+    assert out.returncode == 0, out.stderr
+    rows = {r["name"]: r for r in json.loads(out.stdout)}
+    assert rows["omega6"]["kind"] == "hardware" and rows["omega6"]["emulator"] is True
+    assert rows["udp_driver_board"]["kind"] == "hardware" and rows["udp_driver_board"]["emulator"] is True
+    assert rows["sim_force3d"]["kind"] == "simulated"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("device,model,rate", [("omega6", "omega.6", 1000.0), ("udp_driver_board", "palpation", 50.0)])
+def test_device_check_emulated_exercises_the_safety_layer(device, model, rate):
+    out = _run("device", "check", device, "--emulate", "--seconds", "2", "--json")
+    assert out.returncode == 0, out.stderr + out.stdout
+    data = json.loads(out.stdout)
+    assert data["ok"] and data["emulated"] and data["rate_hz"] == rate
+    assert str(data["identity"]["model"]).startswith(model)
+    assert {c["rule"]: c["passed"] for c in data["safety"]} == {"clamp": True, "nan": True, "watchdog": True}
+    assert abs(data["ticks"] - 2 * rate) <= 2 and data["faults"] == []
+    assert data["rt"]["gc"] == "frozen+disabled" and data["rt"]["cpus"]
+
+
+def test_a_missing_sdk_is_one_error_line_naming_the_extra():
+    out = _run("device", "check", "omega6")
+    assert out.returncode != 0
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error:") and "pip install 'studyctl[omega]'" in lines[0], out.stderr
+
+
+def test_bad_device_name_and_param_are_one_error_line():
+    for args, needle in ((("device", "check", "nope"), "known devices"),
+                         (("device", "check", "udp_driver_board", "--param", "port"), "KEY=VALUE"),
+                         (("device", "check", "udp_driver_board", "--param", "port=99999"), "port")):
+        out = _run(*args)
+        lines = out.stderr.strip().splitlines()
+        assert out.returncode != 0 and len(lines) == 1 and lines[0].startswith("Error:") and needle in lines[0], (
+            args, out.stderr)
+
+
+def test_serial_board_absent_or_busy_port_is_named_with_the_fix(tmp_path):
+    out = _run("device", "check", "serial_driver_board", "--param", "port=/dev/ttyNOPE9")
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode != 0 and len(lines) == 1 and "/dev/ttyNOPE9: no such port" in lines[0], out.stderr
+    serial = pytest.importorskip("serial")
+    from studyctl.devices.serial_board import SerialDriverBoard  # noqa: PLC0415
+
+    with SerialDriverBoard.emulate({}) as params:
+        holder = serial.Serial(params["port"], exclusive=True)  # another program holds the port
+        try:
+            out = _run("device", "check", "serial_driver_board", "--param", f"port={params['port']}")
+        finally:
+            holder.close()
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode != 0 and len(lines) == 1 and "busy: another program holds it" in lines[0], out.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["omega6", "touch", "inverse3"])
+def test_a_device_held_by_another_program_is_named_busy(name):
+    """The SDK stand-ins refuse a second open as the vendors' libraries do; the adapter says so with the fix."""
+    from studyctl.engine.device_contract import _build  # noqa: PLC0415
+    from studyctl.plugins.registry import load_plugin  # noqa: PLC0415
+
+    cls = load_plugin("device", name)
+    with cls.emulate({}) as params:
+        first = _build(cls, params, None)
+        first.open()
+        try:
+            script = ("import sys, numpy as np\nfrom studyctl.engine.device_contract import _build\n"
+                      "from studyctl.plugins.registry import load_plugin\n"
+                      f"d = _build(load_plugin('device', {name!r}), {dict(params)!r}, None)\n"
+                      "d.open()\n")
+            out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+        finally:
+            first.close()
+    assert out.returncode != 0 and "DeviceError" in out.stderr
+    last = out.stderr.strip().splitlines()[-1]
+    assert any(w in last for w in ("busy", "no other program holds it", "another program")), last

@@ -1,0 +1,73 @@
+"""--lsl: a session's events as LSL markers and its samples as a device stream, read back by inlets on loopback.
+
+liblsl ships inside the pylsl wheel (extra ``lsl``); the test is skipped only if pylsl cannot be imported at all."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import pytest
+
+from studyctl.engine.api import run_session
+from studyctl.engine.ui import Script
+
+pylsl = pytest.importorskip("pylsl", reason="pylsl (extra lsl) is not installed")
+pytestmark = pytest.mark.slow
+
+
+def _collect(name: str, out: list, stop: threading.Event, ready: threading.Event) -> None:
+    streams = pylsl.resolve_byprop("name", name, timeout=30)
+    if not streams:
+        ready.set()
+        return
+    inlet = pylsl.StreamInlet(streams[0], max_buflen=60)
+    inlet.open_stream(timeout=10)
+    ready.set()
+    while not stop.is_set():
+        chunk, stamps = inlet.pull_chunk(timeout=0.2)
+        out.extend(zip(stamps, chunk, strict=True))
+    time.sleep(0.3)
+    chunk, stamps = inlet.pull_chunk(timeout=0.5)
+    out.extend(zip(stamps, chunk, strict=True))
+    info = inlet.info()
+    out.append(("info", info.channel_count(), info.nominal_srate()))
+
+
+def test_a_rehearsal_streams_markers_and_samples_to_lsl(study):
+    opened, code = study("bio_inspired_palpation", "novice")
+    script = Script.from_mapping({"trials": {i: [{"t": 0.3, "request": "report", "answer": "2 2"},
+                                                 {"t": 1.0 + 0.5 * (i == 1), "request": "finish"}]
+                                             for i in range(1, 5)}})
+    markers: list = []
+    samples: list = []
+    stop = threading.Event()
+    ready = [threading.Event(), threading.Event()]
+    threads = [threading.Thread(target=_collect, args=(n, o, stop, r), daemon=True)
+               for n, o, r in (("studyctl-markers", markers, ready[0]), ("studyctl-device", samples, ready[1]))]
+    for th in threads:
+        th.start()
+    t0 = pylsl.local_clock()
+    result = run_session(opened.store, code, virtual=False, script=script, rehearse=True, lsl=True)
+    t1 = pylsl.local_clock()
+    stop.set()
+    for th in threads:
+        th.join(timeout=20)
+    assert result.status == "completed"
+    events = [(x[0], json.loads(x[1][0])) for x in markers if x[0] != "info"]
+    kinds = [e["kind"] for _, e in events]
+    expected = {"trial_start", "trial_loop_start", "report", "trial_loop_end", "trial_end", "session_end"}
+    assert expected <= set(kinds), kinds
+    assert all(e["session"] == result.session_id for _, e in events)
+    assert all(t0 <= ts <= t1 + 0.1 for ts, _ in events)
+    data = [(x[0], x[1]) for x in samples if x[0] != "info"]
+    info = [x for x in samples if x[0] == "info"][0]
+    assert info[1] == len(data[0][1]) and info[2] == 50.0  # the board's 50 Hz loop
+    # a later trial's samples (the inlet may have connected during the first): 1.0 s at 50 Hz, in time order,
+    # ending at that trial's trial_loop_end marker
+    stamps = [ts for ts, _ in data]
+    assert stamps == sorted(stamps) and len(data) >= 45
+    ends = [ts for ts, e in events if e["kind"] == "trial_loop_end"]
+    last_end = ends[-1]
+    assert abs(stamps[-1] - last_end) < 0.1, (stamps[-1], last_end)

@@ -1,0 +1,129 @@
+"""Rehearsals: a whole session on emulated hardware, scripted, recorded as a rehearsal and never analysed."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from studyctl.devices import board_protocol as bp
+from studyctl.engine.api import run_session, session_is_rehearsal
+from studyctl.engine.ui import Script
+from studyctl.errors import UsageError
+from studyctl.store.models import Event
+
+pytestmark = pytest.mark.slow
+
+
+def _script(n_trials: int, finish_s: float = 0.6, **extra) -> Script:
+    return Script.from_mapping({
+        "default_likert": 3,
+        "trials": {i: [{"t": finish_s / 2, "request": "report", "answer": "3 4"}, {"t": finish_s, "request": "finish"}]
+                   for i in range(1, n_trials + 1)},
+        **extra,
+    })
+
+
+def _events(store, sid):
+    with store.reading() as s:
+        return [(k, p) for k, p in s.execute(
+            Event.__table__.select().with_only_columns(Event.kind, Event.payload).where(Event.session_id == sid)
+            .order_by(Event.seq))]
+
+
+def test_a_whole_rehearsal_session_runs_on_the_board_emulator(study):
+    """The issue's fault: a scripted session on the UDP driver board faulted stale_sensor at t = 0.12 s (the
+    trial ran on the script's simulated clock against a real-time board). Now every trial completes on the
+    emulator, in real time, with no device fault, and the session is a rehearsal."""
+    opened, code = study("bio_inspired_palpation", "novice")
+    logs: list[str] = []
+    result = run_session(opened.store, code, virtual=False, script=_script(4), rehearse=True, log=logs.append)
+    assert result.status == "completed" and result.trials_completed == 4 and result.trials_aborted == 0
+    events = _events(opened.store, result.session_id)
+    kinds = [k for k, _ in events]
+    assert "device_fault" not in kinds, [p for k, p in events if k == "device_fault"]
+    assert kinds.count("servo_timing") == 4  # every hardware trial ran in the servo process
+    loop_ends = [p for k, p in events if k == "trial_loop_end"]
+    assert all(p["ended_by"] == "finish" and 25 <= p["ticks"] <= 40 for p in loop_ends), loop_ends  # 0.6 s at 50 Hz
+    assert session_is_rehearsal(opened.store, result.session_id)
+    # the participant has not taken part: status unchanged, a real session can still follow
+    assert opened.store.get_participant(opened.study.id, code).status == "enrolled"
+    # the emulator was stopped with the session: nobody answers at its port any more
+    port = int(next(m for m in logs if m.startswith("rehearsal:")).split("port=")[1].rstrip(")"))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.settimeout(0.5)
+        s.connect(("127.0.0.1", port))
+        s.send(bp.encode(bp.HELLO, 1, 50, 250))
+        with pytest.raises((TimeoutError, ConnectionRefusedError)):
+            s.recv(2048)
+
+
+def test_rehearsals_are_left_out_of_analysis(study):
+    from studyctl.store.reader import StudyReader  # noqa: PLC0415
+
+    opened, code = study("bio_inspired_palpation", "novice")
+    run_session(opened.store, code, virtual=False, script=_script(4, 0.3), rehearse=True)
+    from studyctl.engine.progress import study_progress  # noqa: PLC0415
+
+    reader = StudyReader(opened.store, opened.study)
+    assert reader.trials == () and reader.sessions == () and reader.answers().empty
+    rows = study_progress(opened.store, opened.study.name).rows
+    assert rows and all(r.session_id is None and r.done == 0 for r in rows)  # status: a rehearsal is not progress
+    assert len(opened.store.list_sessions(opened.store.get_participant(opened.study.id, code).id)) == 1  # recorded
+
+
+def test_rehearse_refuses_a_virtual_participant(study):
+    opened, code = study("bio_inspired_palpation", "novice")
+    with pytest.raises(UsageError, match="--rehearse"):
+        run_session(opened.store, code, virtual=True, rehearse=True)
+
+
+REPORT = {"bio_inspired_palpation": "3 4", "needle_insertion": None, "data_driven_palpation": "10 20",
+          "pseudo_haptic_palpation": "10 20"}
+
+
+@pytest.mark.parametrize("protocol", sorted(REPORT))
+def test_each_reference_protocol_rehearses_with_a_script(study, protocol):
+    """The issue's goal: a scripted rehearsal of each of the four reference protocols completes (4 of 4). Hardware
+    devices (the driver board, the omega.6) run on their emulators in the servo process."""
+    opened, code = study(protocol)
+    answer = REPORT[protocol]
+    actions = ([{"t": 0.2, "request": "report", "answer": answer}] if answer else []) + [
+        {"t": 0.5, "request": "finish"}]
+    script = Script.from_mapping({"default_likert": 1, "trials": {i: actions for i in range(1, 16)},
+                                  "outcomes": [{"duration_s": 30, "reports": [answer or "1 1"]}] * 4})
+    logs: list[str] = []
+    result = run_session(opened.store, code, virtual=False, script=script, rehearse=True, log=logs.append)
+    assert result.status == "completed" and result.trials_aborted == 0 and result.trials_completed > 0, logs
+    kinds = [k for k, _ in _events(opened.store, result.session_id)]
+    assert "device_fault" not in kinds
+    hardware = protocol in ("bio_inspired_palpation", "needle_insertion")
+    assert ("servo_timing" in kinds) == hardware  # only hardware runs in the servo process
+    assert any(m.startswith("rehearsal:") and ("emulated" in m) == hardware for m in logs), logs
+
+
+def test_a_stored_calibration_is_used_and_linked_by_later_sessions(study):
+    from studyctl.engine.device_check import calibrate_device, latest_calibration  # noqa: PLC0415
+
+    opened, code = study("bio_inspired_palpation", "novice")
+    cal = calibrate_device(opened.store, opened.study, "udp_driver_board", emulate=True, seconds=0.3)
+    assert cal.emulated and set(cal.params) == {"zero_n"} and cal.detail["samples"] > 5 and cal.created_at
+    assert latest_calibration(opened.store, opened.study.id, "udp_driver_board", emulated=False) is None
+    assert latest_calibration(opened.store, opened.study.id, "udp_driver_board", emulated=True).id == cal.id
+    result = run_session(opened.store, code, virtual=False, script=_script(4, 0.3), rehearse=True)
+    linked = [p for k, p in _events(opened.store, result.session_id) if k == "device_calibration"]
+    assert linked == [{"calibration_id": cal.id, "device": "udp_driver_board", "created_at": cal.created_at,
+                       "params": cal.params}]
+
+
+def test_a_missing_sdk_stops_a_real_session_before_anything_is_written(study, monkeypatch):
+    import sys  # noqa: PLC0415
+
+    from studyctl.errors import DeviceError  # noqa: PLC0415
+
+    # as if not installed, whatever an earlier test put on sys.path (the SDK stand-in of an emulated omega6)
+    monkeypatch.setitem(sys.modules, "forcedimension_core", None)
+    opened, code = study("needle_insertion")
+    with pytest.raises(DeviceError, match=r"pip install 'studyctl\[omega\]'"):
+        run_session(opened.store, code, virtual=False, script=_script(1))
+    assert opened.store.list_sessions(opened.store.get_participant(opened.study.id, code).id) == []

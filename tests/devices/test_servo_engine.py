@@ -1,0 +1,137 @@
+"""Hardware trials in the servo process, driven by the engine: the same records as the in-process loop, and a
+session that survives the death of either process with its device in the safe state."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+from sqlalchemy import select
+
+from studyctl.engine.api import resume_session, run_session
+from studyctl.engine.ui import Script
+from studyctl.store import StudyStore
+from studyctl.store.models import Event, Trial
+
+pytestmark = pytest.mark.slow
+
+SCRIPT = {
+    "default_likert": 3,
+    "trials": {i: [{"t": 0.3, "request": "report", "answer": "2 5"}, {"t": 0.7, "request": "finish"}]
+               for i in range(1, 5)},
+}
+
+
+def _records(store, sid):
+    """Per trial (plan order): event kinds in order, the report payloads, the scene truth and the sample columns."""
+    out = []
+    with store.reading() as s:
+        trials = list(s.scalars(select(Trial).where(Trial.session_id == sid).order_by(Trial.id)))
+        for tr in trials:
+            rows = s.execute(select(Event.kind, Event.payload).where(Event.trial_id == tr.id)
+                             .order_by(Event.seq)).all()
+            kinds = [k for k, _ in rows if k not in ("servo_timing", "servo_clock")]  # the servo process's own
+            out.append({
+                "status": tr.status,
+                "kinds": kinds,
+                "reports": [p for k, p in rows if k == "report"],
+                "truth": [p for k, p in rows if k == "scene_truth"],
+                "ticks": next(p["ticks"] for k, p in rows if k == "trial_loop_end"),
+                "servo": sum(k == "servo_timing" for k, _ in rows),
+            })
+    for rec, tr in zip(out, trials, strict=True):
+        frame = store.read_samples(tr.id)
+        rec["columns"] = list(frame.columns)
+        rec["rows"] = len(frame)
+    return out
+
+
+def test_servo_and_in_process_paths_record_the_same(study):
+    a, code_a = study("bio_inspired_palpation", "novice")
+    servo = run_session(a.store, code_a, virtual=False, script=Script.from_mapping(SCRIPT), rehearse=True, seed=11)
+    inproc = run_session(a.store, code_a, virtual=False, script=Script.from_mapping(SCRIPT), rehearse=True, seed=11,
+                         servo=False)
+    rs, ri = _records(a.store, servo.session_id), _records(a.store, inproc.session_id)
+    assert [r["servo"] for r in rs] == [1, 1, 1, 1] and [r["servo"] for r in ri] == [0, 0, 0, 0]
+    for x, y in zip(rs, ri, strict=True):
+        assert x["status"] == y["status"] == "completed"
+        assert x["kinds"] == y["kinds"]
+        assert x["reports"] == y["reports"] and x["truth"] == y["truth"]
+        assert x["columns"] == y["columns"] and "force_n" in x["columns"] and "balloon_pct" in x["columns"]
+        assert x["rows"] == x["ticks"] and y["rows"] == y["ticks"]
+        assert abs(x["ticks"] - y["ticks"]) <= 2  # both 0.7 s at 50 Hz on a real clock
+
+
+RUNNER = textwrap.dedent('''
+    import sys
+    from studyctl.engine.api import run_session
+    from studyctl.engine.ui import Script
+    from studyctl.store import StudyStore
+    url, code, script = sys.argv[1], sys.argv[2], sys.argv[3]
+    with StudyStore.open(url) as store:
+        run_session(store, code, virtual=False, script=script, rehearse=True, log=lambda m: print(m, flush=True))
+''')
+
+
+def _children(pid: int) -> list[int]:
+    out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True).stdout
+    return [int(x) for x in out.split()]
+
+
+def _servo_pid(parent: int) -> int | None:
+    for child in _children(parent):
+        cmd = open(f"/proc/{child}/cmdline", "rb").read().replace(b"\0", b" ").decode()
+        if "multiprocessing" in cmd and "resource_tracker" not in cmd:
+            return child
+    return None
+
+
+def _wait_for(fn, timeout=60.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = fn()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError("timed out")
+
+
+@pytest.mark.parametrize("victim", ["parent", "child"])
+def test_killing_either_process_leaves_a_resumable_session_and_a_safe_device(study, tmp_path, victim):
+    opened, code = study("bio_inspired_palpation", "novice")
+    url = f"sqlite:///{tmp_path / 'bio_inspired_palpation' / 'study.db'}"
+    long = {**SCRIPT, "trials": {**SCRIPT["trials"], 1: [{"t": 30.0, "request": "finish"}]}}
+    script = tmp_path / "script.json"
+    script.write_text(json.dumps(long))
+    runner = tmp_path / "runner.py"
+    runner.write_text(RUNNER)
+    proc = subprocess.Popen([sys.executable, str(runner), url, code, str(script)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        servo = _wait_for(lambda: _servo_pid(proc.pid))
+        time.sleep(3.0)  # the trial is running in the child (spawn + imports take ~1-2 s)
+        os.kill(proc.pid if victim == "parent" else servo, signal.SIGKILL)
+        if victim == "parent":
+            proc.wait(timeout=10)
+            # the orphaned child notices, ends the trial and puts the device in its safe state, then exits
+            _wait_for(lambda: not os.path.exists(f"/proc/{servo}") or
+                      open(f"/proc/{servo}/stat").read().split()[2] == "Z", timeout=10)
+        else:
+            out, err = proc.communicate(timeout=30)
+            assert proc.returncode != 0
+            assert "servo process failed" in err and "exit code -9" in err and "safe state commanded" in err, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+    with StudyStore.open(url) as store:
+        sess = store.list_sessions(store.get_participant(opened.study.id, code).id)[-1]
+        assert sess.status in ("running", "interrupted")
+        result = resume_session(store, sess.id, script=Script.from_mapping(SCRIPT))
+        assert result.status == "completed" and result.trials_completed == 4 and result.trials_aborted == 1
