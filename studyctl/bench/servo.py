@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from studyctl.bench import BenchResult, busy_python
-from studyctl.bench.needle import _Idle  # the same idle participant as bench needle's jitter runs
+from studyctl.bench.needle import _Idle, _scenario  # as bench needle: its idle participant, Table 1 params
 from studyctl.plugins.interfaces import TrialInfo
 
 RATE_HZ = 1000.0
@@ -55,7 +55,7 @@ def _servo(seconds: float, cpu: int) -> tuple[dict[str, float], dict[str, Any]]:
 
     spec = ServoSpec(
         info=TrialInfo("ESG", seconds, RATE_HZ, "none"), device="sim_force3d", device_params={"device_class": "omega6"},
-        controller="needle_hybrid", controller_params={"scenario": "ESG"}, scene=_SCENE["scene"],
+        controller="needle_hybrid", controller_params=_scenario("ESG"), scene=_SCENE["scene"],
         scene_placement=_SCENE["placement"], scene_needs=_SCENE["needs"], seed=2, cpu=cpu,
     )
     result = run_trial_in_servo_process(spec, on_sample=lambda t, s: None)
@@ -73,7 +73,7 @@ def _in_process(seconds: float) -> tuple[dict[str, float], float]:
 
     rng = np.random.default_rng(2)
     scene = NeedleLiverScene.build({}, _SCENE["placement"], _SCENE["needs"], rng)
-    ctrl = NeedleHybridController({"scenario": "ESG"}, scene)
+    ctrl = NeedleHybridController(_scenario("ESG"), scene)
     device = SimulatedForceDevice({"device_class": "omega6"}, scene)
     device.open()
     clock = TimedClock(capacity=int(seconds * RATE_HZ) + 16)

@@ -95,8 +95,12 @@ def test_each_reference_protocol_rehearses_with_a_script(study, protocol):
     logs: list[str] = []
     result = run_session(opened.store, code, virtual=False, script=script, rehearse=True, log=logs.append)
     assert result.status == "completed" and result.trials_aborted == 0 and result.trials_completed > 0, logs
-    kinds = [k for k, _ in _events(opened.store, result.session_id)]
-    assert "device_fault" not in kinds
+    events = _events(opened.store, result.session_id)
+    kinds = [k for k, _ in events]
+    # a loaded machine may make the 1 kHz loop miss a deadline (the safety layer then holds the device safe for a
+    # tick: a timing fault, not a device one); no other device fault may happen
+    faults = [p for k, p in events if k == "device_fault" and p.get("rule") not in ("missed_deadline", "loop_stalled")]
+    assert faults == []
     hardware = protocol in ("bio_inspired_palpation", "needle_insertion")
     assert ("servo_timing" in kinds) == hardware  # only hardware runs in the servo process
     assert any(m.startswith("rehearsal:") and ("emulated" in m) == hardware for m in logs), logs
