@@ -30,7 +30,7 @@ EFFECT_SYMBOLS = {
 }
 
 #: Statistics as printed, by the name a result gives them.
-STAT_SYMBOLS = {"chi2 (Friedman)": "χ²", "V (R+)": "V", "chi2": "χ²", "chi2 (LR)": "χ²"}
+STAT_SYMBOLS = {"chi2 (Friedman)": "χ²", "V (R+)": "V", "chi2": "χ²", "chi2 (LR)": "χ²", "W = min(R+, R-)": "W"}
 
 # Effect sizes bounded by 1 in absolute value: printed without the leading zero (APA).
 _BOUNDED = {"eta_squared", "omega_squared", "partial_eta_squared", "generalized_eta_squared", "epsilon_squared",

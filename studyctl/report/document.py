@@ -214,7 +214,7 @@ def _where(r: Any, result: AnalysisResult, with_metric: bool = True) -> str:
     bits = [result.plan.metric_label(r.metric)] if with_metric else []
     if r.split:
         bits.append(", ".join(f"{k} {v}" for k, v in _splits(r.split).items()))
-    if r.kind in ("two_sample", "posthoc") and r.groups:
+    if r.kind in ("two_sample", "posthoc", "pairwise", "interval") and r.groups:
         bits.append(str(r.groups))
     return ", ".join(bits)
 
@@ -223,6 +223,8 @@ def headline_lines(entry: PlanTest, result: AnalysisResult) -> list[str]:
     """The entry's headline: one APA line per test (up to four), else the count significant and the strongest."""
     frame = tests_frame(result)
     rows = frame[(frame["test_id"] == entry.id) & (frame["kind"].isin(["omnibus", "two_sample"]))]
+    if rows.empty:  # pairwise-only entries (signed-rank pairs against W_critical, Newcombe margins)
+        rows = frame[(frame["test_id"] == entry.id) & (frame["kind"] == "pairwise")]
     name = catalog.ALIASES.get(entry.test, entry.test)
     if name in ("percent_change", "likert_table", "descriptive"):  # tables, not tests: read in their section
         return []
@@ -230,6 +232,8 @@ def headline_lines(entry: PlanTest, result: AnalysisResult) -> list[str]:
         intervals = frame[(frame["test_id"] == entry.id) & (frame["kind"] == "interval") & frame["estimate"].notna()]
         if not intervals.empty:
             lo, hi = intervals.loc[intervals["estimate"].idxmin()], intervals.loc[intervals["estimate"].idxmax()]
+            if lo["estimate"] == hi["estimate"]:
+                return [f"{len(intervals)} intervals, every estimate p̂ = {apa.bounded(lo['estimate'])}"]
             return [f"{len(intervals)} intervals; lowest {_where(lo, result)}: {apa.line(lo.to_dict())}; highest "
                     f"{_where(hi, result)}: {apa.line(hi.to_dict())}"]
         return []
@@ -240,10 +244,12 @@ def headline_lines(entry: PlanTest, result: AnalysisResult) -> list[str]:
             lines.append(f"{_where(r, result)}: {apa.line(r._asdict())}")
         return lines
     sig = ok[ok["significant"] == True]  # noqa: E712
-    lines.append(f"{len(sig)} of {len(rows)} tests significant at α = {apa.bounded(float(rows['alpha'].iloc[0]))}"
+    what = "pairs" if set(rows["kind"]) == {"pairwise"} else "tests"
+    lines.append(f"{len(sig)} of {len(rows)} {what} significant at α = {apa.bounded(float(rows['alpha'].iloc[0]))}"
                  + (f" ({len(rows) - len(ok)} not computed)" if len(ok) < len(rows) else ""))
-    if not ok.empty and ok["p"].notna().any():
-        best = ok.loc[ok["p"].idxmin()]
+    p = ok["p"].where(ok["p"].notna(), ok["p_adj"]) if not ok.empty else ok.get("p")
+    if not ok.empty and p.notna().any():
+        best = ok.loc[p.idxmin()]
         lines.append(f"strongest: {_where(best, result)}: {apa.line(best.to_dict())}")
     return lines
 

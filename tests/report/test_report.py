@@ -366,3 +366,16 @@ def test_effect_sizes_get_seeded_bootstrap_intervals(result):
     assert kw_line.startswith("Completion time: H(2) = ") and "ε² = .53 [." in kw_line
     methods = " ".join(b[1] for b in content if b[0] == "p")
     assert "percentile-bootstrap intervals (300 resamples, seeded generator, seed 20" in methods
+
+
+def test_headlines_of_pairwise_only_entries_and_of_intervals(result):
+    from studyctl.report.document import headline_lines
+
+    se = next(e for e in result.plan.tests if e.id == "se")
+    (line,) = headline_lines(se, result)
+    assert line.startswith("3 intervals; lowest Sensitivity, ") and "highest Sensitivity, " in line
+    row = {"kind": "pairwise", "statistic_name": "W = min(R+, R-)", "statistic": 0.0, "df": 20.0,
+           "critical_value": 52.0, "p": 1.9e-6, "p_adjust": "none"}
+    from studyctl.report import apa
+
+    assert apa.line(row) == "W = 0, W_crit = 52, n = 20, p < .001"
