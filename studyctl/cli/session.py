@@ -136,7 +136,9 @@ def register(app: typer.Typer) -> None:
 
     @app.command("export")
     def export(
-        folder: Path = typer.Argument(..., help="New or empty folder for the CSV files and data_dictionary.json."),
+        folder: Path = typer.Argument(..., help="New or empty folder for the tables, data_dictionary.json and "
+                                      "datapackage.json."),
+        fmt: str = typer.Option("csv", "--format", help="csv, or parquet (typed, zstd-compressed columns)."),
         samples: bool = typer.Option(True, "--samples/--no-samples", help="Also write samples.csv (large)."),
         process_info: bool = typer.Option(False, "--process-info", help="Keep host names and process ids (where "
                                           "each session ran) in events.csv; left out by default."),
@@ -144,10 +146,12 @@ def register(app: typer.Typer) -> None:
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
-        """Export trials, events, responses, reports and samples as tidy CSV with a data dictionary."""
+        """Export trials, events, responses, reports and samples as tidy tables with a data dictionary and a
+        Frictionless data package."""
         with open_study(db, workspace_arg(workspace), study) as opened:
             result = export_study(opened.store, folder, study=opened.study.name, samples=samples,
-                                  process_info=process_info)
+                                  process_info=process_info, format=fmt)
         for name, n in sorted(result.rows.items()):
             typer.echo(f"{folder / name}: {n} rows")
         typer.echo(f"{folder / 'data_dictionary.json'}: every column with its unit")
+        typer.echo(f"{folder / 'datapackage.json'}: Frictionless data package (schema, units, descriptions)")

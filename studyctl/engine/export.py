@@ -1,18 +1,22 @@
-"""``studyctl export DIR``: tidy CSV files of a study plus a JSON data dictionary of every column.
+"""``studyctl export DIR [--format csv|parquet]``: a study's tidy tables, a data dictionary and a Frictionless
+data package (``datapackage.json``: every file, its columns with type, unit and description).
 
-Files (one row per observation, stable keys, 1-based human ordinals, missing = empty cell):
+Tables (one row per observation, stable keys, 1-based human ordinals, missing = empty cell / null):
 
-* ``trials.csv`` – one row per trial attempt (repeats and replacements included, with their status);
-* ``events.csv`` – every session event in order (payload as JSON text);
-* ``responses.csv`` – one row per questionnaire answer (the code, its anchor label, the instrument version);
-* ``reports.csv`` – one row per location report (grid cell or position in mm);
-* ``samples.csv`` – the high-rate samples of every trial, one row per sample (skipped with ``samples=False``);
-* ``data_dictionary.json`` – description, unit and type of every column of every file.
+* ``trials`` – one row per trial attempt (repeats and replacements included, with their status);
+* ``events`` – every session event in order; the payload's fields are columns ``payload_<field>`` (lists and
+  nested objects as JSON text);
+* ``responses`` – one row per questionnaire answer (the code, its anchor label, the instrument version);
+* ``reports`` – one row per location report (grid cell or position in mm);
+* ``samples_<condition>`` – the high-rate samples of every trial of one condition stacked into one long table
+  (the trials of a condition share their channels; skipped with ``samples=False``);
+* ``data_dictionary.json`` and ``datapackage.json`` – description, unit and type of every column of every file.
+
+Parquet files are zstd-compressed with typed columns; :func:`read_export` loads either format the same way.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 from dataclasses import dataclass
@@ -62,15 +66,14 @@ TRIAL_COLUMNS = {
 }
 # the key columns every per-session file starts with, described once
 _SESSION_KEYS = {name: TRIAL_COLUMNS[name] for name in ("participant", "session_id")}
-EVENT_COLUMNS = {
+EVENT_BASE_COLUMNS = {
     **_SESSION_KEYS,
     "seq": ("1-based order of the event in its session", "", "integer"),
     "trial_id": ("Trial attempt the event happened in (empty: between trials)", "", "integer"),
     "t": ("Time: trial time since the loop started for events with a trial_id, else session time", "s", "number"),
     "t_wall": ("Wall-clock time of the commit (UTC, ISO 8601)", "", "datetime"),
     "kind": ("Event kind (step_enter, step_done, trial_start, scan, report, safety kinds, answer …)", "", "string"),
-    "payload": ("Event details (JSON)", "", "json"),
-}
+}  # then one payload_<field> column per payload field (see _payload_columns)
 RESPONSE_COLUMNS = {
     **_SESSION_KEYS,
     "step": ("Plan step position of the questionnaire", "", "integer"),
@@ -139,24 +142,154 @@ def _without_process(payload: Any) -> Any:
     return payload
 
 
-def _write(path: Path, columns: list[str], rows: list[list[Any]]) -> int:
-    with _private(path) as fh:
-        w = csv.writer(fh)
-        w.writerow(columns)
-        for r in rows:
-            w.writerow(["" if v is None else v for v in r])
-    return len(rows)
+def _private_binary(path: Path):
+    fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
+    return os.fdopen(fd, "wb")
+
+
+FORMATS = ("csv", "parquet")
+PANDAS_TYPES = {"integer": "Int64", "number": "float64", "boolean": "boolean"}
+# Frictionless field types of the dictionary's types (JSON text stays a string: one value per cell)
+FRICTIONLESS_TYPES = {"integer": "integer", "number": "number", "boolean": "boolean", "datetime": "datetime",
+                      "string": "string", "json": "string"}
+
+
+def _typed(columns: dict[str, tuple[str, str, str]], rows: list[list[Any]]) -> pd.DataFrame:
+    """Rows as a frame whose columns carry the dictionary's types (nullable integers and booleans)."""
+    frame = pd.DataFrame(rows, columns=list(columns), dtype=object)
+    for name, (_, _, kind) in columns.items():
+        frame[name] = _cast(frame[name], kind)
+    return frame
+
+
+def _cast(col: pd.Series, kind: str) -> pd.Series:
+    if kind in PANDAS_TYPES:
+        return col.astype(PANDAS_TYPES[kind])
+    # text: "" and a missing value are the same empty cell in CSV, so both are null
+    return col.astype("string").replace("", pd.NA)
+
+
+def _payload_columns(events: list[tuple[list[Any], Any]]) -> tuple[dict[str, tuple[str, str, str]], list[list[Any]]]:
+    """Event payloads spread into ``payload_<field>`` columns with one type each (mixed types → JSON text)."""
+    fields: dict[str, list[Any]] = {}
+    kinds: dict[str, set[str]] = {}
+    for i, (base, payload) in enumerate(events):
+        items = payload.items() if isinstance(payload, dict) else ([("value", payload)] if payload is not None else [])
+        for key, value in items:
+            name = f"payload_{key}"
+            fields.setdefault(name, [None] * len(events))[i] = value
+            kinds.setdefault(name, set()).add(str(base[-1]))
+    columns: dict[str, tuple[str, str, str]] = {}
+    for name, values in fields.items():
+        present = [v for v in values if v is not None]
+        if present and all(isinstance(v, bool) for v in present):
+            kind = "boolean"
+        elif present and all(isinstance(v, int) and not isinstance(v, bool) for v in present):
+            kind = "integer"
+        elif present and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in present):
+            kind = "number"
+        else:
+            kind = "string"
+            fields[name] = [v if v is None or isinstance(v, str) else _json(v) for v in values]
+        seen = ", ".join(sorted(kinds[name])[:8]) + (" …" if len(kinds[name]) > 8 else "")
+        columns[name] = (f"Payload field {name[8:]!r} of events of kind {seen} (lists and objects as JSON)",
+                         channel_unit(name), kind)
+    rows = [[*base, *(fields[n][i] for n in columns)] for i, (base, _) in enumerate(events)]
+    return columns, rows
+
+
+def _write_table(out: Path, name: str, frame: pd.DataFrame, fmt: str) -> str:
+    file = f"{name}.{fmt}"
+    if fmt == "parquet":
+        with _private_binary(out / file) as fh:
+            # Sampled floats: byte-stream split then zstd (their exponent/sign bytes compress, the noisy
+            # mantissa does not); dictionaries only for the key columns, where values repeat.
+            floats = [c for c in frame.columns if frame[c].dtype == "float64"]
+            keys = [c for c in frame.columns if c not in floats]
+            frame.to_parquet(fh, engine="pyarrow", compression="zstd", compression_level=12, index=False,
+                             use_byte_stream_split=floats or False, use_dictionary=keys or False)
+    else:
+        with _private(out / file) as fh:
+            frame.to_csv(fh, index=False)
+    return file
+
+
+def _datapackage(target: Any, files: dict[str, dict[str, tuple[str, str, str]]], fmt: str) -> dict[str, Any]:
+    """A Frictionless (tabular) data package describing every exported file from the data dictionary."""
+    resources = []
+    for file, columns in files.items():
+        fields = []
+        for col, (description, unit, kind) in columns.items():
+            field: dict[str, Any] = {"name": col, "type": FRICTIONLESS_TYPES[kind], "description": description}
+            if unit:
+                field["unit"] = unit
+            if kind == "json":
+                field["format"] = "json"
+            fields.append(field)
+        resource: dict[str, Any] = {
+            "name": file.rsplit(".", 1)[0].lower().replace(" ", "_"),
+            "path": file,
+            "format": fmt,
+            "mediatype": "text/csv" if fmt == "csv" else "application/vnd.apache.parquet",
+            "schema": {"fields": fields, "missingValues": [""]},
+        }
+        if fmt == "csv":
+            resource["encoding"] = "utf-8"
+            resource["profile"] = "tabular-data-resource"
+        resources.append(resource)
+    return {
+        "profile": "tabular-data-package" if fmt == "csv" else "data-package",
+        "name": str(target.name).lower().replace("_", "-"),
+        "title": str(target.name),
+        "description": f"Export of study {target.name} by studyctl {__version__} (protocol sha256 "
+                       f"{target.protocol_sha256}); units per field in 'unit'.",
+        "resources": resources,
+    }
+
+
+def read_export(directory: str | Path) -> dict[str, pd.DataFrame]:
+    """Every table of an export (CSV or Parquet), typed from its ``datapackage.json``: name → frame.
+
+    Both formats of the same study read back equal (text cells: empty = missing)."""
+    folder = Path(directory)
+    try:
+        package = json.loads((folder / "datapackage.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"{folder}: no readable datapackage.json ({exc}); is this a studyctl export?") from None
+    inverse = {"integer": "integer", "number": "number", "boolean": "boolean"}
+    out: dict[str, pd.DataFrame] = {}
+    for res in package["resources"]:
+        path = folder / res["path"]
+        kinds = {f["name"]: inverse.get(f["type"], "string") for f in res["schema"]["fields"]}
+        if res["format"] == "parquet":
+            frame = pd.read_parquet(path, engine="pyarrow")
+        else:
+            frame = pd.read_csv(path, dtype=object, keep_default_na=False, na_values=[""])
+            for name, kind in kinds.items():
+                if kind == "boolean":
+                    frame[name] = frame[name].map({"True": True, "False": False, "true": True, "false": False})
+                elif kind in ("integer", "number"):
+                    frame[name] = pd.to_numeric(frame[name])
+        for name, kind in kinds.items():
+            frame[name] = _cast(frame[name], kind)
+        out[res["name"]] = frame.reset_index(drop=True)
+    return out
 
 
 def export_study(store: StudyStore, directory: str | Path, *, study: str | None = None, samples: bool = True,
-                 process_info: bool = False) -> ExportResult:
-    """Write a study's trials, events, responses, reports (and samples) as tidy CSV plus a data dictionary.
+                 process_info: bool = False, format: str = "csv") -> ExportResult:
+    """Write a study's trials, events, responses, reports (and samples) as tidy tables (CSV or Parquet) plus a
+    data dictionary and a Frictionless ``datapackage.json``.
 
     Files are created 0600 (a new folder 0700), like the database. Host names and process ids (where a
-    session ran) are left out of ``events.csv`` unless ``process_info``.
+    session ran) are left out of the events unless ``process_info``.
 
-    Raises :class:`UsageError` when ``directory`` exists and is not an empty folder (nothing is overwritten).
+    Raises :class:`UsageError` when ``directory`` exists and is not an empty folder (nothing is overwritten)
+    or ``format`` is not csv or parquet.
     """
+    fmt = str(format).lower()
+    if fmt not in FORMATS:
+        raise UsageError(f"export format {format!r} is unknown; allowed: {', '.join(FORMATS)}")
     out = Path(directory)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UsageError(f"{out} exists and is not an empty folder; export into a new or empty folder")
@@ -193,11 +326,11 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
             t.time_limit_s, o.get("scans"), o.get("reports"), o.get("ticks"), o.get("rate_hz"), t.replaces_trial_id,
             t.invalid_reason, _json(t.placement), _iso(t.started_at), _iso(t.ended_at),
         ])
-    event_rows = [
-        [code[e.session_id], e.session_id, e.seq, e.trial_id, e.t_mono, _iso(e.t_wall), e.kind,
-         _json(e.payload if process_info else _without_process(e.payload))]
+    event_cols, event_rows = _payload_columns([
+        ([code[e.session_id], e.session_id, e.seq, e.trial_id, e.t_mono, _iso(e.t_wall), e.kind],
+         e.payload if process_info else _without_process(e.payload))
         for e in events if process_info or e.kind not in PROCESS_EVENTS
-    ]
+    ])
     resp_rows = []
     for r in responses:
         step = int(r.context.split(":", 1)[1]) if r.context and r.context.startswith("step:") else None
@@ -220,55 +353,71 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
          r.payload.get("row"), r.payload.get("x_mm"), r.payload.get("y_mm"), r.correct]
         for r in reports
     ]
-    tables = {
-        "trials.csv": (TRIAL_COLUMNS, trial_rows),
-        "events.csv": (EVENT_COLUMNS, event_rows),
-        "responses.csv": (RESPONSE_COLUMNS, resp_rows),
-        "reports.csv": (REPORT_COLUMNS, report_rows),
+    tables: dict[str, tuple[dict[str, tuple[str, str, str]], pd.DataFrame]] = {
+        "trials": (TRIAL_COLUMNS, _typed(TRIAL_COLUMNS, trial_rows)),
+        "events": ({**EVENT_BASE_COLUMNS, **event_cols}, _typed({**EVENT_BASE_COLUMNS, **event_cols}, event_rows)),
+        "responses": (RESPONSE_COLUMNS, _typed(RESPONSE_COLUMNS, resp_rows)),
+        "reports": (REPORT_COLUMNS, _typed(REPORT_COLUMNS, report_rows)),
     }
-    rows = {name: _write(out / name, list(columns), body) for name, (columns, body) in tables.items()}
+    if samples:
+        tables.update(_sample_tables(store, trials, people))
+    rows: dict[str, int] = {}
+    described: dict[str, dict[str, tuple[str, str, str]]] = {}
+    for name, (columns, frame) in tables.items():
+        file = _write_table(out, name, frame, fmt)
+        rows[file] = len(frame)
+        described[file] = columns
     dictionary: dict[str, Any] = {
         "studyctl_version": __version__,
         "study": target.name,
         "protocol_sha256": target.protocol_sha256,
-        "files": {name: _describe(columns) for name, (columns, _) in tables.items()},
+        "format": fmt,
+        "files": {name: _describe(columns) for name, columns in described.items()},
     }
-    if samples:
-        channels: list[str] = []
-        frames = []
-        for t in trials:
-            if t.status == "planned":
-                continue
-            df = store.read_samples(t.id)
-            if df.empty:
-                continue
-            for c in df.columns:
-                if c != "t" and c not in channels:
-                    channels.append(c)
-            df.insert(0, "trial_id", t.id)
-            df.insert(0, "participant", people[t.participant_id].code)
-            frames.append(df)
-        cols = ["participant", "trial_id", "t", *channels]
-        if frames:
-            with _private(out / "samples.csv") as fh:
-                pd.concat(frames, ignore_index=True).reindex(columns=cols).to_csv(fh, index=False)
-            rows["samples.csv"] = int(sum(len(f) for f in frames))
-        else:
-            _write(out / "samples.csv", cols, [])
-            rows["samples.csv"] = 0
-        sample_cols = {
+    with _private(out / "data_dictionary.json") as fh:
+        fh.write(json.dumps(dictionary, indent=2, ensure_ascii=False) + "\n")
+    with _private(out / "datapackage.json") as fh:
+        fh.write(json.dumps(_datapackage(target, described, fmt), indent=2, ensure_ascii=False) + "\n")
+    return ExportResult(out, rows)
+
+
+def _sample_tables(store: StudyStore, trials: list, people: dict) -> dict[str, tuple[dict, pd.DataFrame]]:
+    """One long table per condition: its trials' samples stacked (participant, trial_id, t, channels)."""
+    groups: dict[str, list[pd.DataFrame]] = {}
+    channels: dict[str, list[str]] = {}
+    for t in trials:
+        if t.status == "planned":
+            continue
+        df = store.read_samples(t.id)
+        if df.empty:
+            continue
+        group = _safe_name(t.condition or "none")
+        names = channels.setdefault(group, [])
+        names += [c for c in df.columns if c != "t" and c not in names]
+        df.insert(0, "trial_id", t.id)
+        df.insert(0, "participant", people[t.participant_id].code)
+        groups.setdefault(group, []).append(df)
+    out = {}
+    for group, frames in groups.items():
+        cols = {
             "participant": TRIAL_COLUMNS["participant"],
             "trial_id": TRIAL_COLUMNS["trial_id"],
             "t": ("Trial time since the loop started", "s", "number"),
         }
-        for c in channels:
-            unit = channel_unit(c)
-            sample_cols[c] = (f"Channel {c} (sensor reading, or command written to the device after the safety "
-                              "layer)", unit, "number")
-        dictionary["files"]["samples.csv"] = _describe(sample_cols)
-    with _private(out / "data_dictionary.json") as fh:
-        fh.write(json.dumps(dictionary, indent=2, ensure_ascii=False) + "\n")
-    return ExportResult(out, rows)
+        for c in channels[group]:
+            cols[c] = (f"Channel {c} (sensor reading, or command written to the device after the safety layer)",
+                       channel_unit(c), "number")
+        frame = pd.concat(frames, ignore_index=True).reindex(columns=list(cols))
+        frame["participant"] = frame["participant"].astype("string")
+        frame["trial_id"] = frame["trial_id"].astype("Int64")
+        for c in list(cols)[2:]:
+            frame[c] = frame[c].astype("float64")
+        out[f"samples_{group}"] = (cols, frame)
+    return out
+
+
+def _safe_name(text: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in text)
 
 
 def _describe(columns: dict[str, tuple[str, str, str]]) -> dict[str, dict[str, str]]:

@@ -70,8 +70,8 @@ def test_scripted_person_run_via_cli_then_export_and_status(ws, tmp_path, capsys
         with pytest.raises(UsageError, match="not an empty folder"):
             export_study(o.store, tmp_path / "export")
     files = {p.name for p in (tmp_path / "export").iterdir()}
-    assert files == {"trials.csv", "events.csv", "responses.csv", "reports.csv", "samples.csv",
-                     "data_dictionary.json"}
+    assert files == {"trials.csv", "events.csv", "responses.csv", "reports.csv", "samples_linear.csv",
+                     "samples_none.csv", "datapackage.json", "data_dictionary.json"}
     dictionary = json.loads((tmp_path / "export" / "data_dictionary.json").read_text())
     import pandas as pd
 
@@ -79,9 +79,10 @@ def test_scripted_person_run_via_cli_then_export_and_status(ws, tmp_path, capsys
         frame = pd.read_csv(tmp_path / "export" / name)
         assert list(frame.columns) == list(cols), name  # every column described, in order
         assert all(c["description"] and "unit" in c for c in cols.values())
-    samples = pd.read_csv(tmp_path / "export" / "samples.csv")
-    assert len(samples) == result.rows["samples.csv"] == sum(t.outcome["ticks"] for t in trials)
-    units = {k: v["unit"] for k, v in dictionary["files"]["samples.csv"].items()}
+    samples = pd.concat([pd.read_csv(tmp_path / "export" / f"samples_{c}.csv") for c in ("none", "linear")])
+    assert len(samples) == result.rows["samples_none.csv"] + result.rows["samples_linear.csv"] \
+        == sum(t.outcome["ticks"] for t in trials)
+    units = {k: v["unit"] for k, v in dictionary["files"]["samples_linear.csv"].items()}
     assert units["t"] == "s" and any(u == "N" for k, u in units.items() if k.endswith("_n"))
     responses = pd.read_csv(tmp_path / "export" / "responses.csv")
     assert list(responses.code) == [5, 2, 4]

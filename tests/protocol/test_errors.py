@@ -194,8 +194,8 @@ def test_anchor_keys_and_merge_keep_positions(write, valid_text):
     text = text.replace("x-base: &base {controller: none}", "x-base: &base {controler: none}")
     problems = _problems(write, text)
     assert ("p.yaml:13:16: conditions[0].controler: unknown key: found 'controler', allowed one of "
-                            "'controller', 'description', 'id', 'label', 'manual', 'params', 'view_label', 'visual'; did you mean "
-                            "'controller'?") in problems
+                            "'controller', 'description', 'id', 'label', 'manual', 'params', 'view_label', 'visual'; "
+                            "did you mean 'controller'?") in problems
 
 
 def test_cli_check_exit_codes(write, valid_text, capsys):
