@@ -64,6 +64,8 @@ def relative_source(source: str, base: Path | str | None) -> str:
     if not os.path.isabs(path):
         return source
     rel = os.path.relpath(path, base) if base is not None else Path(path).name
+    if rel.split(os.sep).count("..") > 2:  # far from the report (e.g. a shipped data file): its name only
+        rel = Path(path).name
     return rel + sep + rest
 
 

@@ -247,6 +247,7 @@ def test_no_absolute_path_in_the_documents(tmp_path):
     src = str(tmp_path / "ws" / "study.db") + " (study 'x')"
     assert relative_source(src, tmp_path / "report") == "../ws/study.db (study 'x')"
     assert relative_source(src, None) == "study.db (study 'x')"
+    assert relative_source("/usr/share/x/y/z/data.csv", tmp_path / "a" / "b" / "c") == "data.csv"
     assert relative_source("toy table", tmp_path) == "toy table"
 
 
