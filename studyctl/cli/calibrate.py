@@ -69,6 +69,9 @@ def register(app: typer.Typer) -> None:
             se = f"± {e.se:.3g}" if e.se != float("inf") else "(flat)"
             flag = "" if e.identified else "   NOT IDENTIFIED by these targets"
             console.print(f"  {e.name}: {e.start:.4g} → {e.estimate:.4g} {se}{flag}", markup=False)
+        if any(e.profile_rise < 0 for e in result.estimates):
+            console.print("  not converged: a profile step lowered the distance; run again with more --evaluations",
+                          markup=False)
         summ = result.agreement.summary()
         for role in ("fit", "validation"):
             s = summ[role]

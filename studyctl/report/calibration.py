@@ -123,6 +123,11 @@ def _fit_blocks(result: Any, pop: Any) -> list[Block]:
         out.append(("alert", "Not identified by these targets (moving the parameter by ±15 % of its range changes "
                     "the distance by less than 1): " + ", ".join(f"{e.name} (rise {e.profile_rise:.2g})"
                                                                for e in flat)))
+    lower = [e for e in result.estimates if e.profile_rise < 0]
+    if lower:
+        out.append(("alert", "The search had not converged: a ±15 % step of " + ", ".join(
+            f"{e.name} (by {-e.profile_rise:.2g})" for e in lower) + " lowered the distance below the best "
+            "candidate's; run again with more --evaluations (the journal keeps what is done)"))
     out.append(("h", 2, "Parameter estimates"))
     head = ["parameter", "start", "estimate", "SE (curvature)", "search range", "scale", "profile rise at ±h",
             "identified"]
