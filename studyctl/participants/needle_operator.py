@@ -21,15 +21,16 @@ scene. What it does, and why each part is there:
   it is close to the target unless it has learnt in this scenario that a force cue marks the target, and
   to confirm before finishing unless it is already sure. Reading a scan takes time, during which it holds
   (button released: maintain mode).
-* With a **real-time view** it reads the view a few times a second instead and moves faster.
+* With a **real-time view** it reads the view a few times a second instead of requesting scans.
 
 Outcomes (scans, duration, errors) are therefore whatever happens when this behaviour meets the
-controller, the device and the scene; no metric is written here. Behaviour parameters (``PARAMS``) are
-our choices, stated with their reasons; the per-participant traits are drawn once per session from the
-stream the engine hands to :meth:`VirtualNeedleOperator.begin_session` (the same after a resume).
+controller, the device and the scene; no metric is written here. Every parameter is declared with unit, range
+and source in :mod:`~studyctl.participants.needle_params`; a person's traits (speed, reading time, position
+sense, force thresholds, caution, how fast it learns to trust a cue) arrive as constructor params drawn by a
+population file, and each trial varies its pace around them with the trial's random stream.
 
-Code map: :class:`OperatorParams` (the checked ``PARAMS``), :class:`Traits` (one person), :class:`TrialState`
-(everything held during a trial), :class:`Phase` with one handler per phase (``_step``); what it senses is in
+Code map: :class:`OperatorParams` (the checked ``PARAMS``), :class:`TrialState` (everything held during a
+trial), :class:`Phase` with one handler per phase (``_step``); what it senses is in
 :mod:`~studyctl.participants.needle_perception`, how it answers questionnaires in
 :mod:`~studyctl.participants.needle_questionnaire`.
 
@@ -47,153 +48,13 @@ from typing import Any
 
 import numpy as np
 
-from studyctl.errors import ModelParameterError
 from studyctl.participants.ct_reader import CTReading, read_ct
-from studyctl.participants.needle_perception import AxialCueDetector, Plan, PositionSense, Vec, feel_force
+from studyctl.participants.needle_params import DEFAULTS, PARAMS, OperatorParams, Vec
+from studyctl.participants.needle_perception import AxialCueDetector, Plan, PositionSense, feel_force
 from studyctl.participants.needle_questionnaire import judge_item
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
-from studyctl.plugins.params import Param, validate_params
 
-PARAMS = (
-    Param(
-        "insert_speed_mm_s",
-        10.0,
-        0.0,
-        source="CHOSEN: steady needle advance (people insert slowly in liver: ~5–20 mm/s)",
-    ),
-    Param("final_speed_mm_s", 4.0, 0.0, source="CHOSEN: corrections near the target"),
-    Param("approach_speed_mm_s", 25.0, 0.0, source="CHOSEN: free-space moves"),
-    Param("realtime_speed_gain", 1.15, 0.0, source="CHOSEN: with a live image people move a little faster"),
-    Param(
-        "guided_speed_gain",
-        1.3,
-        0.0,
-        source="CHOSEN: inside a channel felt to be firm, lateral slips are not feared: faster",
-    ),
-    Param(
-        "cued_speed_gain",
-        1.2,
-        0.0,
-        source="CHOSEN: when the tumour is known to announce itself, overshooting is not feared",
-    ),
-    Param("trait_sd", 0.15, 0.0, source="CHOSEN: between-person spread (relative) of speed, noise and drift"),
-    Param("decision_hz", 100.0, 0.0, source="CHOSEN: motor/perceptual update rate of the operator"),
-    Param("plan_read_s", 4.0, 0.0, source="CHOSEN: looking at the first scan and planning"),
-    Param("scan_read_s", 3.0, 0.0, source="CHOSEN: looking at a later scan"),
-    Param("visual_period_s", 0.25, 0.0, source="CHOSEN: real-time view: how often it is read"),
-    Param("proprio_drift", 0.15, 0.0, source="CHOSEN: mm per √mm moved: position-sense drift (per axis)"),
-    Param("motor_noise_mm", 0.3, 0.0, source="CHOSEN: lateral wobble of the hand set-point (stationary sd)"),
-    Param("motor_tau_s", 0.5, 0.0, source="CHOSEN"),
-    Param("speed_noise", 0.15, 0.0, source="CHOSEN: relative speed fluctuation"),
-    Param("orientation_sd_deg", 1.5, 0.0, source="CHOSEN"),
-    Param("force_threshold_n", 0.12, 0.0, source="CHOSEN: absolute axial force rise that is noticed"),
-    Param("force_weber", 0.15, 0.0, source="CHOSEN: relative axial force rise that is noticed"),
-    Param("force_noise_n", 0.02, 0.0, source="CHOSEN: perceptual noise on the felt force"),
-    Param("radial_threshold_n", 0.08, 0.0, source="CHOSEN: a lateral push this strong is felt as guidance"),
-    Param("follow_gain_mm_per_ns", 3.0, 0.0, source="CHOSEN: how readily it yields to a felt guidance force"),
-    Param(
-        "wall_n",
-        0.3,
-        0.0,
-        source="CHOSEN: a lateral force this strong feels like a firm channel wall, which it learns to trust",
-    ),
-    Param("reaction_s", 0.18, 0.0, source="CHOSEN"),
-    Param("entry_scan_mm", 0.9, 0.0, source="CHOSEN: scan before entering when the lateral uncertainty exceeds this"),
-    Param("recheck_mm", 1.6, 0.0, source="CHOSEN: scan during insertion when the lateral uncertainty exceeds this"),
-    Param("finish_mm", 0.8, 0.0, source="CHOSEN: finish without a confirming scan only below this uncertainty"),
-    Param(
-        "accept_mm",
-        2.0,
-        0.0,
-        source="CHOSEN: a tip this close to the centroid touches the 2.5 mm tumour on the image: done",
-    ),
-    Param(
-        "margin_mm",
-        6.0,
-        0.0,
-        source="CHOSEN: stop this far before the believed target to check, unless a cue is trusted",
-    ),
-    Param(
-        "overshoot_mm",
-        3.0,
-        0.0,
-        source="CHOSEN: when trusting a cue, advance at most this far past the believed target",
-    ),
-    Param("preentry_mm", 8.0, 0.0, source="CHOSEN: where to put the tip above the incision point before entering"),
-    Param("home_x_mm", 0.0, None, source="CHOSEN"),
-    Param("home_y_mm", 0.0, None, source="CHOSEN"),
-    Param("home_z_mm", 38.0, None, source="CHOSEN"),
-)
-DEFAULTS: dict[str, float] = {p.name: p.default for p in PARAMS}
-
-
-@dataclass(frozen=True)
-class OperatorParams:
-    """The checked :data:`PARAMS` of one operator (field names are the parameter names)."""
-
-    insert_speed_mm_s: float
-    final_speed_mm_s: float
-    approach_speed_mm_s: float
-    realtime_speed_gain: float
-    guided_speed_gain: float
-    cued_speed_gain: float
-    trait_sd: float
-    decision_hz: float
-    plan_read_s: float
-    scan_read_s: float
-    visual_period_s: float
-    proprio_drift: float
-    motor_noise_mm: float
-    motor_tau_s: float
-    speed_noise: float
-    orientation_sd_deg: float
-    force_threshold_n: float
-    force_weber: float
-    force_noise_n: float
-    radial_threshold_n: float
-    follow_gain_mm_per_ns: float
-    wall_n: float
-    reaction_s: float
-    entry_scan_mm: float
-    recheck_mm: float
-    finish_mm: float
-    accept_mm: float
-    margin_mm: float
-    overshoot_mm: float
-    preentry_mm: float
-    home_x_mm: float
-    home_y_mm: float
-    home_z_mm: float
-
-    @classmethod
-    def from_mapping(cls, params: Mapping[str, Any] | None) -> OperatorParams:
-        p = validate_params("participant virtual_needle_operator", params, PARAMS)
-        for key in ("insert_speed_mm_s", "final_speed_mm_s", "approach_speed_mm_s", "decision_hz", "motor_tau_s"):
-            if p[key] <= 0:
-                raise ModelParameterError(f"participant virtual_needle_operator: {key} = {p[key]:g} must be > 0")
-        return cls(**{k: float(v) for k, v in p.items()})
-
-    @property
-    def home(self) -> Vec:
-        return (self.home_x_mm, self.home_y_mm, self.home_z_mm)
-
-
-@dataclass(frozen=True)
-class Traits:
-    """One person's multipliers (median 1) of speed, motor noise, position-sense drift, reading time and
-    force thresholds; drawn once per session."""
-
-    speed: float
-    noise: float
-    drift: float
-    read: float
-    threshold: float
-
-    @classmethod
-    def draw(cls, rng: np.random.Generator, sd: float) -> Traits:
-        speed, noise, drift, read, threshold = (float(np.exp(rng.normal(0.0, sd))) for _ in range(5))
-        return cls(speed, noise, drift, read, threshold)
-
+__all__ = ["DEFAULTS", "PARAMS", "OperatorParams", "Phase", "VirtualNeedleOperator"]
 
 class Phase(Enum):
     """Where the operator is in a trial; :meth:`VirtualNeedleOperator._step` has one handler for each."""
@@ -251,6 +112,7 @@ class TrialState:
     v_ins: float
     v_fin: float
     v_app: float
+    read_s: float  # looking at a scan, this trial
     z: np.ndarray  # pre-drawn noise: a few rows per decision
     ref: Vec  # where it wants its (believed) tip
     prev_ref: Vec
@@ -277,6 +139,8 @@ class TrialState:
     stop_reason: str = ""
     felt_radial_s: float = 0.0
     corrections: int = 0
+    guided: bool = False  # this insertion already runs at the guided speed
+    cue_on_correction: bool = False  # the last cue came while correcting towards a target seen on an image
 
     def noise(self) -> np.ndarray:
         z = self.z[self.zi]
@@ -287,6 +151,12 @@ class TrialState:
         if self.plan is None:
             raise RuntimeError("virtual_needle_operator: acting on a plan before a scan produced one")
         return self.plan
+
+
+def _learn(trust: dict[str, float], key: str, rate: float, confirmed: bool) -> None:
+    """Move trust in a cue a ``rate`` fraction of the way towards 1 (confirmed) or 0 (misled)."""
+    old = trust.get(key, 0.0)
+    trust[key] = old + rate * ((1.0 if confirmed else 0.0) - old)
 
 
 def _norm(v: Vec) -> float:
@@ -302,17 +172,14 @@ class VirtualNeedleOperator(Participant):
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         super().__init__(params)
         self.p = OperatorParams.from_mapping(params)
-        self.traits: Traits | None = None
         self.history: list[dict[str, Any]] = []  # what it remembers of its own trials
-        self.trust_cue: dict[str, bool] = {}  # per scenario label: has a force cue marked the target?
-        self.trust_guide: dict[str, bool] = {}  # per scenario label: has a firm guidance channel been felt?
+        # learnt per scenario label (0…1, trusted from 0.5): that a force cue marks the target, that the felt
+        # guidance channel keeps the tip on the path
+        self.trust_cue: dict[str, float] = {}
+        self.trust_guide: dict[str, float] = {}
         self.s: TrialState | None = None
 
     # ------------------------------------------------------------------ session and trial set-up
-    def begin_session(self, rng: np.random.Generator) -> None:
-        """The engine hands over the session's person stream at every (re)start: the same traits after a resume."""
-        self.traits = Traits.draw(rng, self.p.trait_sd)
-
     def memory(self) -> dict[str, Any]:
         """What it has learnt to trust per scenario, and its own trial record, stored by the engine with each
         finished trial: a session resumed in a new process goes on as the uninterrupted one would."""
@@ -320,18 +187,20 @@ class VirtualNeedleOperator(Participant):
                 "history": [dict(r) for r in self.history]}
 
     def recall(self, memory: Mapping[str, Any]) -> None:
-        self.trust_cue = {str(k): bool(v) for k, v in (memory.get("trust_cue") or {}).items()}
-        self.trust_guide = {str(k): bool(v) for k, v in (memory.get("trust_guide") or {}).items()}
+        self.trust_cue = {str(k): float(v) for k, v in (memory.get("trust_cue") or {}).items()}
+        self.trust_guide = {str(k): float(v) for k, v in (memory.get("trust_guide") or {}).items()}
         self.history = [dict(r) for r in (memory.get("history") or [])]
 
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
-        if self.traits is None:  # run outside a session (a bare trial loop): the first trial's stream
-            self.traits = Traits.draw(rng, self.p.trait_sd)
-        p, tr = self.p, self.traits
+        p = self.p
+        # this trial's own pace: within-person variation around the person's speed and reading time
+        vary = rng.standard_normal(2)
+        speed = p.insert_speed_mm_s * math.exp(p.speed_trial_cv * float(vary[0]))
         every = max(1, round(info.rate_hz / p.decision_hz))
         dt = every / info.rate_hz
         realtime = info.visual == "realtime"
-        gain = p.realtime_speed_gain if realtime else 1.0
+        if realtime:
+            speed *= p.realtime_speed_gain
         n = 4 * (int(info.time_limit_s / dt) + 16)
         z = rng.standard_normal((n, 8))
         home = p.home
@@ -341,9 +210,10 @@ class VirtualNeedleOperator(Participant):
             dt=dt,
             realtime=realtime,
             scans_allowed=info.visual == "on_request",
-            v_ins=p.insert_speed_mm_s * tr.speed * gain,
-            v_fin=p.final_speed_mm_s * tr.speed * gain,
-            v_app=p.approach_speed_mm_s * tr.speed * gain,
+            v_ins=speed,
+            v_fin=speed * p.final_speed_ratio,
+            v_app=speed * p.approach_speed_ratio,
+            read_s=p.scan_read_s * math.exp(p.read_trial_cv * float(vary[1])),
             z=z,
             ref=home,
             prev_ref=home,
@@ -362,20 +232,13 @@ class VirtualNeedleOperator(Participant):
             raise RuntimeError("virtual_needle_operator: acting before begin_trial")
         return self.s
 
-    @property
-    def _tr(self) -> Traits:
-        if self.traits is None:
-            raise RuntimeError("virtual_needle_operator: acting before its traits were drawn")
-        return self.traits
-
     # ------------------------------------------------------------------ the tick
     def act(self, t: float, percept: Mapping[str, Any]) -> Action:
         st = self._st
         if "scan" in percept and percept["scan"] is not None:
             st.frame = percept["scan"]
             if st.busy_until == math.inf:
-                read = self.p.plan_read_s if st.plan is None else self.p.scan_read_s
-                st.busy_until = t + read * self._tr.read
+                st.busy_until = t + self._read_time()
         st.tick += 1
         if st.tick < st.every:
             return st.action
@@ -393,7 +256,7 @@ class VirtualNeedleOperator(Participant):
         z = st.noise()
         moved = math.dist(st.ref, st.prev_ref)
         st.prev_ref = st.ref
-        st.sense.drift(moved, p.proprio_drift * self._tr.drift, z)
+        st.sense.drift(moved, p.proprio_drift, z)
         self._perceive(t, percept)
         if st.realtime and "view" in percept and t - st.last_view_t >= p.visual_period_s:
             st.last_view_t = t
@@ -422,13 +285,29 @@ class VirtualNeedleOperator(Participant):
             case Phase.DONE:
                 return ()
 
+    def _read_time(self) -> float:
+        """Looking at a scan: planning on the first takes longer; a check while a haptic cue of this scenario
+        is trusted is a confirming glance (it knows what it expects to see)."""
+        st, p = self._st, self.p
+        if st.plan is None:
+            return st.read_s + p.plan_read_extra_s
+        if self._trusts_cue() or self._trusts_guide():
+            return st.read_s * p.confirm_read_ratio
+        return st.read_s
+
+    def _trusts_cue(self) -> bool:
+        return self.trust_cue.get(self._st.info.condition, 0.0) >= 0.5
+
+    def _trusts_guide(self) -> bool:
+        return self.trust_guide.get(self._st.info.condition, 0.0) >= 0.5
+
     # ------------------------------------------------------------------ phase handlers
     def _on_plan(self, t: float) -> tuple[Request, ...]:
         st = self._st
         if st.realtime:
             if st.plan is not None:  # the live view showed everything: look at it, then go
-                st.phase, st.busy_until, st.next_phase = Phase.READ, t + self.p.plan_read_s * self._tr.read, \
-                    Phase.APPROACH
+                st.phase, st.next_phase = Phase.READ, Phase.APPROACH
+                st.busy_until = t + st.read_s + self.p.plan_read_extra_s
             return ()
         return self._scan_then(t, Phase.APPROACH)
 
@@ -464,6 +343,7 @@ class VirtualNeedleOperator(Participant):
         if st.cue.felt and st.react_until and t >= st.react_until:
             # a force cue: stop, hold, relax the push
             st.react_until = 0.0
+            st.cue_on_correction = st.stop_reason == "correct"
             return self._stop(t, percept, "cue")
         mv = st.move
         if not isinstance(mv, Line):
@@ -484,7 +364,7 @@ class VirtualNeedleOperator(Participant):
         if (
             st.scans_allowed
             and st.stop_reason == "depth"
-            and self.trust_cue.get(st.info.condition, False)
+            and self._trusts_cue()
             and depth >= pl.length - p.margin_mm
             and sig_lat > p.finish_mm
         ):
@@ -500,12 +380,16 @@ class VirtualNeedleOperator(Participant):
         st = self._st
         if t < st.busy_until:
             return ()
-        if st.stop_reason == "cue":
-            trust = self.trust_cue.get(st.info.condition, False)
-            if trust and st.sense.sig_lat <= self.p.finish_mm:
+        if st.stop_reason == "cue" and not st.realtime:  # with a live view it looks instead
+            # a trusted cue ends the trial only where the plan puts the tumour; elsewhere it is checked on a scan
+            near = abs(st.need_plan().depth(self._belief(percept)) - st.need_plan().length) <= self.p.margin_mm
+            if near and self._trusts_cue() and st.sense.sig_lat <= self.p.finish_mm:
                 return self._begin_finish(percept, t, "cue")
         if st.realtime:
             return self._judge(t, percept)
+        if st.stop_reason == "cue" and st.cue_on_correction and st.sense.sig_lat <= self.p.finish_mm:
+            # it just saw the tumour close by, moved towards it and felt it: it judges from that, no new scan
+            return self._judge(t, percept, seen=False)
         return self._scan_then(t, Phase.JUDGE)
 
     def _on_finish(self, t: float) -> tuple[Request, ...]:
@@ -542,7 +426,7 @@ class VirtualNeedleOperator(Participant):
         st.button = 1.0
         b = self._belief(percept)
         st.ref = b
-        trust = self.trust_cue.get(st.info.condition, False)
+        trust = self._trusts_cue()
         if st.realtime:
             stop = pl.length
         elif trust:
@@ -553,7 +437,8 @@ class VirtualNeedleOperator(Participant):
         u, tum = pl.u, pl.tumour
         aim = (tum[0] + extra * u[0], tum[1] + extra * u[1], tum[2] + extra * u[2])
         speed = st.v_ins
-        if self.trust_guide.get(st.info.condition, False):
+        st.guided = self._trusts_guide()
+        if st.guided:
             speed *= p.guided_speed_gain
         if trust:
             speed *= p.cued_speed_gain
@@ -576,16 +461,18 @@ class VirtualNeedleOperator(Participant):
         st.busy_until = t + 0.3
         return ()
 
-    def _judge(self, t: float, percept: Mapping[str, Any]) -> tuple[Request, ...]:
-        """Is the tip in the tumour? If not, correct towards it (advancing or withdrawing slowly)."""
+    def _judge(self, t: float, percept: Mapping[str, Any], *, seen: bool = True) -> tuple[Request, ...]:
+        """Is the tip in the tumour? If not, correct towards it (advancing or withdrawing slowly). Only a judgement
+        on a fresh image (``seen``) teaches it whether the cue marked the tumour."""
         st, p = self._st, self.p
         pl = st.need_plan()
         b = self._belief(percept)
         tum = pl.tumour
         miss = math.dist(b, tum)
-        if st.stop_reason == "cue" and miss <= 2.5 * p.accept_mm:
-            self.trust_cue[st.info.condition] = True
-        if miss <= p.accept_mm:
+        if st.stop_reason == "cue" and seen:  # a scan shows whether the felt cue was the tumour: learn from it
+            _learn(self.trust_cue, st.info.condition, p.cue_trust_rate, miss <= 2.5 * p.accept_mm)
+        # after each correction it grows more lenient: a looser placement is accepted rather than a fourth try
+        if miss <= p.accept_mm * (1.0 + 0.5 * st.corrections):
             return self._begin_finish(percept, t, "in_tumour")
         st.phase = Phase.INSERT
         st.button = 1.0
@@ -618,7 +505,7 @@ class VirtualNeedleOperator(Participant):
             st.frame = None
             st.busy_until = math.inf  # until the frame arrives
             return (Request("scan"),)
-        st.busy_until = t + 0.5 * self.p.scan_read_s * self._tr.read
+        st.busy_until = t + 0.5 * st.read_s
         return ()
 
     # ------------------------------------------------------------------ seeing and feeling
@@ -659,9 +546,8 @@ class VirtualNeedleOperator(Participant):
         felt = feel_force(percept, st.axis, p.force_noise_n, st.noise()) if "fx_n" in percept else None
         if felt is None:
             return
-        th = self._tr.threshold
         cond = st.info.condition
-        if st.button >= 0.5 and felt.radial_n > p.radial_threshold_n * th:
+        if st.button >= 0.5 and felt.radial_n > p.radial_threshold_n:
             # a felt lateral push: yield to it, and trust that it keeps the tip near the path
             g = p.follow_gain_mm_per_ns * st.dt
             r, (rx, ry, rz) = st.ref, felt.radial
@@ -670,13 +556,19 @@ class VirtualNeedleOperator(Participant):
             st.felt_radial_s += st.dt
             if st.felt_radial_s > 0.2:
                 st.sense.sig_lat = min(st.sense.sig_lat, p.finish_mm)
-            if felt.radial_n > p.wall_n * th and st.phase is Phase.INSERT:  # the channel, felt in tissue
-                self.trust_guide[cond] = True
+            abrupt = st.felt_radial_s <= p.wall_rise_s  # built up fast: a firm wall, not a soft pull
+            if felt.radial_n > p.wall_n and abrupt and st.phase is Phase.INSERT and not st.record["wall"]:
+                # the channel, felt in tissue (once a trial): it learns to rely on it
                 st.record["wall"] = True
+                _learn(self.trust_guide, cond, p.guide_trust_rate, True)
+                if self._trusts_guide() and not st.guided and isinstance(st.move, Line) and st.stop_reason == "depth":
+                    st.guided = True  # a firm channel, felt now: it need not fear lateral slips for the rest
+                    st.move.v *= p.guided_speed_gain
         else:
             st.felt_radial_s = 0.0
-        if st.button >= 0.5 and self.trust_guide.get(cond, False):
-            # inside a channel it has felt to be firm, it takes the tip to be on the path laterally
+        if st.button >= 0.5 and self._trusts_guide():
+            # inside a channel it has felt to be firm (the guidance acts from before the incision on), it takes
+            # the tip to be on the path laterally
             st.sense.sig_lat = min(st.sense.sig_lat, 0.9 * p.finish_mm)
         # axial cue: a rise above the running baseline while advancing deep in the liver
         mv = st.move
@@ -684,7 +576,7 @@ class VirtualNeedleOperator(Participant):
             mv.moving_s += st.dt
             depth = st.plan.depth(self._belief(percept))
             if st.cue.update(felt.axial, depth, 0.5 * st.plan.length, mv.moving_s, st.dt,
-                             p.force_threshold_n * th, p.force_weber * th):
+                             p.force_threshold_n, p.force_weber):
                 st.record["cue"] = True
                 st.react_until = t + p.reaction_s
 
@@ -750,7 +642,7 @@ class VirtualNeedleOperator(Participant):
                 mv.ref_s += step
         # lateral wobble (Ornstein–Uhlenbeck), stronger with a noisier hand
         k = dt / p.motor_tau_s
-        sd = p.motor_noise_mm * self._tr.noise * math.sqrt(2 * k)
+        sd = p.motor_noise_mm * math.sqrt(2 * k)
         wb = st.wobble
         for i in range(3):
             wb[i] += -k * wb[i] + sd * z[i]

@@ -1,0 +1,159 @@
+"""Every perception, motor and decision parameter of the virtual needle operator, with unit, range and source.
+
+Between-person traits are ordinary parameters: a population file (``studyctl/populations/needle_insertion.yaml``)
+draws them once per virtual person and hands them to the operator's constructor; the defaults here are the
+population's typical (median) person. Within-person trial-to-trial variation is itself a parameter
+(``speed_trial_cv``, ``read_trial_cv``), applied by the operator with the trial's random stream.
+
+Sources: ``CITED:`` a published value (see shared/research/virtual_participants.md), ``CHOSEN:`` our choice and
+why, ``FITTED``: set by calibrating seed 001's population to the paper's numbers (see the population file's
+``calibration`` block for which numbers were fitted and which were held out).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from studyctl.plugins.params import Param, validate_params
+
+Vec = tuple[float, float, float]
+
+PARAMS = (
+    # ---------------------------------------------------------------- motor
+    Param("insert_speed_mm_s", 7.0, 1.0, 40.0, unit="mm/s",
+          source="FITTED: a person's steady needle advance in liver (between-person trait; ~5–20 mm/s)"),
+    Param("approach_speed_ratio", 2.5, 1.0, 8.0, unit="×",
+          source="CHOSEN: free-space reaches are faster than advancing through tissue"),
+    Param("final_speed_ratio", 0.55, 0.05, 1.0, unit="×",
+          source="CHOSEN: corrections near the target are slower than the insertion"),
+    Param("speed_trial_cv", 0.1, 0.0, 0.6, unit="log-SD",
+          source="CHOSEN: within-person trial-to-trial variation of movement speed"),
+    Param("speed_noise", 0.15, 0.0, 1.0, unit="relative",
+          source="CHOSEN: slow within-trial fluctuation of the advance speed (signal-dependent motor noise)"),
+    Param("realtime_speed_gain", 1.0, 0.2, 3.0, unit="×",
+          source="FITTED: speed with a live image relative to steering between scans"),
+    Param("guided_speed_gain", 2.3, 0.5, 4.0, unit="×",
+          source="FITTED: speed inside a guidance channel it has learnt to trust (lateral slips are not feared)"),
+    Param("cued_speed_gain", 2.0, 0.5, 4.0, unit="×",
+          source="FITTED: speed when it has learnt that the tumour announces itself (overshooting is not feared)"),
+    Param("motor_noise_mm", 0.3, 0.02, 3.0, unit="mm",
+          source="CHOSEN: lateral wobble of the hand set-point (stationary SD; smoothness trait)"),
+    Param("motor_tau_s", 0.5, 0.05, 5.0, unit="s", source="CHOSEN: correlation time of that wobble"),
+    Param("orientation_sd_deg", 1.5, 0.0, 10.0, unit="deg",
+          source="CHOSEN: error in pointing the pen along the planned path"),
+    Param("decision_hz", 100.0, 10.0, 1000.0, unit="Hz", source="CHOSEN: motor/perceptual update rate"),
+    Param("reaction_s", 0.18, 0.08, 0.8, unit="s",
+          source="CHOSEN: simple reaction to a felt force ~0.15–0.2 s; CITED for its spread: tactile stimulus "
+                 "factors shift RTs by 20–300 ms (Bao et al. 2019, PLOS ONE)"),
+    # ---------------------------------------------------------------- vision
+    Param("scan_read_s", 2.2, 0.5, 15.0, unit="s",
+          source="FITTED: looking at a requested scan before acting on it (between-person trait)"),
+    Param("plan_read_extra_s", 1.0, 0.0, 10.0, unit="s",
+          source="CHOSEN: the first scan also has to be planned on (marker → tumour path)"),
+    Param("confirm_read_ratio", 0.4, 0.2, 1.0, unit="×",
+          source="FITTED: reading time of a check while a haptic cue of the scenario is trusted, relative to a "
+                 "scan read without that expectation"),
+    Param("read_trial_cv", 0.15, 0.0, 0.8, unit="log-SD",
+          source="CHOSEN: within-person trial-to-trial variation of reading time"),
+    Param("visual_period_s", 0.25, 0.02, 2.0, unit="s", source="CHOSEN: real-time view: how often it is read"),
+    # ---------------------------------------------------------------- position sense
+    Param("proprio_drift", 0.15, 0.0, 1.0, unit="mm/√mm",
+          source="CHOSEN: position-sense drift per √mm moved, per axis (between-person trait)"),
+    # ---------------------------------------------------------------- force perception
+    Param("force_weber", 0.1, 0.02, 0.5, unit="fraction",
+          source="CITED: force JND ≈ 7 % (Pang, Tan & Durlach 1991), ≈ 10 % on a force-feedback device "
+                 "(Allin, Matsuoka & Klatzky 2002); 75 %-JND 0.18–0.19 passive (Gueorguiev et al. 2020)"),
+    Param("force_threshold_n", 0.12, 0.01, 1.0, unit="N",
+          source="CHOSEN: smallest axial force rise noticed while sliding in; spread CITED from the static "
+                 "pressure threshold's between-person CV ≈ 46 % (n = 35)"),
+    Param("force_noise_n", 0.02, 0.0, 0.5, unit="N", source="CHOSEN: moment-to-moment noise on the felt force"),
+    Param("radial_threshold_n", 0.08, 0.01, 1.0, unit="N",
+          source="CHOSEN: a lateral push this strong is felt as guidance (spread as force_threshold_n)"),
+    Param("follow_gain_mm_per_ns", 3.0, 0.0, 20.0, unit="mm/(N·s)",
+          source="CHOSEN: how readily it yields to a felt guidance force"),
+    Param("wall_n", 0.3, 0.01, 5.0, unit="N",
+          source="CHOSEN: a lateral force this strong feels like a firm channel wall"),
+    Param("wall_rise_s", 0.3, 0.02, 5.0, unit="s",
+          source="CHOSEN: a lateral force that builds up from just noticeable to wall_n within this time feels like "
+                 "a firm wall (stiff guidance: a small slip), a slower build-up like a soft pull (a large drift)"),
+    # ---------------------------------------------------------------- decisions and learning
+    Param("entry_scan_mm", 0.9, 0.1, 10.0, unit="mm",
+          source="CHOSEN: scan before entering when the lateral uncertainty exceeds this"),
+    Param("recheck_mm", 1.6, 0.2, 10.0, unit="mm",
+          source="FITTED: scan during insertion when the lateral uncertainty exceeds this (caution trait)"),
+    Param("finish_mm", 0.8, 0.1, 5.0, unit="mm",
+          source="FITTED: finish without a confirming scan only below this uncertainty (confidence trait)"),
+    Param("accept_mm", 2.0, 0.5, 10.0, unit="mm",
+          source="CHOSEN: a tip this close to the centroid touches the 2.5 mm tumour on the image: done"),
+    Param("margin_mm", 6.0, 0.0, 30.0, unit="mm",
+          source="CHOSEN: stop this far before the believed target to check, unless a cue is trusted"),
+    Param("overshoot_mm", 3.0, 0.0, 20.0, unit="mm",
+          source="CHOSEN: when trusting a cue, advance at most this far past the believed target"),
+    Param("cue_trust_rate", 0.8, 0.0, 1.0, unit="fraction",
+          source="CHOSEN: learning rate of trust in the axial cue: a cue confirmed by a scan moves trust this "
+                 "fraction of the way to 1 (a wrong one towards 0); trusted from 0.5 (between-person trait)"),
+    Param("guide_trust_rate", 0.8, 0.0, 1.0, unit="fraction",
+          source="CHOSEN: learning rate of trust in a felt guidance channel, per trial in which it was felt"),
+    Param("preentry_mm", 8.0, 0.0, 40.0, unit="mm",
+          source="CHOSEN: where to put the tip above the incision point before entering"),
+    Param("home_x_mm", 0.0, -200.0, 200.0, unit="mm", source="CHOSEN: hand position at the start of a trial"),
+    Param("home_y_mm", 0.0, -200.0, 200.0, unit="mm", source="CHOSEN"),
+    Param("home_z_mm", 38.0, -200.0, 200.0, unit="mm", source="CHOSEN"),
+)  # fmt: skip
+DEFAULTS: dict[str, float] = {p.name: p.default for p in PARAMS}
+
+
+@dataclass(frozen=True)
+class OperatorParams:
+    """The checked :data:`PARAMS` of one operator (field names are the parameter names)."""
+
+    insert_speed_mm_s: float
+    approach_speed_ratio: float
+    final_speed_ratio: float
+    speed_trial_cv: float
+    speed_noise: float
+    realtime_speed_gain: float
+    guided_speed_gain: float
+    cued_speed_gain: float
+    motor_noise_mm: float
+    motor_tau_s: float
+    orientation_sd_deg: float
+    decision_hz: float
+    reaction_s: float
+    scan_read_s: float
+    plan_read_extra_s: float
+    confirm_read_ratio: float
+    read_trial_cv: float
+    visual_period_s: float
+    proprio_drift: float
+    force_weber: float
+    force_threshold_n: float
+    force_noise_n: float
+    radial_threshold_n: float
+    follow_gain_mm_per_ns: float
+    wall_n: float
+    wall_rise_s: float
+    entry_scan_mm: float
+    recheck_mm: float
+    finish_mm: float
+    accept_mm: float
+    margin_mm: float
+    overshoot_mm: float
+    cue_trust_rate: float
+    guide_trust_rate: float
+    preentry_mm: float
+    home_x_mm: float
+    home_y_mm: float
+    home_z_mm: float
+
+    @classmethod
+    def from_mapping(cls, params: Mapping[str, Any] | None) -> OperatorParams:
+        """Checked against :data:`PARAMS` (unknown names, types, ranges): one error naming the parameter."""
+        p = validate_params("participant virtual_needle_operator", params, PARAMS)
+        return cls(**{k: float(v) for k, v in p.items()})
+
+    @property
+    def home(self) -> Vec:
+        return (self.home_x_mm, self.home_y_mm, self.home_z_mm)
