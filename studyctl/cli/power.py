@@ -76,6 +76,22 @@ def register(app: typer.Typer) -> None:
                                      help="Target power in (0, 1), e.g. 0.8: report per test the smallest size run "
                                           "that reaches it (with its Wilson interval); every size must then "
                                           "complete the protocol's counterbalancing blocks."),
+        two_stage: bool = typer.Option(False, "--two-stage/--exact",
+                                       help="--two-stage: simulate a stored pool of virtual participants once (stage "
+                                            "1, full engine) and draw every replicate study from it (stage 2: only "
+                                            "the analysis plan runs); its error against full-engine replicates at "
+                                            "--check-sizes is reported beside the power. --exact (default): every "
+                                            "replicate through the full engine."),
+        pool: int = typer.Option(None, "--pool", help="Two-stage: people in the pool (default and minimum: 20 × the "
+                                                      "largest --participants)."),
+        pool_dir: Path = typer.Option(Path("reports/power-pools"), "--pool-dir",
+                                      help="Two-stage: folder of stored pools (keyed by protocol, plan, population "
+                                           "sha256, seed; reused by later runs)."),
+        check_sizes: str = typer.Option(None, "--check-sizes",
+                                        help="Two-stage: sizes (a subset of --participants) at which full-engine "
+                                             "replicates measure the design's error (default: the smallest)."),
+        check_replicates: int = typer.Option(50, "--check-replicates",
+                                             help="Two-stage: full-engine replicates per checked size (0: no check)."),
         as_json: bool = typer.Option(False, "--json", help="Print the results as one JSON document on stdout "
                                                            "(power table, target sizes, files)."),
     ) -> None:
@@ -97,8 +113,6 @@ def register(app: typer.Typer) -> None:
         from studyctl.errors import SessionInterrupted
         from studyctl.power import prepare_power
         from studyctl.report.power_figures import population_text
-        from studyctl.report.power_json import power_json
-        from studyctl.report.terminal import power_table, target_table
         from studyctl.workflows.power import run_power
 
         err = Console(stderr=True, highlight=False)
@@ -132,6 +146,27 @@ def register(app: typer.Typer) -> None:
             state["done"] = done
             progress.update(task, completed=done)
 
+        if two_stage:
+            from studyctl.workflows.power_two_stage import check_sizes_of, run_two_stage
+
+            checks = check_sizes_of(spec, check_sizes)
+            stages: dict[str, int] = {}
+
+            def on_stage(stage: str, done: int, total: int) -> None:
+                if stage not in stages:
+                    progress.start()
+                    stages[stage] = progress.add_task(stage, total=total)
+                progress.update(stages[stage], completed=done)
+
+            progress.remove_task(task)
+            try:
+                result = run_two_stage(spec, out, pool_dir=pool_dir, pool=pool, check_sizes=checks,
+                                       check_replicates=check_replicates, scheduler=scheduler, workers=workers,
+                                       on_stage=on_stage)
+            finally:
+                progress.stop()
+            _done(console, result, show_posthoc, as_json)
+            return
         try:
             result = run_power(spec, out, scheduler=scheduler, workers=workers, on_progress=on_progress,
                                on_backend=lambda d: err.print(f"running on: {d}", markup=False))
@@ -142,17 +177,35 @@ def register(app: typer.Typer) -> None:
                                      f"kept in {out}; run the same command again to continue") from None
         finally:
             progress.stop()
-        if as_json:
-            import json
-            import sys
+        _done(console, result, show_posthoc, as_json)
 
-            sys.stdout.write(json.dumps(power_json(result), indent=2, default=str) + "\n")
-            return
-        console.print(power_table(result, show_posthoc))
-        if result.target is not None:
-            console.print(target_table(result.target))
-        console.print(f"simulated {result.ran} replicate(s), reused {result.reused}, in {result.seconds:.1f} s "
-                      f"({result.backend})", markup=False)
-        for kind in ("table", "target", "figure", "population", "replicates"):
-            if kind in result.files:
-                console.print(f"{kind}: {result.files[kind]}", markup=False)
+
+def _done(console: Console, result, show_posthoc: bool, as_json: bool) -> None:  # noqa: ANN001 - PowerRun
+    """Print a finished run: one JSON document, or the tables and where the files are."""
+    from studyctl.report.power_json import power_json
+    from studyctl.report.terminal import power_table, target_table
+
+    if as_json:
+        import json
+        import sys
+
+        sys.stdout.write(json.dumps(power_json(result), indent=2, default=str) + "\n")
+        return
+    console.print(power_table(result, show_posthoc))
+    if result.target is not None:
+        console.print(target_table(result.target))
+    if result.error is not None:
+        e = result.error.summary()
+        console.print(f"two-stage error: max |two-stage - full engine| = {e['power_error_pp']:.1f} pp at n = "
+                      f"{', '.join(map(str, e['checked_sizes']))} ({e['exact_replicates']} full-engine vs "
+                      f"{e['two_stage_replicates']} two-stage replicates; MC SE up to {e['mc_se_exact_pp_max']:.1f} / "
+                      f"{e['mc_se_two_stage_pp_max']:.1f} pp)", markup=False)
+    if result.pool is not None:
+        p = result.pool
+        console.print(f"pool: {p['people']} people in {p['path']} ({p['chunks_built_now']} chunk(s) simulated now)",
+                      markup=False)
+    console.print(f"simulated {result.ran} replicate(s), reused {result.reused}, in {result.seconds:.1f} s "
+                  f"({result.backend})", markup=False)
+    for kind in ("table", "target", "error", "figure", "population", "replicates"):
+        if kind in result.files:
+            console.print(f"{kind}: {result.files[kind]}", markup=False)

@@ -55,8 +55,13 @@ class SerialBackend:
         return None
 
     def run(self, spec: PowerSpec, tasks: Iterable[tuple[int, int]], on_result: ResultFn) -> None:
-        for n, r in tasks:
-            on_result(simulate_replicate(spec, n, r))
+        self.map(simulate_replicate, spec, tasks, on_result)
+
+    def map(self, fn: Callable[..., Any], spec: PowerSpec, tasks: Iterable[tuple[Any, ...]],
+            on_result: Callable[[Any], None], tag: str = "") -> None:
+        """``on_result(fn(spec, *args))`` for every args tuple of ``tasks``, in order."""
+        for args in tasks:
+            on_result(fn(spec, *args))
 
 
 def _worker_report() -> dict[str, Any]:
@@ -167,15 +172,21 @@ class DaskBackend:
                 self.cluster.close()
 
     def run(self, spec: PowerSpec, tasks: Iterable[tuple[int, int]], on_result: ResultFn) -> None:
+        self.map(simulate_replicate, spec, tasks, on_result, tag="replicate")
+
+    def map(self, fn: Callable[..., Any], spec: PowerSpec, tasks: Iterable[tuple[Any, ...]],
+            on_result: Callable[[Any], None], tag: str = "") -> None:
+        """``fn(spec, *args)`` as one Dask task per args tuple; ``on_result`` as each finishes (any order)."""
         (as_completed,) = _distributed("as_completed")
         tasks = list(tasks)
         if not tasks:
             return
-        tag = hashlib.sha256(repr(sorted(spec.fingerprint().items())).encode()).hexdigest()[:12]
+        digest = hashlib.sha256(repr(sorted(spec.fingerprint().items())).encode()).hexdigest()[:12]
         shared = self.client.scatter(spec, broadcast=True, hash=False)
         futures = [
-            self.client.submit(simulate_replicate, shared, n, r, key=f"studyctl-power-{tag}-n{n}-r{r}", pure=False)
-            for n, r in tasks
+            self.client.submit(fn, shared, *args, key=f"studyctl-power-{tag}-{digest}-{'-'.join(map(str, args))}",
+                               pure=False)
+            for args in tasks
         ]
         try:
             for future in as_completed(futures, loop=self.client.loop):

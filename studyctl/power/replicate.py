@@ -138,6 +138,61 @@ def participant_code(prefix: str, index: int) -> str:
     return f"{prefix}-V{index + 1:04d}"
 
 
+@dataclass(frozen=True)
+class StudyOutcome:
+    """One simulated study: its metric table and, per enrolled person, (code, stratum, sequence index)."""
+
+    table: Any  # MetricTable
+    members: tuple[tuple[str, str, int | None], ...]
+    completed: int
+    clipped: int
+    trials: dict[str, int]
+    peak_rss_mb: float
+
+
+def simulate_study(spec: PowerSpec, participants: int, seeds: Any, name: str, where: str) -> StudyOutcome:
+    """Enroll ``participants`` virtual people into a throwaway in-memory study and run each one's whole session
+    through the real engine (see :func:`simulate_replicate`); return the metrics the plan computes from it."""
+    protocol = load_protocol_text(spec.protocol_text, f"{spec.protocol_name} (power spec)")
+    factory = EntryPointFactory()
+    model = population_model(spec.population, protocol, factory)
+    offsets_rng = seeds.population_rng()
+    pairs = allocate_strata(protocol, participants)
+    several = len(protocol.stratum_ids) > 1
+    prefix = protocol.participants.code_prefix
+    completed = clipped = 0
+    members = []
+    peak = _check_memory(spec.memory_limit, where)
+    store = StudyStore.create("sqlite://")
+    try:
+        study = store.create_study(name, protocol_text=spec.protocol_text, protocol_name=spec.protocol_name,
+                                   seed=seeds.study_seed)
+        for i, (stratum, _slot) in enumerate(pairs):
+            enrolled = enroll(store, stratum if several else None, study=study.name, code=participant_code(prefix, i))
+            members.append((enrolled.code, enrolled.stratum, enrolled.sequence))
+            traits = None
+            if spec.traits is not None:  # this person's traits, then the knobs' shifts on top
+                traits = spec.traits.draw(population_rng(seeds.session_seeds[i]), enrolled.stratum)
+            actor, n_clipped = model.actor(enrolled.stratum, model.draw_offsets(offsets_rng),
+                                           None if traits is None else spec.traits.params(traits))
+            clipped += n_clipped
+            try:
+                result = run_session(store, enrolled.code, study=study.name, virtual=True,
+                                     seed=seeds.session_seeds[i], participant=actor, factory=factory,
+                                     population=spec.traits, traits=traits, sim_rate_hz=spec.sim_rate_hz)
+            except SessionInterrupted:
+                # Ctrl-C inside a session: the engine made it resumable, but this study lives in memory and is
+                # dropped; the replicate simply did not finish (a rerun of the power command redoes it).
+                raise KeyboardInterrupt from None
+            completed += getattr(result, "status", "") == "completed"
+            peak = max(peak, _check_memory(spec.memory_limit, where))
+        table = compute_metrics(spec.plan, store, study)
+        trials = dict(study_status(store, study).trials)
+    finally:
+        store.close()
+    return StudyOutcome(table, tuple(members), int(completed), int(clipped), trials, peak)
+
+
 def simulate_replicate(
     spec: PowerSpec, participants: int, replicate: int, *, on_metrics: Callable[[Any], None] | None = None
 ) -> ReplicateResult:
@@ -159,48 +214,11 @@ def simulate_replicate(
     t0, c0 = time.perf_counter(), time.process_time()
     where = f"replicate {replicate} at {participants} participants"
     seeds = replicate_seeds(spec.seed, participants, replicate)
-    protocol = load_protocol_text(spec.protocol_text, f"{spec.protocol_name} (power spec)")
-    factory = EntryPointFactory()
-    model = population_model(spec.population, protocol, factory)
-    offsets_rng = seeds.population_rng()
-    pairs = allocate_strata(protocol, participants)
-    several = len(protocol.stratum_ids) > 1
-    prefix = protocol.participants.code_prefix
-    completed = clipped = 0
-    peak = _check_memory(spec.memory_limit, where)
-    store = StudyStore.create("sqlite://")
-    try:
-        study = store.create_study(
-            f"{spec.study_id}-power-n{participants}-r{replicate}",
-            protocol_text=spec.protocol_text,
-            protocol_name=spec.protocol_name,
-            seed=seeds.study_seed,
-        )
-        for i, (stratum, _slot) in enumerate(pairs):
-            enrolled = enroll(store, stratum if several else None, study=study.name, code=participant_code(prefix, i))
-            traits = None
-            if spec.traits is not None:  # this person's traits, then the knobs' shifts on top
-                traits = spec.traits.draw(population_rng(seeds.session_seeds[i]), enrolled.stratum)
-            actor, n_clipped = model.actor(enrolled.stratum, model.draw_offsets(offsets_rng),
-                                           None if traits is None else spec.traits.params(traits))
-            clipped += n_clipped
-            try:
-                result = run_session(store, enrolled.code, study=study.name, virtual=True,
-                                     seed=seeds.session_seeds[i], participant=actor, factory=factory,
-                                     population=spec.traits, traits=traits, sim_rate_hz=spec.sim_rate_hz)
-            except SessionInterrupted:
-                # Ctrl-C inside a session: the engine made it resumable, but this study lives in memory and is
-                # dropped; the replicate simply did not finish (a rerun of the power command redoes it).
-                raise KeyboardInterrupt from None
-            completed += getattr(result, "status", "") == "completed"
-            peak = max(peak, _check_memory(spec.memory_limit, where))
-        table = compute_metrics(spec.plan, store, study)
-        if on_metrics is not None:
-            on_metrics(table)
-        trials = study_status(store, study).trials
-        frame = run_plan(spec.plan, table).to_frame()
-    finally:
-        store.close()
+    study = simulate_study(spec, participants, seeds, f"{spec.study_id}-power-n{participants}-r{replicate}", where)
+    if on_metrics is not None:
+        on_metrics(study.table)
+    frame = run_plan(spec.plan, study.table).to_frame()
+    trials, completed, clipped, peak = study.trials, study.completed, study.clipped, study.peak_rss_mb
     return ReplicateResult(
         participants=int(participants),
         replicate=int(replicate),

@@ -50,7 +50,29 @@ class ReplicateSeeds:
 
 def replicate_seeds(master_seed: int, participants: int, replicate: int) -> ReplicateSeeds:
     """Derive a replicate's seeds (see the module docs)."""
-    children = replicate_sequence(master_seed, participants, replicate).spawn(3)
+    return seeds_from(replicate_sequence(master_seed, participants, replicate), participants)
+
+
+#: First spawn-key element of the two-stage design's streams (pool chunks, stage-2 draws); sample sizes are
+#: positive, so these never collide with a replicate's (participants, replicate) key.
+POOL_KEY, DRAW_KEY = -1, -2
+
+
+def pool_seeds(master_seed: int, chunk_size: int, chunk: int) -> ReplicateSeeds:
+    """Seeds of pool chunk ``chunk`` (a simulated study of ``chunk_size`` people) of the two-stage design."""
+    seq = np.random.SeedSequence(check_master_seed(master_seed), spawn_key=(2**32 + POOL_KEY, chunk_size, chunk))
+    return seeds_from(seq, chunk_size)
+
+
+def draw_rng(master_seed: int, participants: int, replicate: int) -> np.random.Generator:
+    """The Generator that picks stage-2 replicate ``replicate``'s people from the pool at size ``participants``."""
+    key = (2**32 + DRAW_KEY, int(participants), int(replicate))
+    return np.random.default_rng(np.random.SeedSequence(check_master_seed(master_seed), spawn_key=key))
+
+
+def seeds_from(sequence: np.random.SeedSequence, participants: int) -> ReplicateSeeds:
+    """A study's seeds from its SeedSequence (children: study, sessions, population — in that order)."""
+    children = sequence.spawn(3)
     study_seed = int(children[_STUDY].generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
     sessions = tuple(int(s) for s in children[_SESSIONS].generate_state(int(participants), dtype=np.uint32))
     return ReplicateSeeds(study_seed, sessions, children[_POPULATION])

@@ -59,6 +59,7 @@ def power_curve_figure(
     max_lines: int = 16,
     target: pd.DataFrame | None = None,
     target_power: float | None = None,
+    note: str | None = None,
 ) -> Figure:
     """Power curves: one panel per test id, lines per metric/split, Wilson-interval error bars.
 
@@ -77,6 +78,8 @@ def power_curve_figure(
     target, target_power
         The smallest sizes reaching the target power (:class:`studyctl.power.target.TargetTable` frame): each
         drawn as a ringed star on its curve; the target is the dashed line (0.8 without one).
+    note
+        A further caption line (the two-stage design's measured error beside its power figures).
     """
     from matplotlib.figure import Figure
 
@@ -155,7 +158,7 @@ def power_curve_figure(
     if target is not None:
         detail.append(f"star: smallest size reaching power {goal:g}")
     fig.suptitle(caption[0], fontsize=11)
-    fig.supxlabel("; ".join(detail) + "\n" + population_text(population), fontsize=8)
+    fig.supxlabel("; ".join(detail) + ("\n" + note if note else "") + "\n" + population_text(population), fontsize=8)
     return fig
 
 

@@ -23,5 +23,9 @@ def power_json(run: Any) -> dict[str, Any]:
         "target": None if run.target is None else run.target.target,
         "smallest_sizes": None if run.target is None else run.target.to_records(),
         "power": _records(run.table.to_frame()),
+        "design": "exact" if run.pool is None else "two-stage",
+        "pool": run.pool,
+        "power_error": None if run.error is None else run.error.summary(),
+        "power_error_rows": None if run.error is None else _records(run.error.to_frame()),
         "files": {k: str(v) for k, v in run.files.items()},
     }

@@ -51,6 +51,9 @@ class PowerRun:
     replicates: pd.DataFrame = field(repr=False)
     #: Per test, the smallest size run reaching ``spec.target`` (None without a target).
     target: TargetTable | None = None
+    #: Two-stage runs: the design's measured error against full-engine replicates, and the pool used.
+    error: Any = None
+    pool: dict[str, Any] | None = None
 
     def to_frame(self) -> pd.DataFrame:
         """The power table (:data:`studyctl.power.summary.COLUMNS`)."""
@@ -166,6 +169,7 @@ def _write(
     backend: str,
     figure: bool,
     target: TargetTable | None = None,
+    note: str | None = None,
 ) -> dict[str, Path]:
     files = {
         "table": out / TABLE_FILE,
@@ -207,6 +211,7 @@ def _write(
             population=spec.population,
             target=None if target is None else target.to_frame(),
             target_power=spec.target,
+            note=note,
         )
         files["figure"] = out / FIGURE_FILE
         _atomic(files["figure"], lambda p: write_png(fig, p))

@@ -69,7 +69,8 @@ def test_serial_run_states_the_population(tmp_path, capsys, monkeypatch):
                                  "--effect", "linear:balloon_weber=0.05", "--between-sd", "aim_sd_mm=0.2"], capsys)
     assert code == 0, stderr
     assert "serial, in this process" in stdout and "control_algorithm" in stdout
-    assert "population: linear: balloon_weber +0.05; expert: aim_sd_mm -1; SD(aim_sd_mm) = 0.2" in stdout
+    assert ("effects (shifts on top of each person's traits): linear: balloon_weber +0.05; expert: aim_sd_mm -1; "
+            "SD(aim_sd_mm) = 0.2") in stdout
     stated = pd.read_csv(tmp_path / "out" / "power_population.csv").set_index("parameter")
     assert stated.loc["aim_sd_mm", "group:expert"] == -1.0 and stated.loc["aim_sd_mm", "between_sd"] == 0.2
     assert stated.loc["balloon_weber", "condition:linear"] == 0.05

@@ -1,0 +1,134 @@
+"""Stage 2 of the two-stage power design: replicate studies drawn from the stored pool, analysed by the plan.
+
+A replicate at size n takes the composition a full-engine replicate of that size has — people per stratum from
+:func:`studyctl.protocol.allocate_strata` and, per allocation slot, the counterbalancing sequence the protocol's
+planner gives it — and fills every (stratum, sequence) cell with people drawn without replacement from the pool's
+people of that cell (``draw_rng(seed, n, replicate)``). Their metric rows go through the same analysis plan as a
+full-engine replicate; nothing is re-simulated, so a replicate costs one run of the plan.
+
+:func:`compare` states the design's error: per test row, the difference between two-stage and full-engine power
+at the checked sizes, with the Monte-Carlo standard error of each (binomial, over its replicate count).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from studyctl.analysis import run_plan
+from studyctl.analysis.table import MetricTable
+from studyctl.errors import UsageError
+from studyctl.power.pool import Pool
+from studyctl.power.replicate import ReplicateResult, _rows
+from studyctl.power.seeds import draw_rng, replicate_seeds
+from studyctl.power.spec import PowerSpec
+from studyctl.protocol import Planner, allocate_strata, load_protocol_text
+
+
+def composition(protocol, seed: int, participants: int, replicate: int) -> dict[tuple[str, int | None], int]:  # noqa: ANN001
+    """People per (stratum, sequence index) in a full-engine replicate of this size (sequence None: random orders)."""
+    planner = Planner(protocol)
+    study_seed = replicate_seeds(seed, participants, replicate).study_seed
+    cells: dict[tuple[str, int | None], int] = {}
+    for stratum, slot in allocate_strata(protocol, participants):
+        key = (stratum, planner.sequence_index(study_seed, stratum, slot))
+        cells[key] = cells.get(key, 0) + 1
+    return cells
+
+
+def draw_members(pool: Pool, cells: dict[tuple[str, int | None], int], rng: np.random.Generator) -> list[str]:
+    """Member ids for every cell, without replacement within the pool (UsageError if a cell runs short)."""
+    members = pool.members
+    chosen: list[str] = []
+    for (stratum, seq), count in cells.items():
+        mask = members["stratum"] == stratum
+        if seq is not None:
+            mask &= members["sequence"] == seq
+        ids = members.loc[mask, "member"].to_numpy()
+        if ids.size < count:
+            raise UsageError(
+                f"the pool at {pool.path} has {ids.size} people of stratum {stratum!r}"
+                + ("" if seq is None else f", sequence {seq}") + f", a replicate needs {count}; use a larger --pool"
+            )
+        chosen.extend(ids[rng.choice(ids.size, size=count, replace=False)].tolist())
+    return chosen
+
+
+def draw_replicate(spec: PowerSpec, pool: Pool, participants: int, replicate: int,
+                   protocol=None, by_member=None) -> ReplicateResult:  # noqa: ANN001
+    """Stage-2 replicate ``replicate`` at size ``participants``: draw people from ``pool``, run the plan."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    protocol = protocol or load_protocol_text(spec.protocol_text, spec.protocol_name)
+    cells = composition(protocol, spec.seed, participants, replicate)
+    chosen = draw_members(pool, cells, draw_rng(spec.seed, participants, replicate))
+    groups = by_member if by_member is not None else dict(tuple(pool.metrics.groupby("participant", sort=False)))
+    frame = pd.concat([groups[m] for m in chosen if m in groups], ignore_index=True)
+    table = MetricTable(frame=frame, source="two-stage pool", study=spec.study_id)
+    result = run_plan(spec.plan, table).to_frame()
+    return ReplicateResult(
+        participants=int(participants), replicate=int(replicate), rows=_rows(result), sessions_completed=0,
+        trials_completed=0, trials_not_completed=0, clipped=0, seconds=time.perf_counter() - t0,
+        cpu_seconds=time.process_time() - c0, peak_rss_mb=math.nan, worker=f"{socket.gethostname()}:{os.getpid()}",
+    )
+
+
+@dataclass(frozen=True)
+class PowerError:
+    """Two-stage vs full-engine power at the checked sizes (``to_frame()``: one row per test row and size)."""
+
+    frame: pd.DataFrame
+    sizes: tuple[int, ...]
+    exact_replicates: int
+    two_stage_replicates: int
+
+    def to_frame(self) -> pd.DataFrame:
+        return self.frame.copy()
+
+    @property
+    def max_abs_pp(self) -> float:
+        return float(self.frame["diff_pp"].abs().max()) if not self.frame.empty else math.nan
+
+    def summary(self) -> dict:
+        f = self.frame
+        worst = f.loc[f["diff_pp"].abs().idxmax()] if not f.empty else None
+        return {
+            "power_error_pp": self.max_abs_pp,
+            "checked_sizes": list(self.sizes),
+            "exact_replicates": self.exact_replicates,
+            "two_stage_replicates": self.two_stage_replicates,
+            # The MC standard errors at the worst row, in percentage points: the difference is only meaningful
+            # against sqrt(se_exact² + se_two_stage²).
+            "worst": None if worst is None else {k: (v.item() if hasattr(v, "item") else v)
+                                                 for k, v in worst.items()},
+            "mc_se_exact_pp_max": float(f["mc_se_exact_pp"].max()) if not f.empty else math.nan,
+            "mc_se_two_stage_pp_max": float(f["mc_se_two_stage_pp"].max()) if not f.empty else math.nan,
+        }
+
+
+def compare(two_stage: pd.DataFrame, exact: pd.DataFrame, sizes: tuple[int, ...]) -> PowerError:
+    """Per non-post-hoc test row at ``sizes``: two-stage minus full-engine power in percentage points, with the
+    binomial Monte-Carlo standard error of each (sqrt(p(1-p)/R) × 100)."""
+    keys = ["participants", "test_id", "metric", "split", "kind"]
+    a = two_stage[(two_stage["kind"] != "posthoc") & two_stage["participants"].isin(sizes)]
+    b = exact[(exact["kind"] != "posthoc") & exact["participants"].isin(sizes)]
+    m = a.merge(b, on=keys, suffixes=("_two_stage", "_exact"))
+    out = pd.DataFrame({k: m[k] for k in keys})
+    for side in ("two_stage", "exact"):
+        p, r = m[f"power_{side}"].astype(float), m[f"replicates_{side}"].astype(float)
+        out[f"power_{side}"] = p
+        out[f"replicates_{side}"] = r.astype(int)
+        out[f"mc_se_{side}_pp"] = 100 * np.sqrt(p * (1 - p) / r.clip(lower=1))
+        # the Wilson interval too: at p = 0 or 1 the binomial SE is 0 however few replicates there were
+        out[f"ci_low_{side}"] = m[f"power_ci_low_{side}"].astype(float)
+        out[f"ci_high_{side}"] = m[f"power_ci_high_{side}"].astype(float)
+    out["diff_pp"] = 100 * (out["power_two_stage"] - out["power_exact"])
+    out["combined_se_pp"] = np.sqrt(out["mc_se_two_stage_pp"] ** 2 + out["mc_se_exact_pp"] ** 2)
+    reps_e = int(b["replicates"].max()) if not b.empty else 0
+    reps_t = int(a["replicates"].max()) if not a.empty else 0
+    return PowerError(out.reset_index(drop=True), tuple(sizes), reps_e, reps_t)
