@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "studyctl.cli.plugins",
     "studyctl.cli.protocol",
     "studyctl.cli.enroll",
+    "studyctl.cli.records",
     "studyctl.cli.study",
     "studyctl.cli.session",
     "studyctl.cli.db",

@@ -18,6 +18,8 @@ def register(app: typer.Typer) -> None:
     def enroll(
         group: str = typer.Option(None, "--group", "-g", help="Stratum to enroll into (e.g. novice, expert)."),
         code: str = typer.Option(None, "--code", help="Use this participant code instead of a random one."),
+        over_target: bool = typer.Option(False, "--over-target", help="Enroll even though the group's (or study's) "
+                                         "target size is reached."),
         as_json: bool = typer.Option(False, "--json", help="Print the enrollment and plan as one JSON object."),
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
@@ -25,7 +27,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Enroll the next participant: a new pseudonymous code, the next sequence slot and a stored plan."""
         with open_study(db, workspace_arg(workspace), study) as opened:
-            result = enroll_participant(opened.store, group, study=opened.study.name, code=code)
+            result = enroll_participant(opened.store, group, study=opened.study.name, code=code,
+                                        over_target=over_target)
         if as_json:
             typer.echo(json.dumps({"code": result.code, "stratum": result.stratum, "slot": result.slot,
                                    "schedule": result.schedule.to_json()}))

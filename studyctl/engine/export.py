@@ -8,6 +8,7 @@ Tables (one row per observation, stable keys, 1-based human ordinals, missing = 
   nested objects as JSON text);
 * ``responses`` – one row per questionnaire answer (the code, its anchor label, the instrument version);
 * ``reports`` – one row per location report (grid cell or position in mm);
+* ``records`` – the coordinator's consent, withdrawal and note records (from the audit log);
 * ``samples_<condition>`` – the high-rate samples of every trial of one condition stacked into one long table
   (the trials of a condition share their channels; skipped with ``samples=False``);
 * ``data_dictionary.json`` and ``datapackage.json`` – description, unit and type of every column of every file.
@@ -30,6 +31,7 @@ from studyctl import __version__
 from studyctl.engine.plan import SessionPlan
 from studyctl.errors import SessionError, UsageError
 from studyctl.store import StudyStore
+from studyctl.store.coordination import RECORD_COLUMNS, coordination_records
 from studyctl.store.models import Event, LocationReport, Participant, QuestionnaireResponse, Session, Trial
 
 UNIT_SUFFIXES = {
@@ -309,6 +311,7 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
                                    .order_by(QuestionnaireResponse.id)))
         reports = list(s.scalars(select(LocationReport).where(LocationReport.trial_id.in_([t.id for t in trials]))
                                  .order_by(LocationReport.id)))
+        records = coordination_records(s, target)
     plans: dict[int, SessionPlan] = {}
     for ev in events:
         if ev.kind in ("session_plan", "plan_amended") and ev.payload and "plan" in ev.payload:
@@ -358,6 +361,7 @@ def export_study(store: StudyStore, directory: str | Path, *, study: str | None 
         "events": ({**EVENT_BASE_COLUMNS, **event_cols}, _typed({**EVENT_BASE_COLUMNS, **event_cols}, event_rows)),
         "responses": (RESPONSE_COLUMNS, _typed(RESPONSE_COLUMNS, resp_rows)),
         "reports": (REPORT_COLUMNS, _typed(REPORT_COLUMNS, report_rows)),
+        "records": (RECORD_COLUMNS, _typed(RECORD_COLUMNS, records)),
     }
     if samples:
         tables.update(_sample_tables(store, trials, people))

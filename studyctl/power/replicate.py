@@ -168,7 +168,8 @@ def simulate_study(spec: PowerSpec, participants: int, seeds: Any, name: str, wh
         study = store.create_study(name, protocol_text=spec.protocol_text, protocol_name=spec.protocol_name,
                                    seed=seeds.study_seed)
         for i, (stratum, _slot) in enumerate(pairs):
-            enrolled = enroll(store, stratum if several else None, study=study.name, code=participant_code(prefix, i))
+            enrolled = enroll(store, stratum if several else None, study=study.name, code=participant_code(prefix, i),
+                              over_target=True)
             members.append((enrolled.code, enrolled.stratum, enrolled.sequence))
             traits = None
             if spec.traits is not None:  # this person's traits, then the knobs' shifts on top

@@ -57,6 +57,8 @@ class StudyMeta(StrictModel):
     reference: str | None = None
     ethics: str | None = None
     seed: int | None = Field(None, ge=0, lt=2**63)
+    # the consent form's version; `studyctl consent CODE --version V` must name it when it is declared
+    consent_version: str | None = Field(None, min_length=1, max_length=40)
 
 
 class PluginRef(StrictModel):

@@ -112,7 +112,8 @@ def new_code(prefix: str, existing: set[str], token: Callable[[str], str] = secr
     raise IntegrityError(f"could not draw an unused participant code after {_CODE_TRIES} tries")
 
 
-def enroll(store: Any, group: str | None = None, *, study: str | None = None, code: str | None = None) -> Enrollment:
+def enroll(store: Any, group: str | None = None, *, study: str | None = None, code: str | None = None,
+           over_target: bool = False) -> Enrollment:
     """Enroll the next participant of a study and store their plan.
 
     Parameters
@@ -125,6 +126,9 @@ def enroll(store: Any, group: str | None = None, *, study: str | None = None, co
         Study name; default the only study in the database.
     code
         A code to use instead of a random one (must be unused in the study).
+    over_target
+        Enroll even when the stratum's (or study's) target size is reached by participants who have not
+        withdrawn; without it that is a :class:`UsageError`.
 
     Returns
     -------
@@ -145,6 +149,8 @@ def enroll(store: Any, group: str | None = None, *, study: str | None = None, co
             .where(Participant.study_id == target.id)
         ).all()
         existing = {r.code for r in rows}
+        if not over_target:
+            _check_target(protocol, stratum, rows)
         domain = [(r.sequence_slot, r.status) for r in rows if not within or r.stratum == stratum]
         slot = next_slot(domain, protocol.participants.replace_withdrawn)
         if code is not None and code in existing:
@@ -163,6 +169,20 @@ def enroll(store: Any, group: str | None = None, *, study: str | None = None, co
         )
         participant_id = participant.id
     return Enrollment(participant_id=participant_id, code=chosen, stratum=stratum, slot=slot, schedule=schedule)
+
+
+def _check_target(protocol: Protocol, stratum: str, rows: list) -> None:
+    """Refuse an enrollment past the stratum's or the study's target size (withdrawn people do not count)."""
+    active = [r for r in rows if r.status != "withdrawn"]
+    target = next((s.target_n for s in protocol.participants.strata if s.id == stratum), None)
+    in_stratum = sum(1 for r in active if r.stratum == stratum)
+    if target is not None and in_stratum >= target:
+        raise UsageError(f"group {stratum} has reached its target of {target} participants ({in_stratum} enrolled, "
+                         "not withdrawn); add --over-target to enroll one more on purpose")
+    total = protocol.participants.target_n
+    if total is not None and len(active) >= total:
+        raise UsageError(f"the study has reached its target of {total} participants ({len(active)} enrolled, not "
+                         "withdrawn); add --over-target to enroll one more on purpose")
 
 
 def replan(protocol: Protocol, participant: Any) -> Schedule:

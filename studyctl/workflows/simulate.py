@@ -116,7 +116,8 @@ def create_cohort(
         # the study seed and the code, so the same seed reproduces the same sessions and the same data.
         prefix = proto.participants.code_prefix
         codes = tuple(
-            enroll(opened.store, stratum if several else None, study=opened.study.name, code=f"{prefix}-V{i:03d}").code
+            enroll(opened.store, stratum if several else None, study=opened.study.name, code=f"{prefix}-V{i:03d}",
+                   over_target=True).code
             for i, (stratum, _) in enumerate(allocate_strata(proto, participants), start=1)
         )
         name = opened.study.name

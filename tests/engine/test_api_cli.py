@@ -71,7 +71,7 @@ def test_scripted_person_run_via_cli_then_export_and_status(ws, tmp_path, capsys
             export_study(o.store, tmp_path / "export")
     files = {p.name for p in (tmp_path / "export").iterdir()}
     assert files == {"trials.csv", "events.csv", "responses.csv", "reports.csv", "samples_linear.csv",
-                     "samples_none.csv", "datapackage.json", "data_dictionary.json"}
+                     "samples_none.csv", "records.csv", "datapackage.json", "data_dictionary.json"}
     dictionary = json.loads((tmp_path / "export" / "data_dictionary.json").read_text())
     import pandas as pd
 
