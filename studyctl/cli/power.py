@@ -53,7 +53,7 @@ def register(app: typer.Typer) -> None:
         scheduler: str = typer.Option(None, "--scheduler",
                                       help="Address of an existing Dask scheduler (tcp://HOST:8786). "
                                            "Default: a local cluster of worker processes."),
-        workers: int = typer.Option(None, "--workers", "-w",
+        workers: int = typer.Option(None, "--workers",
                                     help="Local cluster: worker processes (default one per core; 0 = serial in this "
                                          "process). With --scheduler: workers to wait for (default 1)."),
         memory_limit: str = typer.Option("4GiB", "--memory-limit",

@@ -18,7 +18,7 @@ def register(app: typer.Typer) -> None:
     def init(
         folder: Path = typer.Argument(..., help="Workspace folder to create (may exist if it holds no study)."),
         protocol: str = typer.Option(
-            None, "--protocol", "-p", help="Shipped protocol name or protocol file; validated and snapshotted."
+            None, "--protocol", help="Shipped protocol name or protocol file; validated and snapshotted."
         ),
         name: str = typer.Option(None, "--name", help="Study name (default: the protocol's study id or folder name)."),
         seed: int = typer.Option(None, "--seed", help="Master seed (default: the protocol's, else random)."),
