@@ -31,7 +31,7 @@ from sqlalchemy.orm import Session as OrmSession
 
 from studyctl.errors import SessionError
 from studyctl.store.audit import append_audit
-from studyctl.store.db import Database, advisory_key
+from studyctl.store.db import Database, advisory_key, is_sqlite, sqlite_path
 from studyctl.store.models import SessionLease, utcnow
 
 HEARTBEAT_S = 5.0
@@ -133,6 +133,11 @@ class SessionLeaseHandle:
         self._thread: threading.Thread | None = None
 
     def start_heartbeat(self, interval_s: float = HEARTBEAT_S) -> None:
+        # An in-memory SQLite database lives in this process alone (no other writer can exist), and a
+        # heartbeat thread would get a connection of its own - another, empty database - so none is started
+        # (simulated studies of a power analysis run in such databases, on Dask worker threads too).
+        if is_sqlite(self.db.url) and sqlite_path(self.db.url) is None:
+            return
         if self._thread is None:
             self._thread = threading.Thread(target=self._beat, args=(interval_s,), name="studyctl-lease",
                                             daemon=True)
