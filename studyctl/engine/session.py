@@ -42,7 +42,7 @@ from studyctl.engine.seeding import TrialStreams, person_rng, trial_streams
 from studyctl.engine.servo import ServoSpec, run_trial_in_servo_process
 from studyctl.engine.trial_loop import TrialOutcome, run_trial
 from studyctl.engine.ui import Control, ManualOutcome, SessionUI
-from studyctl.errors import DeviceError, InvalidAnswer, SessionError, SessionInterrupted, StudyctlError
+from studyctl.errors import DeviceError, InvalidAnswer, SessionError, SessionInterrupted, StudyctlError, UsageError
 from studyctl.plugins.interfaces import Participant, TrialInfo
 
 # A trial without a time limit (completion time is the measure) still needs an end when nobody can stop it:
@@ -192,6 +192,13 @@ class SessionRunner:
                 if self.progress is not None:
                     state = self.rec.state()
                     self.progress(len(state.completed), len(state.plan.steps), step)
+        except (UsageError, InvalidAnswer) as exc:
+            # A scripted answer (or other input) the session cannot use: what was done is saved; leave the
+            # session resumable rather than "running" with nobody at it, and say how to continue.
+            self.rec.set_status("interrupted", f"stopped by bad input: {exc}")
+            sid = self.rec.state().session_id
+            raise type(exc)(f"{exc}; session {sid} is saved and interrupted: fix that and continue with "
+                            f"`studyctl resume {sid}` (with --input FILE for scripted answers)") from None
         except KeyboardInterrupt:
             self.rec.set_status("interrupted", "stopped by Ctrl-C")
             sid = self.rec.state().session_id
