@@ -26,3 +26,49 @@ def test_each_short_flag_has_one_meaning():
     clashes = {s: sorted(m) for s, m in meanings.items() if len(m) > 1}
     assert clashes == {}, {s: (m, where[s]) for s, m in clashes.items()}
     assert meanings["-w"] == {"--workspace"}
+
+
+# Commands that print results but have no --json yet (issue 21, left for later); the list may only shrink.
+NO_JSON_YET = {"calibrate", "report", "simulate", "protocol check", "protocol show", "protocol schedule",
+               "db upgrade", "db current", "db check", "audit verify"}
+
+
+def _commands(group, path=()):
+    subs = getattr(group, "commands", None)
+    if subs:
+        for name, cmd in subs.items():
+            yield from _commands(cmd, (*path, name))
+    else:
+        yield " ".join(path), group
+
+
+def test_every_command_has_json_but_the_listed_ones():
+    commands = dict(_commands(typer.main.get_command(app)))
+    missing = {name for name, cmd in commands.items() if not any("--json" in p.opts for p in cmd.params)}
+    assert missing == NO_JSON_YET, missing ^ NO_JSON_YET
+    assert {"run", "resume", "export", "init", "withdraw", "consent", "note", "status", "enroll"} <= \
+        set(commands) - missing
+
+
+def test_json_output_is_one_parseable_object(tmp_path, capsys):
+    import json
+    from pathlib import Path
+
+    import yaml
+
+    from studyctl.cli.app import main
+
+    protocol = Path(__file__).parent / "engine" / "data" / "pty_protocol.yaml"
+    ws = tmp_path / "ws"
+    assert main(["init", str(ws), "--protocol", str(protocol), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["study"] == "engine_pty_test"
+    assert main(["enroll", "--code", "PTY-AAAAA", "-w", str(ws)]) == 0
+    capsys.readouterr()
+    answers = tmp_path / "a.yaml"
+    answers.write_text(yaml.safe_dump({"default_likert": 3, "trials": {1: [{"t": 1.0, "request": "finish"}],
+                                                                      2: [{"t": 1.0, "request": "finish"}]}}))
+    assert main(["run", "-p", "PTY-AAAAA", "--input", str(answers), "--json", "-w", str(ws)]) == 0
+    run = json.loads(capsys.readouterr().out)
+    assert run["status"] == "completed" and run["trials_completed"] == 2 and ":" in run["audit_head"]
+    assert main(["export", str(tmp_path / "out"), "--json", "--no-samples", "-w", str(ws)]) == 0
+    assert json.loads(capsys.readouterr().out)["rows"]["trials.csv"] == 2

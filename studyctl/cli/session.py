@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -52,7 +54,14 @@ class _Bar:
             self.progress.__exit__(*exc)
 
 
-def _summary(result, opened: OpenStudy) -> None:
+JSON_OPTION = typer.Option(False, "--json", help="Print the result as one JSON object (messages go to stderr).")
+
+
+def _summary(result, opened: OpenStudy, as_json: bool = False) -> None:
+    if as_json:
+        head = audit_head(opened.store.db)
+        typer.echo(json.dumps({**dataclasses.asdict(result), "audit_head": head.text()}, default=str))
+        return
     typer.echo(f"Session {result.session_id} ({result.participant}): {result.status}; "
                f"{result.trials_completed} trials completed, {result.trials_aborted} aborted, "
                f"{result.trials_invalid} invalid, {result.answers} answers, {result.resumes} resume(s)")
@@ -63,10 +72,12 @@ def _summary(result, opened: OpenStudy) -> None:
 
 @contextmanager
 def _live(db: str | None, workspace: Path | None, study: str | None, view: bool, view_port: int,
-          bar_when: Callable[[OpenStudy], bool]) -> Iterator[tuple[OpenStudy, dict[str, Any]]]:
-    """The open study and the keyword arguments run/resume share: progress bar, log to stderr, view front end."""
+          bar_when: Callable[[OpenStudy], bool], quiet: bool = False) -> Iterator[tuple[OpenStudy, dict[str, Any]]]:
+    """The open study and the keyword arguments run/resume share: progress bar, log to stderr, view front end
+    (its address on stderr when ``quiet``: stdout then holds only the JSON result)."""
+    announce = (lambda m: typer.echo(m, err=True)) if quiet else typer.echo
     with open_study(db, workspace_arg(workspace), study) as opened, \
-            open_view(view, port=view_port, announce=typer.echo) as pv, _Bar(bar_when(opened)) as bar:
+            open_view(view, port=view_port, announce=announce) as pv, _Bar(bar_when(opened)) as bar:
         yield opened, {"progress": bar, "log": lambda m: typer.echo(m, err=True),
                        "frontend": pv.attach if pv else None}
 
@@ -98,16 +109,17 @@ def register(app: typer.Typer) -> None:
         view: bool = VIEW_OPTION,
         view_port: int = VIEW_PORT_OPTION,
         lsl: bool = LSL_OPTION,
+        as_json: bool = JSON_OPTION,
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
         """Run a participant's session: instructions, practice, trials, breaks and questionnaires."""
         unattended = virtual or input_file is not None
-        with _live(db, workspace, study, view, view_port, lambda _: unattended) as (opened, hooks):
+        with _live(db, workspace, study, view, view_port, lambda _: unattended, as_json) as (opened, hooks):
             result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
                                  script=input_file, speed=speed, rehearse=rehearse, lsl=lsl, **hooks)
-            _summary(result, opened)
+            _summary(result, opened, as_json)
 
     @app.command("resume")
     def resume(
@@ -123,16 +135,17 @@ def register(app: typer.Typer) -> None:
         view: bool = VIEW_OPTION,
         view_port: int = VIEW_PORT_OPTION,
         lsl: bool = LSL_OPTION,
+        as_json: bool = JSON_OPTION,
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
         """Continue an interrupted session from its stored plan (crash, kill, Ctrl-C or device fault)."""
         bar_when = lambda opened: input_file is not None or session_is_virtual(opened.store, session)  # noqa: E731
-        with _live(db, workspace, study, view, view_port, bar_when) as (opened, hooks):
+        with _live(db, workspace, study, view, view_port, bar_when, as_json) as (opened, hooks):
             result = resume_session(opened.store, session, script=input_file, speed=speed, take_over=take_over,
                                     lsl=lsl, **hooks)
-            _summary(result, opened)
+            _summary(result, opened, as_json)
 
     @app.command("export")
     def export(
@@ -142,6 +155,7 @@ def register(app: typer.Typer) -> None:
         samples: bool = typer.Option(True, "--samples/--no-samples", help="Also write samples.csv (large)."),
         process_info: bool = typer.Option(False, "--process-info", help="Keep host names and process ids (where "
                                           "each session ran) in events.csv; left out by default."),
+        as_json: bool = JSON_OPTION,
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
@@ -151,6 +165,10 @@ def register(app: typer.Typer) -> None:
         with open_study(db, workspace_arg(workspace), study) as opened:
             result = export_study(opened.store, folder, study=opened.study.name, samples=samples,
                                   process_info=process_info, format=fmt)
+        if as_json:
+            typer.echo(json.dumps({"folder": str(folder), "format": fmt, "rows": result.rows,
+                                   "metadata": ["data_dictionary.json", "datapackage.json"]}))
+            return
         for name, n in sorted(result.rows.items()):
             typer.echo(f"{folder / name}: {n} rows")
         typer.echo(f"{folder / 'data_dictionary.json'}: every column with its unit")

@@ -25,9 +25,15 @@ def register(app: typer.Typer) -> None:
         db: str = typer.Option(
             None, "--db", help="PostgreSQL URL to hold the study instead of a new study.db in the folder."
         ),
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
     ) -> None:
         """Create a study workspace: studyctl.toml plus its database at the newest schema."""
         result = init_workspace(folder, protocol=protocol, name=name, db=db, seed=seed)
+        if as_json:
+            typer.echo(json.dumps({"study": result.study, "root": str(result.root), "database": str(result.database),
+                                   "protocol": result.protocol_name, "protocol_sha256": result.protocol_sha256,
+                                   "seed": result.seed}))
+            return
         typer.echo(f"Created study {result.study!r} in {result.root}")
         typer.echo(f"  database: {result.database}")
         if result.protocol_name:
