@@ -25,6 +25,7 @@ def register(app: typer.Typer) -> None:
         workspace: Path = WORKSPACE_OPTION,
         head: str = typer.Option(None, "--head", help="A head noted earlier (ROWS:SHA256, as printed by run/resume): "
                                  "also check that the log still holds it."),
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON object when the log is intact."),
     ) -> None:
         """Recompute the hash chain and every sealed record (trials, outcomes, events, answers, location reports,
         sample chunks); name every edited, deleted or inserted one and a truncated tail; exit non-zero if any."""
@@ -37,6 +38,10 @@ def register(app: typer.Typer) -> None:
         if report.ok:
             checked = report.records.summary()
             rows = report.audit.rows
+            if as_json:
+                typer.echo(json.dumps({"ok": True, "rows": rows, "head": f"{rows}:{report.audit.head_hash}",
+                                       "records": checked}))
+                return
             typer.echo(f"Audit log intact: {rows} rows, head {rows}:{report.audit.head_hash}; "
                        f"records sealed and unchanged: {checked}")
             return

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
@@ -11,27 +12,35 @@ from studyctl.store.db import Database, require_head
 from studyctl.store.maintenance import check_database, upgrade_database
 from studyctl.store.workspace import resolve_database
 
+JSON_OPTION = typer.Option(False, "--json", help="Print one JSON object instead of text.")
+
 
 def register(app: typer.Typer) -> None:
     db_app = typer.Typer(help="Inspect, upgrade and check the study database.", no_args_is_help=True)
 
     @db_app.command("upgrade")
-    def upgrade(db: str = DB_OPTION, workspace: Path = WORKSPACE_OPTION) -> None:
+    def upgrade(db: str = DB_OPTION, workspace: Path = WORKSPACE_OPTION, as_json: bool = JSON_OPTION) -> None:
         """Migrate the database to this studyctl's newest schema revision (back it up first)."""
         url, _ = resolve_database(db, workspace_arg(workspace))
         before, after = upgrade_database(url)
-        if before == after.current:
+        if as_json:
+            typer.echo(json.dumps({"from": before, "to": after.current, "changed": before != after.current}))
+        elif before == after.current:
             typer.echo(f"Already at the newest schema revision {after.current}.")
         else:
             typer.echo(f"Upgraded the schema from {before or 'empty'} to {after.current}.")
 
     @db_app.command("current")
-    def current(db: str = DB_OPTION, workspace: Path = WORKSPACE_OPTION) -> None:
+    def current(db: str = DB_OPTION, workspace: Path = WORKSPACE_OPTION, as_json: bool = JSON_OPTION) -> None:
         """Print the database's schema revision; exit non-zero unless it is this studyctl's newest."""
         url, _ = resolve_database(db, workspace_arg(workspace))
         with Database.open(url, check_schema=False) as database:
             state = database.schema_state()
-            typer.echo(f"{database.describe()}: revision {state.current or 'none'} (studyctl head {state.head})")
+            if as_json:
+                typer.echo(json.dumps({"database": database.describe(), "revision": state.current,
+                                       "head": state.head}))
+            else:
+                typer.echo(f"{database.describe()}: revision {state.current or 'none'} (studyctl head {state.head})")
             require_head(state, database.describe())
 
     @db_app.command("check")
