@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from enum import StrEnum
+from pathlib import Path
 
 import typer
 
@@ -33,10 +34,20 @@ def register(app: typer.Typer) -> None:
     app.add_typer(group, name="protocol")
 
     @group.command("check")
-    def check(file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol.")) -> None:
+    def check(
+        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol."),
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
+    ) -> None:
         """Validate a protocol: exit 0 if valid, else list every problem (file:line:column, key path)."""
         protocol = _load(file)
-        typer.echo(f"OK: {protocol.path} is a valid protocol ({protocol.study.id}: {len(protocol.conditions)} "
+        # a shipped protocol by its name, not the site-packages path it was installed to
+        shown = protocol.path if Path(file).exists() else f"{file} (shipped)"
+        if as_json:
+            typer.echo(json.dumps({"ok": True, "protocol": shown, "study": protocol.study.id,
+                                   "conditions": list(protocol.condition_ids), "strata": list(protocol.stratum_ids),
+                                   "scheme": protocol.counterbalance.scheme, "sha256": protocol.sha256}))
+            return
+        typer.echo(f"OK: {shown} is a valid protocol ({protocol.study.id}: {len(protocol.conditions)} "
                    f"conditions, {len(protocol.participants.strata)} strata, scheme {protocol.counterbalance.scheme};"
                    f" sha256 {protocol.sha256[:12]})")
 
