@@ -100,3 +100,25 @@ def test_cli_on_the_default_local_cluster(mini_spec, serial_run, tmp_path, capsy
     reps = pd.read_csv(tmp_path / "power_replicates.csv")
     assert not any(str(w).endswith(f":{os.getpid()}") for w in reps["worker"])
     assert replace(mini_spec, sizes=(2,)).tasks() == [(2, 0), (2, 1)]
+
+
+def test_pool_chunks_on_a_scheduler_equal_the_serial_pool(scheduler_address, tmp_path):
+    """Stage 1 on Dask: the pool's people and metric rows are those of a serial build."""
+    from power_testdata import PLAN, PROTOCOL, SEED
+
+    from studyctl.power import prepare_power
+    from studyctl.power.executor import open_backend
+    from studyctl.power.pool import build_pool
+
+    spec = prepare_power(PROTOCOL, PLAN, sizes="12", replicates=1, seed=SEED)
+    serial = build_pool(spec, tmp_path / "serial", 24)
+    backend = open_backend(scheduler_address, 1, None)
+    try:
+        remote = build_pool(spec, tmp_path / "dask", 24, backend)
+    finally:
+        backend.close()
+    assert remote.size == serial.size == 24 and remote.built_now == 2
+    pd.testing.assert_frame_equal(remote.members, serial.members)
+    key = ["participant", "condition", "trial", "metric", "level"]
+    pd.testing.assert_frame_equal(remote.metrics.sort_values(key).reset_index(drop=True),
+                                  serial.metrics.sort_values(key).reset_index(drop=True))
