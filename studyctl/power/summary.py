@@ -125,6 +125,11 @@ def _keyed(rows: pd.DataFrame) -> pd.DataFrame:
     out["shown_kind"], out["shown_levels"] = out["kind"], out["groups"]
     out.loc[single, "groups"] = ""
     out.loc[single, "kind"] = ""
+    # A factorial test (ART ANOVA, mixed model) gives several omnibus rows per replicate, one per term (group,
+    # condition, group × condition) named in ``groups``: those stay separate tests.
+    terms = out.duplicated(subset=["participants", "replicate", *KEY], keep=False) & single
+    out.loc[terms, "groups"] = out.loc[terms, "shown_levels"]
+    out.loc[terms, "kind"] = out.loc[terms, "shown_kind"]
     return out
 
 

@@ -104,3 +104,18 @@ def test_figure_marks_the_smallest_size():
     assert len(stars) == 1 and round(float(stars[0].get_xdata()[0])) == 12
     plain = power_curve_figure(t, alpha=0.05)
     assert not [ln for ln in plain.axes[0].lines if ln.get_marker() == "*"]
+
+
+def test_factorial_terms_are_separate_tests():
+    """An ART/LMM test gives one omnibus row per term in each replicate; each term's power stays within [0, 1]."""
+    from studyctl.power.replicate import ROW_COLUMNS
+    from studyctl.power.summary import summarise
+
+    rows = []
+    for r in range(3):
+        for term, sig in (("group", r == 0), ("condition", True), ("group × condition", False)):
+            rows.append((4, r, "art", "paper", "omnibus", "art_anova", "accuracy", "", term, "", 0.01, None, sig,
+                         "", 0.1, "ok"))
+    table = summarise(pd.DataFrame(rows, columns=list(ROW_COLUMNS)), (4,), 3).frame
+    got = dict(zip(table["groups"], table["power"], strict=True))
+    assert got == {"group": pytest.approx(1 / 3), "condition": 1.0, "group × condition": 0.0}
