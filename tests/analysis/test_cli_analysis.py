@@ -19,7 +19,7 @@ def run(capsys, *args: str) -> tuple[int, str, str]:
 
 def test_analyze_check_only(capsys):
     code, out, _ = run(capsys, "analyze", "needle_insertion", "--check")
-    assert code == 0 and out.strip().endswith("OK (6 metrics, 9 tests, 4 figures)")
+    assert code == 0 and out.strip().endswith("OK (6 metrics, 10 tests, 4 figures)")
 
 
 def test_analyze_csv_plan_prints_tests(capsys):
