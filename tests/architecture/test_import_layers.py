@@ -51,7 +51,9 @@ def _module_name(path: Path) -> str:
 
 
 def _modules() -> dict[str, Path]:
-    return {_module_name(p): p for p in sorted(ROOT.rglob("*.py"))}
+    # studyctl/_resources exists only in a built wheel (CI installs one): setup.py maps the top-level migrations/,
+    # protocols/ and analysis/ folders there. Alembic's scripts are the store's data, not a layer of the package.
+    return {_module_name(p): p for p in sorted(ROOT.rglob("*.py")) if "_resources" not in p.relative_to(ROOT).parts}
 
 
 def _package(module: str) -> str:
