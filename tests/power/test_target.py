@@ -6,7 +6,7 @@ import json
 
 import pandas as pd
 import pytest
-from power_testdata import PLAN, PROTOCOL, SEED
+from power_testdata import PLAN, PROTOCOL, SEED, run_power_cli
 
 from studyctl.errors import UsageError
 from studyctl.power import prepare_power
@@ -65,11 +65,10 @@ def test_smallest_size_is_the_first_reaching_the_target():
 
 @pytest.mark.slow
 def test_cli_target_json_and_figure(tmp_path, capsys):
-    from test_cli import _run
-
     out = tmp_path / "out"
-    code, stdout, stderr = _run([PROTOCOL, "--plan", PLAN, "--participants", "4", "--replicates", "2", "--seed", SEED,
-                                 "--workers", "0", "--out", out, "--target", "0.5", "--json"], capsys)
+    code, stdout, stderr = run_power_cli([PROTOCOL, "--plan", PLAN, "--participants", "4", "--replicates", "2",
+                                          "--seed", SEED, "--workers", "0", "--out", out, "--target", "0.5",
+                                          "--json"], capsys)
     assert code == 0, stderr
     doc = json.loads(stdout)
     assert doc["target"] == 0.5 and doc["sizes"] == [4]
@@ -84,9 +83,7 @@ def test_cli_target_json_and_figure(tmp_path, capsys):
 
 
 def test_cli_target_out_of_range_is_one_error_line(tmp_path, capsys):
-    from test_cli import _run
-
-    code, _, stderr = _run([PROTOCOL, "--plan", PLAN, "--participants", "4", "--replicates", "1",
+    code, _, stderr = run_power_cli([PROTOCOL, "--plan", PLAN, "--participants", "4", "--replicates", "1",
                             "--out", tmp_path / "o", "--target", "1.2"], capsys)
     lines = [x for x in stderr.splitlines() if x.strip()]
     assert code != 0 and len(lines) == 1 and lines[0].startswith("Error: ") and "--target 1.2" in stderr

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from power_testdata import PLAN, PROTOCOL, SEED
+from power_testdata import PLAN, PROTOCOL, SEED, run_power_cli
 
 from studyctl.analysis import run_plan
 from studyctl.analysis.table import MetricTable
@@ -98,11 +98,10 @@ def test_compare_states_difference_and_mc_error():
 
 @pytest.mark.slow
 def test_cli_two_stage_json(tmp_path, capsys):
-    from test_cli import _run
-
-    code, stdout, stderr = _run([PROTOCOL, "--plan", PLAN, "--participants", "4", "--replicates", "10", "--seed", SEED,
-                                 "--workers", "0", "--out", tmp_path / "out", "--two-stage", "--pool-dir",
-                                 tmp_path / "pools", "--check-replicates", "2", "--json"], capsys)
+    code, stdout, stderr = run_power_cli([PROTOCOL, "--plan", PLAN, "--participants", "4", "--replicates", "10",
+                                          "--seed", SEED, "--workers", "0", "--out", tmp_path / "out", "--two-stage",
+                                          "--pool-dir", tmp_path / "pools", "--check-replicates", "2", "--json"],
+                                         capsys)
     assert code == 0, stderr
     doc = json.loads(stdout)
     assert doc["design"] == "two-stage" and doc["pool"]["people"] >= 80
