@@ -33,6 +33,11 @@ class Term:
     def __init__(self, args: list[str], cwd: Path, env: dict[str, str]) -> None:
         pid, fd = pty.fork()
         if pid == 0:  # child: the pty is its controlling terminal (so Ctrl-C is a real SIGINT)
+            # A shell starts studyctl with SIGINT at its default and unblocked; a fork of the test process inherits
+            # whatever earlier in-process work left (an ignored disposition and a blocked mask survive exec). In
+            # full-suite runs the Ctrl-C was never delivered while this test alone passed, so start like a shell.
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+            signal.signal(signal.SIGINT, signal.SIG_DFL)
             os.chdir(cwd)
             os.execvpe(args[0], args, env)
         self.pid, self.fd = pid, fd
