@@ -275,6 +275,9 @@ def _ppf_cached(p: float, k: int, df: float) -> float:
     def f(q: float) -> float:
         return float(_log_sf(np.array([q]), k, df)[0]) - target
 
+    def polish(lo: float, hi: float) -> float:
+        return float(optimize.brentq(f, lo, hi, xtol=1e-13, rtol=4e-15))
+
     # Each scalar evaluation costs a Newton solve and two quadratures, and a report's first Tukey call
     # used to spend most of its time here; so the bracket comes from vectorised calls (a coarse grid,
     # then two narrow pairs around the secant guess) and brentq only polishes the last digits.
@@ -286,10 +289,10 @@ def _ppf_cached(p: float, k: int, df: float) -> float:
             lo, hi = hi, hi * 2.0
             if hi > 1e6:
                 raise StatsInputError(f"studentized range quantile not found for p={p}, k={k}, df={df}")
-        return float(optimize.brentq(f, lo, hi, xtol=1e-13, rtol=4e-15))
+        return polish(lo, hi)
     j = int(below[0])
     if j == 0:
-        return float(optimize.brentq(f, 0.0, float(_PPF_GRID[0]), xtol=1e-13, rtol=4e-15))
+        return polish(0.0, float(_PPF_GRID[0]))
     lo, hi, f_lo, f_hi = float(_PPF_GRID[j - 1]), float(_PPF_GRID[j]), float(vals[j - 1]), float(vals[j])
     if f_lo > f_hi:  # narrow to ±0.02 around the secant guess
         guess = lo + (hi - lo) * f_lo / (f_lo - f_hi)
@@ -301,14 +304,16 @@ def _ppf_cached(p: float, k: int, df: float) -> float:
             hi = float(pair[1])
     # On a bracket this narrow, log P(Q > q) is smooth enough that inverse interpolation through 7 nodes is
     # exact to rounding; the nodes must still bracket the root monotonically, else brentq decides.
-    # (When the secant guess missed by more than 0.02 the bracket is still wide: brentq from there.)
-    nodes = np.linspace(lo, hi, 7)
-    f_nodes = _log_sf(nodes, k, df) - target
-    if hi - lo <= 0.05 and np.all(np.diff(f_nodes) < 0) and f_nodes[0] > 0 >= f_nodes[-1]:
-        root = _neville_at_zero(f_nodes, nodes)
-        if lo <= root <= hi:
-            return root
-    return float(optimize.brentq(f, lo, hi, xtol=1e-13, rtol=4e-15))
+    # (When the secant guess missed by more than 0.02 the bracket is still wide: brentq from there, without
+    # evaluating the 7 nodes first.)
+    if hi - lo <= 0.05:
+        nodes = np.linspace(lo, hi, 7)
+        f_nodes = _log_sf(nodes, k, df) - target
+        if np.all(np.diff(f_nodes) < 0) and f_nodes[0] > 0 >= f_nodes[-1]:
+            root = _neville_at_zero(f_nodes, nodes)
+            if lo <= root <= hi:
+                return root
+    return polish(lo, hi)
 
 
 def _neville_at_zero(f: np.ndarray, q: np.ndarray) -> float:
