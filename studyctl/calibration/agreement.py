@@ -147,6 +147,13 @@ def distance(targets: Sequence[Target], sim: SimulatedStats, alpha: float,
     return total, zs
 
 
+def _where(t: Target) -> str:
+    parts = [f"{k}={w}" for k, w in t.where.items()]
+    if t.pair:
+        parts.append(f"pair={t.pair[0]} vs {t.pair[1]}")
+    return ", ".join(parts)
+
+
 def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> Agreement:
     """Each target against its simulated value (see the module docs for the criteria)."""
     pub = {t.id: t for t in targets}
@@ -181,7 +188,7 @@ def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> A
         agrees = all(checks) if checks else None
         z = z_score(t, s, v.se, alpha)
         rows.append(AgreementRow(
-            target=t.id, role=t.role, metric=t.metric, where=", ".join(f"{k}={w}" for k, w in t.where.items()),
+            target=t.id, role=t.role, metric=t.metric, where=_where(t),
             statistic=t.statistic, published=t.value, published_low=lo, published_high=hi, band=t.band(),
             simulated=s, simulated_low=v.low, simulated_high=v.high, same_direction=direction, within=within,
             sd_ratio=ratio, same_verdict=verdict, agrees=agrees, z=z, note=v.note,

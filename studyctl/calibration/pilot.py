@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -52,9 +53,7 @@ def pilot_targets(db: str, plan: Any, protocol: Any, *, template: str | Path | N
             continue  # the pilot has no data for it
         unc = {} if t.is_test else {"se": float(v.se) if np.isfinite(v.se) else abs(float(v.value)) * 0.1,
                                     "n": max(v.participants, 1)}
-        out.append(Target(t.id, t.metric, t.statistic, v.value, t.role, dict(t.where), unc,
-                          note=f"pilot {db}", test=t.test, baseline=t.baseline, direction_vs=t.direction_vs,
-                          unit=t.unit, location=f"{db} (pilot)"))
+        out.append(replace(t, value=v.value, uncertainty=unc, note=f"pilot {db}", location=f"{db} (pilot)"))
     return TargetSet(protocol=protocol.study.id, source=f"pilot study {db}", targets=tuple(out),
                      alpha=base.alpha if base else float(plan.alpha), plan=plan.study, path=str(db),
                      sha256=str(abs(hash(tuple((t.id, str(t.value)) for t in out)))))

@@ -147,26 +147,57 @@ def _pct_change(frame: pd.DataFrame, t: Target, rng: np.random.Generator) -> Sim
 
 
 def _test_row(tests: pd.DataFrame, t: Target) -> pd.Series | None:
+    """The plan's result row a test target compares with: the omnibus / two-sample row of its test, or with
+    ``pair`` the pairwise (or post-hoc) row of those two levels, written in either order."""
     rows = tests[(tests["metric"] == t.metric) & ((tests["test_id"] == t.test) | (tests["test"] == t.test))]
     for col, val in t.where.items():
         rows = rows[rows["split"].fillna("").astype(str).str.contains(f"{col}={val}", regex=False)]
-    rows = rows[rows["kind"].isin(["omnibus", "two_sample", "pairwise"])]
+    if t.pair:
+        a, b = t.pair
+        rows = rows[rows["kind"].isin(["pairwise", "posthoc", "two_sample"])
+                    & rows["groups"].fillna("").astype(str).isin([f"{a} vs {b}", f"{b} vs {a}"])]
+    else:
+        rows = rows[rows["kind"].isin(["omnibus", "two_sample", "pairwise"])]
     if rows.empty:
         return None
-    order = {"omnibus": 0, "two_sample": 1, "pairwise": 2}
+    order = {"omnibus": 0, "two_sample": 1, "pairwise": 2, "posthoc": 3}
     return rows.assign(_o=rows["kind"].map(order)).sort_values("_o").iloc[0]
+
+
+def _verdict(row: pd.Series, alpha: float) -> bool | None:
+    """Significant? The plan's own decision where the row carries one at this alpha (a Newcombe margin, W against
+    its critical value, an adjusted post-hoc p); else p < alpha."""
+    sig = row.get("significant")
+    row_alpha = row.get("alpha")
+    if isinstance(sig, bool | np.bool_) and (row_alpha is None or pd.isna(row_alpha)
+                                             or math.isclose(float(row_alpha), alpha)):
+        return bool(sig)
+    p = row.get("p")
+    return None if p is None or pd.isna(p) else bool(float(p) < alpha)
 
 
 def _test(tests: pd.DataFrame, t: Target, alpha: float) -> SimulatedValue:
     row = _test_row(tests, t)
-    if row is None or row.get("status") not in (None, "ok") or pd.isna(row.get("p")):
+    what = f"{t.test} on {t.metric}" + (f" ({t.pair[0]} vs {t.pair[1]})" if t.pair else "")
+    if row is None or row.get("status") not in (None, "ok"):
         why = "no such test row" if row is None else f"test status {row.get('status')}"
-        return SimulatedValue(t.id, t.statistic, math.nan, note=f"{why} for {t.test} on {t.metric}")
-    p = float(row["p"])
+        return SimulatedValue(t.id, t.statistic, math.nan, note=f"{why} for {what}")
+    p = float(row["p"]) if pd.notna(row.get("p")) else math.nan
     n = int(row["n"]) if "n" in row and pd.notna(row["n"]) else 0
     if t.statistic == "test_p":
+        if not math.isfinite(p):
+            return SimulatedValue(t.id, t.statistic, math.nan, note=f"no p-value for {what}")
         return SimulatedValue(t.id, t.statistic, p, participants=n, note=str(row.get("groups") or ""))
-    return SimulatedValue(t.id, t.statistic, bool(p < alpha), participants=n, note=f"p = {p:.3g}")
+    verdict = _verdict(row, alpha)
+    if verdict is None:
+        return SimulatedValue(t.id, t.statistic, math.nan, note=f"no verdict for {what}")
+    if math.isfinite(p):
+        how = f"p = {p:.3g}"
+    elif pd.notna(row.get("statistic")):
+        how = f"{row.get('statistic_name') or row.get('test')} = {float(row['statistic']):.3g}"
+    else:
+        how = f"{row.get('test')}: {'significant' if verdict else 'not significant'}"
+    return SimulatedValue(t.id, t.statistic, verdict, participants=n, note=how)
 
 
 def simulated_values(targets: Sequence[Target], metrics: pd.DataFrame, tests: pd.DataFrame, *, alpha: float,

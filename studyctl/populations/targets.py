@@ -26,8 +26,8 @@ STATISTICS = (
 SPREADS = ("sd", "cv")  # between-person spread: judged by the ratio simulated / published (within 1.5×)
 ROLES = ("fit", "validation")
 TOP_KEYS = ("format", "protocol", "source", "plan", "alpha", "targets", "note")
-TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "uncertainty", "role", "note", "test", "baseline",
-               "direction_vs", "unit", "headline")
+TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "uncertainty", "role", "note", "test", "pair",
+               "baseline", "direction_vs", "unit", "headline")
 WHERE_KEYS = ("condition", "group", "level")
 LEVEL_ALIASES = ("nodule", "tumour", "class", "item")
 UNCERTAINTY_KEYS = ("sd", "n", "se", "interval")
@@ -47,6 +47,7 @@ class Target:
     uncertainty: Mapping[str, Any] = field(default_factory=dict)
     note: str = ""
     test: str = ""
+    pair: tuple[str, ...] = ()  # a test target's two compared levels (a pairwise or post-hoc row), any order
     baseline: str = ""
     direction_vs: str = ""
     unit: str = "participant"
@@ -302,6 +303,7 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
             if test in tests and t["metric"] not in tests[test].metrics:
                 raise _fail(m, label, (*p, "test"), f"test {test!r} does not test metric {t['metric']!r} (it tests "
                             f"{', '.join(tests[test].metrics)})")
+        pair = _check_pair(m, label, p, t, stat, tests.get(test), conditions, groups)
         baseline = str(t.get("baseline") or "")
         if stat == "pct_change_vs_baseline":
             baseline = baseline or conditions[0]
@@ -318,7 +320,7 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
         mark = m.key_mark(p)
         out.append(Target(
             id=tid, metric=str(t["metric"]), statistic=stat, value=value, role=role, where=clean_where,
-            uncertainty=dict(unc), note=str(t.get("note") or ""), test=test, baseline=baseline,
+            uncertainty=dict(unc), note=str(t.get("note") or ""), test=test, pair=pair, baseline=baseline,
             direction_vs=str(t.get("direction_vs") or ""), unit=unit, headline=bool(t.get("headline", True)),
             location=f"{label}:{mark.line}",
         ))
@@ -328,6 +330,34 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
                         f"{did_you_mean(t.direction_vs, ids)} to compare the direction with")
     return TargetSet(protocol=pid, source=str(data.get("source") or ""), targets=tuple(out), alpha=float(alpha),
                      plan=str(data.get("plan") or pid), path=label, sha256=sha256)
+
+
+def _check_pair(m: Any, label: str, p: tuple[Any, ...], t: Mapping[str, Any], stat: str, entry: Any,
+                conditions: list[str], groups: list[str]) -> tuple[str, ...]:
+    """``pair: [A, B]`` of a test target: two different levels the plan's test compares (its listed pairs when
+    it lists them); the simulated verdict / p is then that pair's pairwise or post-hoc row."""
+    if "pair" not in t or t["pair"] is None:
+        return ()
+    raw = t["pair"]
+    if stat not in TEST_STATISTICS:
+        raise _fail(m, label, (*p, "pair"), f"pair selects a pairwise test row; it is for a verdict or test_p "
+                    f"target, not a {stat}", value=False)
+    if (not isinstance(raw, list) or len(raw) != 2 or not all(isinstance(v, str) for v in raw)
+            or raw[0] == raw[1]):
+        raise _fail(m, label, (*p, "pair"), f"pair names two different levels as a list, e.g. pair: [PHF, FF]; "
+                    f"got {raw!r}")
+    compare = getattr(entry, "compare", "condition") if entry is not None else "condition"
+    known = conditions if compare == "condition" else groups if compare == "group" else None
+    for k, v in enumerate(raw):
+        if known is not None and v not in known:
+            raise _fail(m, label, (*p, "pair", k), f"{compare} {v!r} is not in the protocol{did_you_mean(v, known)}; "
+                        f"it has {', '.join(known)}")
+    listed = getattr(entry, "pairs", None) if entry is not None else None
+    if isinstance(listed, list) and listed and not any(set(raw) == set(q) for q in listed):
+        names = [f"{a}-{b}" for a, b in listed]
+        raise _fail(m, label, (*p, "pair"), f"test {entry.id!r} does not compare {raw[0]} with {raw[1]}"
+                    f"{did_you_mean('-'.join(raw), names)}; its pairs: {', '.join(names)}")
+    return (str(raw[0]), str(raw[1]))
 
 
 def shipped_targets_path(protocol_id: str) -> Path | None:

@@ -64,7 +64,8 @@ def agreement_table(frame: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
         band = _band(r["published_low"], r["published_high"])
         simulated = _val(r["simulated"])
         note = r.get("note")
-        if r["statistic"] == "verdict" and isinstance(note, str) and note.startswith(("p = ", "significant in")):
+        if r["statistic"] == "verdict" and isinstance(note, str) and note and not note.startswith(
+                ("no ", "test status")):
             simulated = f"{simulated} ({note})"
         body.append([r["target"], r["role"], r["metric"], r["where"] or "all", r["statistic"], _val(r["published"]),
                      f"{band} {r['band']}".strip(), simulated,

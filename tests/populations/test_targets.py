@@ -132,3 +132,88 @@ def test_cv_is_a_spread_judged_by_its_ratio():
     assert row.sd_ratio == pytest.approx(expected / 0.3)
     assert row.within is bool(1 / 1.5 <= expected / 0.3 <= 1.5)
     assert cv.published_se() == pytest.approx(0.3 / math.sqrt(22))
+
+
+PAIR_TARGETS = """format: studyctl-targets/1
+protocol: pseudo_haptic_palpation
+source: test
+targets:
+  - id: se_PHF_vs_FF
+    metric: sensitivity
+    statistic: verdict
+    test: pairs_newcombe
+    pair: [PHF, FF]
+    value: true
+    role: validation
+  - id: time_PHF_FF_vs_FF
+    metric: detection_time
+    statistic: verdict
+    test: time_signed_rank
+    pair: [PHF_FF, FF]
+    value: true
+    role: validation
+  - id: time_manual_PHF_FF_p
+    metric: detection_time
+    statistic: test_p
+    test: time_signed_rank
+    pair: [manual, PHF_FF]
+    value: 0.3
+    role: validation
+"""
+
+
+def _pair_tests() -> pd.DataFrame:
+    """Result rows shaped as the plan's: Newcombe rows carry a verdict and no p; signed-rank rows carry a p."""
+    def row(test_id, metric, test, groups, p, significant, statistic=1.0):
+        return {"test_id": test_id, "kind": "pairwise", "metric": metric, "test": test, "split": "",
+                "groups": groups, "p": p, "alpha": 0.05, "significant": significant, "statistic": statistic,
+                "statistic_name": "W", "n": 40, "status": "ok"}
+
+    return pd.DataFrame([
+        row("pairs_newcombe", "sensitivity", "newcombe", "manual vs FF", math.nan, False),
+        row("pairs_newcombe", "sensitivity", "newcombe", "FF vs PHF", math.nan, True, 0.28),
+        row("time_signed_rank", "detection_time", "signed_rank", "manual vs FF", 0.001, None),
+        row("time_signed_rank", "detection_time", "signed_rank", "manual vs PHF_FF", 0.3, None),
+        row("time_signed_rank", "detection_time", "signed_rank", "FF vs PHF_FF", 0.2, None),
+    ])
+
+
+def test_pair_selects_the_pairwise_row_in_either_order(tmp_path):
+    from studyctl.populations.targets import parse_targets
+
+    ts = parse_targets(PAIR_TARGETS, "t.yaml")
+    assert ts.get("se_PHF_vs_FF").pair == ("PHF", "FF")
+    sim = simulated_values(ts.targets, pd.DataFrame(columns=["metric"]), _pair_tests(), alpha=0.05,
+                           rng=np.random.default_rng(0))
+    # Newcombe: the plan's own verdict (no p-value), for the row written "FF vs PHF"
+    assert sim.get("se_PHF_vs_FF").value is True
+    # signed rank FF vs PHF_FF: p = 0.2, not the first pair's p = 0.001
+    assert sim.get("time_PHF_FF_vs_FF").value is False
+    assert sim.get("time_manual_PHF_FF_p").value == pytest.approx(0.3)
+    rows = {r.target: r for r in agreement(ts.targets, sim, 0.05).rows}
+    assert rows["se_PHF_vs_FF"].same_verdict is True and rows["time_PHF_FF_vs_FF"].same_verdict is False
+    assert rows["se_PHF_vs_FF"].where == "pair=PHF vs FF"
+    # a pair the results do not hold is not computed (never another pair's row)
+    missing = _pair_tests().query("groups != 'FF vs PHF'")
+    sim2 = simulated_values(ts.targets, pd.DataFrame(columns=["metric"]), missing, alpha=0.05,
+                            rng=np.random.default_rng(0))
+    assert math.isnan(sim2.get("se_PHF_vs_FF").value) and "PHF vs FF" in sim2.get("se_PHF_vs_FF").note
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("pair: [PHF, FF]", "pair: [PFH, FF]", r"condition 'PFH' is not in the protocol; did you mean 'PHF'"),
+        ("pair: [PHF, FF]", "pair: [PHF, PHF]", r"pair names two different levels"),
+        ("pair: [PHF, FF]", "pair: PHF", r"pair names two different levels"),
+        ("statistic: test_p", "statistic: mean", r"pair selects a pairwise test row; .* not a mean"),
+    ],
+)
+def test_bad_pair_is_one_error_with_line_and_nearest_name(old, new, message):
+    from studyctl.populations.targets import parse_targets
+
+    text = PAIR_TARGETS.replace(old, new, 1)
+    with pytest.raises(PopulationError, match=message) as info:
+        parse_targets(text, "t.yaml")
+    line = int(str(info.value).split(":")[1])
+    assert "pair" in text.splitlines()[line - 1] or "statistic" in text.splitlines()[line - 1]
