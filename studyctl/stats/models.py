@@ -13,6 +13,8 @@ How each term is tested (stated in every term's ``method``):
 * **Mixed terms** (a participant in more than one row): likelihood-ratio χ² between maximum-likelihood fits
   of the random-intercept model with and without the term's columns (statsmodels MixedLM; the same as R
   ``anova(lmer(..., REML = FALSE), ...)``). Satterthwaite / Kenward-Roger F-tests are not implemented.
+  When every participant has one row per within-level (a balanced design) the ML fit has a closed form
+  (:func:`_balanced_llf`): exact, and on the τ² = 0 boundary higher than where MixedLM's optimiser stops.
 * **ART** (Wobbrock et al. 2011): for each term the response is aligned (residual from the full-factorial
   cell means plus the term's estimated effect from marginal means of the observations), ranked with
   average ties, and only that term is read from the model fitted to those ranks (OLS or mixed, as above).
@@ -180,7 +182,60 @@ def _ols_f(y: np.ndarray, x: np.ndarray, assign: list[int], t: int) -> tuple[flo
     return f, float(df1), float(df2), p, ss / (ss + rss_f) if ss + rss_f > 0 else NAN
 
 
+def _balanced_llf(y: np.ndarray, x: np.ndarray, groups: np.ndarray) -> float | None:
+    """The ML log-likelihood of the random-intercept model in closed form, or None when the design is not one
+    where that form holds.
+
+    It holds when every participant has the same number m ≥ 2 of rows and the participant-mean of every column
+    of X lies in X's column space (e.g. a full factorial with sum-to-zero contrasts where every participant has
+    one row per within-level: within columns average to 0 per participant, between columns are constant). Then
+    V = σ²I + τ²ZZ' leaves col(X) invariant, so GLS = OLS for every (σ², τ²) (Zyskind 1967), and the OLS
+    residual splits into a between-participant part (participant means, variance λ1 = σ² + mτ², n dims) and a
+    within part (λ0 = σ², N − n dims), each with its own closed-form ML variance; τ² ≥ 0 puts λ1 ≥ λ0, and when
+    the unconstrained optimum breaks that the optimum is on λ1 = λ0 (the pooled variance). The same maximum
+    statsmodels' MixedLM climbs to iteratively, in a few small matrix products (a replicate of a power
+    analysis fits dozens of these).
+    """
+    codes, idx = np.unique(groups, return_inverse=True)
+    n, big_n = len(codes), len(y)
+    sizes = np.bincount(idx, minlength=n)
+    m = int(sizes[0])
+    if n < 2 or m < 2 or np.any(sizes != m):
+        return None
+
+    def means(a: np.ndarray) -> np.ndarray:  # each row's participant mean
+        sums = np.zeros((n, *a.shape[1:]))
+        np.add.at(sums, idx, a)
+        return sums[idx] / m
+
+    px = means(x)
+    beta, *_ = np.linalg.lstsq(x, np.column_stack([y, px]), rcond=None)
+    leak = px - x @ beta[:, 1:]
+    if not np.all(np.abs(leak) <= 1e-9 * max(1.0, float(np.abs(x).max()))):
+        return None
+    r = y - x @ beta[:, 0]
+    rb = means(r)
+    rss_b, rss_w = float(rb @ rb), float((r - rb) @ (r - rb))
+    total = rss_b + rss_w
+    if not total > 0 or rss_w <= 1e-12 * total:
+        return None  # a perfect within-participant fit: the likelihood has no maximum (left to the optimiser)
+    lam0, lam1 = rss_w / (big_n - n), rss_b / n
+    if lam1 < lam0:
+        lam0 = lam1 = total / big_n
+    return float(-0.5 * (big_n * math.log(2 * math.pi) + (big_n - n) * math.log(lam0) + n * math.log(lam1)
+                         + rss_w / lam0 + rss_b / lam1))
+
+
 def _mixed_llf(y: np.ndarray, x: np.ndarray, groups: np.ndarray) -> float:
+    """Maximum-likelihood log-likelihood of y = Xβ + u_subject + e: in closed form for balanced designs
+    (:func:`_balanced_llf`), else by statsmodels MixedLM (ML)."""
+    closed = _balanced_llf(y, x, groups)
+    if closed is not None:
+        return closed
+    return _mixed_llf_iterative(y, x, groups)
+
+
+def _mixed_llf_iterative(y: np.ndarray, x: np.ndarray, groups: np.ndarray) -> float:
     """Maximum-likelihood log-likelihood of y = Xβ + u_subject + e (statsmodels MixedLM, ML)."""
     from statsmodels.regression.mixed_linear_model import MixedLM
     from statsmodels.tools.sm_exceptions import ConvergenceWarning
