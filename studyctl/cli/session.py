@@ -97,13 +97,14 @@ def register(app: typer.Typer) -> None:
     def run(
         participant: str = typer.Option(..., "--participant", "-p", help="Participant code (from `studyctl enroll`)."),
         virtual: bool = typer.Option(False, "--virtual", help="Run the protocol's virtual participant (simulated "
-                                     "device and clock) instead of a person."),
+                                     "device and clock) instead of a person. With --rehearse it acts on the "
+                                     "emulated hardware instead (its hand in the emulator's world; real time)."),
         seed: int = typer.Option(None, "--seed", help="Session seed (default: from the study seed and the code)."),
         input_file: Path = typer.Option(None, "--input", help=INPUT_HELP),
         rehearse: bool = typer.Option(False, "--rehearse", help="A rehearsal: every hardware device is replaced by "
                                       "its emulator (started and stopped here, in its own process); recorded in the "
                                       "study marked as rehearsal and left out of analysis. With a person at the "
-                                      "prompts, or a script (--input)."),
+                                      "prompts, a script (--input), or the virtual participant (--virtual)."),
         speed: float = typer.Option(None, "--speed", help="Virtual/scripted runs: at most this many times real "
                                     "time (default: as fast as possible; hardware trials always run in real time)."),
         view: bool = VIEW_OPTION,

@@ -27,6 +27,7 @@ import time
 from dataclasses import dataclass, field
 
 from studyctl.devices import board_protocol as bp
+from studyctl.devices import world as w
 from studyctl.errors import DatagramError
 from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
 
@@ -57,6 +58,7 @@ class Board:
     glitch: tuple[float, float] | None = None
     silence_after: float | None = None
     log_path: str | None = None
+    world: object = None  # a world block (studyctl.devices.world): a virtual hand's force in, actuator output out
     host: tuple[str, int] | None = None
     start: float = field(default_factory=time.monotonic)
     hello_at: float | None = None
@@ -134,9 +136,14 @@ class Board:
         self._last_dyn = now
         self.psi = BalloonModel().step(self.psi, self.balloon, dt)
         self.speed = VibrationMotorModel().step(self.speed, self.vibration, dt)
+        world = self.world
+        if world is not None:  # what the balloon and the motor deliver to the finger of a virtual hand
+            hz, ms2 = VibrationMotorModel().output(self.speed)
+            world[w.W_PSI], world[w.W_VIB_HZ], world[w.W_VIB_MS2] = self.psi, hz, ms2
+            world[w.W_HEARTBEAT] += 1
         if self.silence_after is not None and self.hello_at is not None and now - self.hello_at >= self.silence_after:
             return
-        force = float(self.force_fn(now))
+        force = float(world[w.W_FORCE_N]) if world is not None and world[w.W_ATTACHED] else float(self.force_fn(now))
         adc = A201.count_of_force(force)
         flags = self.status_flags
         since_hello = now - (self.hello_at or 0.0)
@@ -238,6 +245,9 @@ def serve(args: argparse.Namespace) -> int:
         def force_fn(t: float) -> float:
             return const
 
+    world_shm = world = None
+    if args.world:
+        world_shm, world = w.create_block()
     board = Board(
         force_fn,
         rate_hz=args.rate,
@@ -245,7 +255,18 @@ def serve(args: argparse.Namespace) -> int:
         glitch=glitch,
         silence_after=args.silence_after,
         log_path=args.log,
+        world=world,
     )
+    try:
+        return _serve_board(board, args, world_shm)
+    finally:
+        board.world = world = None  # the block's buffer must have no views left before it is closed
+        if world_shm is not None:
+            world_shm.close()
+            world_shm.unlink()
+
+
+def _serve_board(board: Board, args: argparse.Namespace, world_shm) -> int:
     if args.serial:
         sock = PtyLink()
     else:
@@ -259,7 +280,8 @@ def serve(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    print(f"READY {sock.path if args.serial else sock.getsockname()[1]}", flush=True)
+    world_name = f" {world_shm.name}" if world_shm is not None else ""
+    print(f"READY {sock.path if args.serial else sock.getsockname()[1]}{world_name}", flush=True)
     next_tick = board.now()
     # a board serves session after session (HELLO … BYE, then the next HELLO) until it is stopped
     deadline = board.now() + args.max_runtime if args.max_runtime > 0 else math.inf
@@ -305,6 +327,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--silence-after", type=float, help="stop sending sensor packets S seconds after HELLO")
     parser.add_argument("--exit-with-parent", action="store_true",
                         help="exit when the process that started the emulator ends (rehearsals)")
+    parser.add_argument("--world", action="store_true",
+                        help="also create a world block for a virtual hand (its name follows the port on READY): the "
+                             "force on the sensor comes from the hand once it holds the forceps, and the balloon and "
+                             "motor output go to it (run --rehearse --virtual)")
     parser.add_argument("--log", help="append received commands and events to this JSON-lines file")
     parser.add_argument("--max-runtime", type=float, default=0.0,
                         help="exit after this many seconds (default 0: run until stopped, session after session)")

@@ -25,7 +25,8 @@ READY_TIMEOUT_S = 30.0
 @contextlib.contextmanager
 def start_emulator(module: str, args: Sequence[str] = (), *, what: str) -> Iterator[str]:
     """Run ``python -m module --port 0 ARGS`` in its own process; yield the address it printed (``READY ADDRESS``:
-    a UDP port or a shared-memory name); stop it on exit."""
+    a UDP port or a shared-memory name, then anything else it printed on that line, e.g. a world block's name);
+    stop it on exit."""
     proc = subprocess.Popen([sys.executable, "-m", module, "--port", "0", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     line: list[str] = []
@@ -37,7 +38,7 @@ def start_emulator(module: str, args: Sequence[str] = (), *, what: str) -> Itera
             proc.kill()
             err = proc.stderr.read().strip().splitlines()
             raise DeviceError(f"the {what} emulator did not start ({err[-1] if err else 'no output'})")
-        yield line[0].split()[1]
+        yield " ".join(line[0].split()[1:])
     finally:
         if proc.poll() is None:
             proc.terminate()
@@ -54,9 +55,20 @@ def can_emulate(device: str) -> bool:
     return callable(getattr(load_plugin("device", device), "emulate", None))
 
 
+def has_world(cls: type) -> bool:
+    """Whether a device's emulator can put a virtual participant's hand in its world (``emulate(…, world=True)``)."""
+    import inspect  # noqa: PLC0415
+
+    emulate = getattr(cls, "emulate", None)
+    return callable(emulate) and "world" in inspect.signature(emulate).parameters
+
+
 @contextlib.contextmanager
-def emulated(ref: Mapping[str, Any]) -> Iterator[dict[str, Any]]:
-    """The device reference ``ref`` replaced by its emulator's, for the duration of the ``with`` block."""
+def emulated(ref: Mapping[str, Any], *, world: bool = False) -> Iterator[dict[str, Any]]:
+    """The device reference ``ref`` replaced by its emulator's, for the duration of the ``with`` block.
+
+    ``world``: the emulator also opens its world for a virtual participant's hand (:mod:`studyctl.devices.world`);
+    the reference then carries ``world: {kind, block}`` beside its params (``run --rehearse --virtual``)."""
     name = str(ref["plugin"])
     cls = load_plugin("device", name)
     if getattr(cls, "simulated", True):
@@ -66,5 +78,15 @@ def emulated(ref: Mapping[str, Any]) -> Iterator[dict[str, Any]]:
     if not callable(emulate):
         raise SessionError(f"device {name} has no emulator, so it cannot be rehearsed; rehearse with its "
                            "simulated device (the protocol's devices.simulated) or run with the hardware")
-    with emulate(dict(ref.get("params") or {})) as params:
-        yield {"plugin": name, "params": dict(params)}
+    if world and not has_world(cls):
+        raise SessionError(f"the emulator of device {name} has no world for a virtual participant's hand, so a "
+                           "virtual participant cannot rehearse on it; rehearse with a person or a script (--rehearse "
+                           "[--input FILE]), or simulate (--virtual without --rehearse)")
+    with (emulate(dict(ref.get("params") or {}), world=True) if world else emulate(dict(ref.get("params") or {}))) \
+            as params:
+        params = dict(params)
+        out: dict[str, Any] = {"plugin": name}
+        if world:
+            out["world"] = params.pop("world")
+        out["params"] = params
+        yield out

@@ -129,12 +129,7 @@ class SimulatedPalpationDevice(ParamDevice):
         x, y, depth = inputs.get("x_mm", -1.0), inputs.get("y_mm", -1.0), inputs.get("depth_mm", 0.0)
         force = 0.0
         if self.scene is not None:
-            force = self._force(x, y, depth)
-            compliance = self.params["instrument_compliance_mm_per_n"]
-            if compliance > 0 and force > 0 and depth > 0:
-                # The wrist yields until tip force and deflection agree: d = d_cmd − c·F(d), F linear in d.
-                depth = depth / (1.0 + compliance * force / depth)
-                force = self._force(x, y, depth)
+            depth, force = forceps_contact(self.scene, x, y, depth, self.params["instrument_compliance_mm_per_n"])
         noise = self.params["sensor_noise_lsb"]
         counts = self.sensor.count_of_force(force)
         if noise > 0:
@@ -154,11 +149,6 @@ class SimulatedPalpationDevice(ParamDevice):
                   "probe_x_mm": x, "probe_y_mm": y, "depth_mm": depth}
         self._last_sample = (t, values)
         return Observation(t, values, sample_t=t, faults=faults)
-
-    def _force(self, x: float, y: float, depth: float) -> float:
-        if isinstance(self.scene, SpongePhantomScene):  # its direct path skips two dicts per tick
-            return self.scene.force_n(x, y, depth)
-        return float(self.scene.sense({"x_mm": x, "y_mm": y, "depth_mm": depth}).get("force_n", 0.0))
 
     def write(self, command: Channels) -> None:
         for name in self._command:
@@ -183,6 +173,23 @@ class SimulatedPalpationDevice(ParamDevice):
             if f["start_s"] <= t < f["end_s"]:
                 return f["kind"]
         return None
+
+
+def _scene_force(scene: Any, x: float, y: float, depth: float) -> float:
+    if isinstance(scene, SpongePhantomScene):  # its direct path skips two dicts per tick
+        return scene.force_n(x, y, depth)
+    return float(scene.sense({"x_mm": x, "y_mm": y, "depth_mm": depth}).get("force_n", 0.0))
+
+
+def forceps_contact(scene: Any, x: float, y: float, depth: float, compliance: float) -> tuple[float, float]:
+    """(tip depth, force) of the forceps pressed to commanded ``depth`` mm at (x, y) of ``scene``: the wrist
+    yields until tip force and deflection agree, d = d_cmd − c·F(d) with F linear in d. Shared by the simulated
+    device and the emulated world of a virtual rehearsal (:mod:`studyctl.devices.world`)."""
+    force = _scene_force(scene, x, y, depth)
+    if compliance > 0 and force > 0 and depth > 0:
+        depth = depth / (1.0 + compliance * force / depth)
+        force = _scene_force(scene, x, y, depth)
+    return depth, force
 
 
 def _check_fault(f: Any) -> dict[str, Any]:

@@ -59,16 +59,24 @@ class UdpDriverBoard(ParamDevice):
 
     @classmethod
     @contextlib.contextmanager
-    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
+    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None,
+                world: bool = False) -> Iterator[dict[str, Any]]:
         """Start the board emulator (:mod:`studyctl.devices.board_emulator`) on loopback; yield the params
-        that reach it (a rehearsal's device)."""
+        that reach it (a rehearsal's device). ``world``: also its world block for a virtual participant's hand
+        (yielded as ``world: {kind, block}``, see :mod:`studyctl.devices.world`)."""
         from studyctl.devices.emulation import start_emulator  # noqa: PLC0415
 
         args = ["--max-runtime", "0", "--exit-with-parent"]
         if hang_after_s is not None:  # tests: a board that stops answering
             args += ["--silence-after", str(hang_after_s)]
-        with start_emulator("studyctl.devices.board_emulator", args, what="driver board") as port:
-            yield {**dict(params), "host": "127.0.0.1", "port": int(port)}
+        if world:
+            args.append("--world")
+        with start_emulator("studyctl.devices.board_emulator", args, what="driver board") as address:
+            port, _, block = address.partition(" ")
+            out = {**dict(params), "host": "127.0.0.1", "port": int(port)}
+            if world:
+                out["world"] = {"kind": "palpation_board", "block": block}
+            yield out
 
     def identity(self) -> dict[str, Any]:
         """What the board reported in its STATUS (firmware, ADC bits, rate, watchdog) and where it is."""

@@ -137,9 +137,6 @@ def _launch(
     if isinstance(script, (str, Path)):
         script = Script.load(script)
     factory = factory or EntryPointFactory()
-    if rehearse and virtual:
-        raise UsageError("--rehearse runs a person or a script (--input) on emulated hardware; a virtual participant "
-                         "runs on the simulated device (use --virtual without --rehearse)")
     if plan.hardware_device and not virtual and not rehearse:  # a missing SDK: one error before anything is written
         check = getattr(factory.load("device", plan.hardware_device["plugin"]), "check_installed", None)
         if callable(check):
@@ -155,15 +152,18 @@ def _launch(
         with contextlib.ExitStack() as stack:
             device_ref = None
             if rehearse and plan.hardware_device:
-                device_ref = stack.enter_context(emulated(plan.hardware_device))
+                # a virtual participant acts on the emulated hardware: its hand goes into the emulator's world
+                device_ref = stack.enter_context(emulated(plan.hardware_device, world=virtual))
                 if log is not None:
                     log(f"rehearsal: device {device_ref['plugin']} is emulated "
-                        f"({', '.join(f'{k}={v}' for k, v in sorted(device_ref['params'].items()))})")
+                        f"({', '.join(f'{k}={v}' for k, v in sorted(device_ref['params'].items()))})"
+                        + (f"; virtual participant {(plan.virtual_participant or {}).get('plugin')} acts on it"
+                           if virtual else ""))
             elif rehearse and log is not None:
                 log("rehearsal: the protocol names no hardware device; trials run on the simulated device "
                     f"{(plan.simulated_device or {}).get('plugin', '?')}")
             calibration = None
-            if calibrations is not None and plan.hardware_device and not virtual:
+            if calibrations is not None and plan.hardware_device and (rehearse or not virtual):
                 from studyctl.engine.device_check import latest_calibration  # noqa: PLC0415
 
                 base = device_ref or dict(plan.hardware_device)
@@ -184,9 +184,13 @@ def _launch(
                           t=rec.state().last_t)
             if frontend is not None:
                 setup.participant, setup.ui = frontend(setup.participant, setup.ui, rec)
+            virtual_ref = None
+            if virtual and participant is None and plan.virtual_participant:  # rebuilt in the servo process
+                ref = plan.virtual_participant
+                virtual_ref = {"plugin": ref["plugin"], "params": {**ref.get("params", {}), **(person_params or {})}}
             runner = SessionRunner(rec, ui=setup.ui, participant=setup.participant, clock=setup.clock,
                                    factory=factory, virtual=rec.state().virtual, progress=progress,
-                                   device_ref=device_ref, servo=servo)
+                                   device_ref=device_ref, servo=servo, virtual_ref=virtual_ref)
             return runner.run()
     finally:
         try:
@@ -277,6 +281,9 @@ def run_session(
         A rehearsal: every hardware device is replaced by its emulator (started here in its own process and
         stopped at the end); the session is recorded in the study marked ``rehearsal`` and analysis leaves it
         out. The participant's status does not change and earlier rehearsals do not count as taking part.
+        With ``virtual`` the virtual participant acts on the emulated hardware instead of the simulated device:
+        its hand is in the emulator's world (:mod:`studyctl.devices.world`), everything else goes through the
+        real adapter, the servo process and the emulator, in real time.
 
     Returns
     -------

@@ -65,6 +65,13 @@ class ServoSpec:
     scene_needs: frozenset[str] = frozenset()
     participant: str | None = None  # a virtual participant in the child; None: requests come from the parent
     participant_params: Mapping[str, Any] = field(default_factory=dict)
+    # a session's virtual participant in the child (run --rehearse --virtual): the same person in every trial
+    # (begin_session from the session seed's person stream) with what it learnt so far (recall); its memory at the
+    # end of the trial travels back to the parent
+    session_seed: int | None = None
+    participant_memory: Mapping[str, Any] | None = None
+    # the emulator's world for the participant's hand ({kind, block}; studyctl.devices.world)
+    world: Mapping[str, Any] | None = None
     seed: int = 0
     nice: int = -10  # scheduling priority for the servo process (best effort; 0 leaves it unchanged)
     # The trial's random streams (Generators pickle with their state); None: from ``seed``.
@@ -288,10 +295,15 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
             controller = _load("controller", spec.controller)(dict(spec.controller_params), scene)
         device = _construct(load_plugin("device", spec.device), params=dict(spec.device_params), scene=scene,
                             rng=spec.device_rng if spec.device_rng is not None else rng)
+        if spec.world:  # a virtual participant's hand in the emulator's world (studyctl.devices.world)
+            from studyctl.devices.world import embody  # noqa: PLC0415
+
+            device = embody(device, spec.world, scene)
         remote = _RemoteParticipant(inbox, poll_every=max(1, round(spec.info.rate_hz * 0.01)),
                                     parent_pid=spec.parent_pid)
         if spec.participant:
             participant = _construct(load_plugin("participant", spec.participant), params=dict(spec.participant_params))
+            _continue_person(participant, spec)
         else:
             participant = remote
         # The sample batch is a preallocated ring of rows flushed every BATCH_S (no list growth per tick).
@@ -364,6 +376,9 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
         timing = clock.timing(1.0 / spec.info.rate_hz)
         outbox.put(("event", outcome.duration_s, "servo_timing", {**timing.as_dict(), "rt": rt,
                                                                     "nice": rt.get("nice", 0)}))
+        memory = getattr(participant, "memory", None)
+        if spec.participant and callable(memory):
+            outbox.put(("memory", _plain(dict(memory() or {}))))
         outbox.put(("outcome", _plain(outcome.__dict__)))
     except BaseException as exc:  # the parent must learn why the child ended
         if device is not None:
@@ -372,6 +387,20 @@ def _servo_main(spec: ServoSpec, inbox: Any, outbox: Any) -> None:
         user = isinstance(exc, StudyctlError)
         outbox.put(("error", f"{type(exc).__name__}: {exc}" if not user else str(exc),
                     "" if user else traceback.format_exc()))
+
+
+def _continue_person(participant: Participant, spec: ServoSpec) -> None:
+    """Make the child's virtual participant the session's person: its traits from the session seed's person stream
+    and what it had learnt by the previous trial (as SessionRunner.run does for an in-process participant)."""
+    if spec.session_seed is not None:
+        begin_session = getattr(participant, "begin_session", None)
+        if callable(begin_session):
+            from studyctl.engine.seeding import person_rng  # noqa: PLC0415
+
+            begin_session(person_rng(spec.session_seed))
+    recall = getattr(participant, "recall", None)
+    if spec.participant_memory and callable(recall):
+        recall(dict(spec.participant_memory))
 
 
 def _renice(delta: int) -> int:
@@ -418,6 +447,7 @@ class ServoResult:
     events: list[dict[str, Any]]
     timing: ServoTiming | None
     rt: dict[str, Any] = field(default_factory=dict)
+    memory: dict[str, Any] | None = None  # a virtual participant's memory at the end of the trial (child participant)
 
 
 _TIMING_FIELDS = frozenset(ServoTiming.__dataclass_fields__)
@@ -451,6 +481,7 @@ def run_trial_in_servo_process(
     outcome: dict[str, Any] | None = None
     timing: ServoTiming | None = None
     rt: dict[str, Any] = {}
+    memory: dict[str, Any] | None = None
     error: tuple[str, str] | None = None
     died = False
     started = time.monotonic()
@@ -492,6 +523,8 @@ def run_trial_in_servo_process(
                     rt = dict(payload.get("rt") or {})
                 if on_event is not None:
                     on_event(t, ev_kind, payload)
+            elif kind == "memory":
+                memory = msg[1]
             elif kind == "outcome":
                 outcome = msg[1]
             elif kind == "error":
@@ -522,4 +555,5 @@ def run_trial_in_servo_process(
         events=outcome["events"],
         timing=timing,
         rt=rt,
+        memory=memory,
     )

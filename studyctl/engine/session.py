@@ -109,7 +109,12 @@ class SessionRunner:
         Run hardware trials in the servo process (:mod:`studyctl.engine.servo`). None (default): yes when
         plugins come from entry points (the child loads them by name); False: in this process.
     device_ref
-        ``{"plugin": …, "params": …}`` replacing the plan's hardware device (a rehearsal's emulator).
+        ``{"plugin": …, "params": …}`` replacing the plan's hardware device (a rehearsal's emulator). With a
+        ``world`` (``run --rehearse --virtual``) the virtual participant acts on this emulated hardware instead of
+        the simulated device: its hand is in the emulator's world (:mod:`studyctl.devices.world`).
+    virtual_ref
+        ``{"plugin": …, "params": …}`` of the virtual participant, rebuilt in the servo process when it acts on
+        emulated hardware (the same person: params, session seed and memory travel with each trial).
     """
 
     def __init__(
@@ -124,8 +129,10 @@ class SessionRunner:
         progress: ProgressFn | None = None,
         servo: bool | None = None,
         device_ref: Mapping[str, Any] | None = None,
+        virtual_ref: Mapping[str, Any] | None = None,
     ) -> None:
         self.rec = recorder
+        self.virtual_ref = dict(virtual_ref) if virtual_ref else None
         self.servo = servo
         self.device_override = dict(device_ref) if device_ref else None
         self.ui = ui
@@ -666,7 +673,7 @@ class SessionRunner:
 
     def _device_ref(self) -> Mapping[str, Any]:
         plan = self.plan
-        if self.device_override is not None and not self.virtual:
+        if self.device_override is not None and (not self.virtual or self.device_override.get("world")):
             return self.device_override
         ref = plan.simulated_device if self.virtual else (plan.hardware_device or plan.simulated_device)
         if not ref:
@@ -711,6 +718,7 @@ class SessionRunner:
                 scene=plan.scene, scene_spec=dict(plan.scene_spec or {}), scene_placement=dict(placement),
                 scene_needs=needs, scene_rng=child_rngs[0], device_rng=child_rngs[1],
                 participant_rng=copy.deepcopy(streams.participant),
+                **self._child_person(ref),
             )
             try:
                 return self._execute_in_servo(spec, scene, info, streams, should_stop, on_event, sink, trial_clock)
@@ -719,6 +727,10 @@ class SessionRunner:
                     sink.close()
         controller = build_controller(self.factory, controller_name, cond.params, scene) if controller_name else None
         device = build_device(self.factory, ref["plugin"], ref.get("params", {}), scene, streams.device)
+        if ref.get("world"):  # a virtual participant's hand on emulated hardware
+            from studyctl.devices.world import embody  # noqa: PLC0415
+
+            device = embody(device, ref["world"], scene)
         # hardware keeps real time whatever the session's clock (a scripted rehearsal's is simulated): on a
         # simulated clock its sensor would look stale after a few ticks of computation
         loop_clock = RealClock() if trial_clock.simulated and not self.virtual_device(ref["plugin"]) else trial_clock
@@ -750,6 +762,19 @@ class SessionRunner:
             if sink is not None:
                 sink.close()
 
+    def _child_person(self, ref: Mapping[str, Any]) -> dict[str, Any]:
+        """ServoSpec fields that put the session's virtual participant in the servo process, acting on emulated
+        hardware through the emulator's world (``run --rehearse --virtual``); none otherwise."""
+        if not (self.virtual and ref.get("world")):
+            return {}
+        if self.virtual_ref is None:
+            raise SessionError("a virtual participant on emulated hardware needs its plugin name to be rebuilt in "
+                               "the servo process (SessionRunner(virtual_ref=…))")
+        memory = getattr(self.participant, "memory", None)
+        return {"participant": self.virtual_ref["plugin"], "participant_params": dict(self.virtual_ref["params"]),
+                "session_seed": self._seed, "participant_memory": dict(memory() or {}) if callable(memory) else None,
+                "world": dict(ref["world"])}
+
     def _execute_in_servo(
         self, spec: ServoSpec, scene: Any, info: TrialInfo, streams: TrialStreams, should_stop, on_event, sink,
         trial_clock: Clock,
@@ -758,7 +783,9 @@ class SessionRunner:
         terminal or view, or a script), scan and real-time views are rendered from the poses the loop reports,
         and samples and events are stored. A simulated trial clock (scripted rehearsal) follows the loop's time."""
         participant = self.participant
-        participant.begin_trial(info, copy.deepcopy(streams.participant))
+        in_child = spec.participant is not None  # a virtual participant acts in the servo process itself
+        if not in_child:
+            participant.begin_trial(info, copy.deepcopy(streams.participant))
         t_start = trial_clock.now()
         latest: dict[str, Any] = {"t": 0.0, "sample": {}, "scan": None}
         realtime_view = info.visual == "realtime" and scene is not None
@@ -789,8 +816,11 @@ class SessionRunner:
                 percept["view"] = scene.view(latest["sample"])
             return list(participant.act(latest["t"], percept).requests)
 
-        result = run_trial_in_servo_process(spec, on_event=on_child_event, on_sample=on_sample, requests=requests,
-                                            should_stop=should_stop)
+        result = run_trial_in_servo_process(spec, on_event=on_child_event, on_sample=on_sample,
+                                            requests=None if in_child else requests, should_stop=should_stop)
         follow(result.duration_s)
+        recall = getattr(participant, "recall", None)
+        if in_child and result.memory is not None and callable(recall):  # what it learnt in the child's trial
+            recall(result.memory)
         return TrialOutcome(result.ended_by, result.duration_s, result.ticks, result.scans, result.reports,
                             result.events)

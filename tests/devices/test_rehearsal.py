@@ -9,7 +9,6 @@ import pytest
 from studyctl.devices import board_protocol as bp
 from studyctl.engine.api import run_session, session_is_rehearsal
 from studyctl.engine.ui import Script
-from studyctl.errors import UsageError
 from studyctl.store.models import Event
 
 pytestmark = pytest.mark.slow
@@ -72,10 +71,69 @@ def test_rehearsals_are_left_out_of_analysis(study):
     assert len(opened.store.list_sessions(opened.store.get_participant(opened.study.id, code).id)) == 1  # recorded
 
 
-def test_rehearse_refuses_a_virtual_participant(study):
-    opened, code = study("bio_inspired_palpation", "novice")
-    with pytest.raises(UsageError, match="--rehearse"):
-        run_session(opened.store, code, virtual=True, rehearse=True)
+def test_a_virtual_participant_rehearses_on_the_emulated_board(tmp_path):
+    """``run --rehearse --virtual``: the protocol's virtual participant acts on the emulated driver board (the
+    emulator process, through the servo process and the real UDP adapter) instead of the simulated device. Its hand
+    presses the trial's phantom in the emulator's world: the force reaches the controller only through the emulated
+    ADC, the packets and the adapter, and the balloon/motor commands go back the same way. Recorded as a rehearsal,
+    left out of analysis."""
+    from studyctl.engine.progress import study_progress  # noqa: PLC0415
+    from studyctl.protocol.loader import resolve_protocol  # noqa: PLC0415
+    from studyctl.store.enrollment import enroll  # noqa: PLC0415
+    from studyctl.store.reader import StudyReader  # noqa: PLC0415
+    from studyctl.store.samples import read_samples  # noqa: PLC0415
+    from studyctl.store.workspace import init_workspace, open_study  # noqa: PLC0415
+
+    # the shipped protocol with a 6 s time limit per trial (the palpator then reports its best guesses in time):
+    # hardware runs in real time, so a whole unbounded search per trial would take minutes
+    text = resolve_protocol("bio_inspired_palpation").read_text().replace("time_limit_s: null", "time_limit_s: 6")
+    assert "time_limit_s: 6" in text
+    (tmp_path / "bip.yaml").write_text(text)
+    init_workspace(tmp_path / "ws", protocol=str(tmp_path / "bip.yaml"))
+    with open_study(workspace=tmp_path / "ws") as opened:
+        code = enroll(opened.store, "novice", study=opened.study.name).code
+        logs: list[str] = []
+        result = run_session(opened.store, code, virtual=True, rehearse=True, log=logs.append)
+        assert result.status == "completed" and result.trials_completed == 4 and result.trials_aborted == 0
+        assert any("virtual participant virtual_palpator acts on it" in m for m in logs), logs
+        sid = result.session_id
+        assert session_is_rehearsal(opened.store, sid)
+        events = _events(opened.store, sid)
+        kinds = [k for k, _ in events]
+        assert kinds.count("servo_timing") == 4  # every trial ran on the emulated hardware, in the servo process
+        assert [p.get("world") for k, p in events if k == "device_identity"] == ["palpation_board"] * 4
+        faults = [p for k, p in events if k == "device_fault" and p.get("rule") not in ("missed_deadline",)]
+        assert faults == []
+        # the same person throughout: what it learnt in each child process came back (trials_done 1, 2, 3, 4)
+        assert [p["memory"]["trials_done"] for k, p in events if k == "participant_memory"] == [1, 2, 3, 4]
+        assert kinds.count("report") >= 4  # it acted: grid-cell reports from what it felt and saw
+        for tid in range(1, 5):
+            s = read_samples(opened.store.db, tid)
+            # the sensor force came from the hand's press in the world, through the emulated 10-bit ADC
+            assert s["force_n"].max() > 0.3 and s["force_n"].corr(s["depth_mm"]) > 0.7, tid
+        balloon = {}
+        with opened.store.reading() as q:
+            from studyctl.store.models import Trial  # noqa: PLC0415
+
+            for tid, cond in q.execute(Trial.__table__.select().with_only_columns(Trial.id, Trial.condition)
+                                       .where(Trial.session_id == sid)):
+                balloon[cond] = float(read_samples(opened.store.db, tid)["balloon_pct"].max())
+        assert balloon["no_feedback"] == 0.0 and min(v for c, v in balloon.items() if c != "no_feedback") > 10, balloon
+        # a rehearsal: never analysed, not progress, the participant has not taken part
+        reader = StudyReader(opened.store, opened.study)
+        assert reader.trials == () and reader.sessions == ()
+        assert all(r.session_id is None for r in study_progress(opened.store, opened.study.name).rows)
+        assert opened.store.get_participant(opened.study.id, code).status == "enrolled"
+
+
+def test_a_virtual_rehearsal_needs_an_emulator_with_a_world(study):
+    """The serial board's emulator has no world for a hand: one clear error before anything is written."""
+    from studyctl.devices.emulation import emulated  # noqa: PLC0415
+    from studyctl.errors import SessionError  # noqa: PLC0415
+
+    with pytest.raises(SessionError, match="no world for a virtual participant"), \
+            emulated({"plugin": "serial_driver_board", "params": {}}, world=True):
+        pass
 
 
 REPORT = {"bio_inspired_palpation": "3 4", "needle_insertion": None, "data_driven_palpation": "10 20",
