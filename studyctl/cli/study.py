@@ -55,7 +55,8 @@ def register(app: typer.Typer) -> None:
             typer.echo(json.dumps({
                 "study": info.study, "protocol": info.protocol_name, "protocol_sha256": info.protocol_sha256,
                 "seed": info.seed, "database": info.database, "participants": info.participants,
-                "sessions": info.sessions, "trials": info.trials, "progress": progress_json(progress),
+                "sessions": info.sessions, "trials": info.trials, "rehearsal_sessions": info.rehearsal_sessions,
+                "rehearsal_trials": info.rehearsal_trials, "progress": progress_json(progress),
             }))
             return
         # Plain echo, not rich markup: names are shown verbatim whatever characters they hold.
@@ -68,5 +69,9 @@ def register(app: typer.Typer) -> None:
                               ("trials", info.trials)):
             parts = ", ".join(f"{k} {v}" for k, v in counts.items())
             typer.echo(f"{title + ':':<13} {sum(counts.values())} ({parts})")
+        if any(info.rehearsal_sessions.values()):  # recorded, but neither data nor progress: apart from the totals
+            n_trials = sum(info.rehearsal_trials.values())
+            typer.echo(f"{'rehearsals:':<13} {sum(info.rehearsal_sessions.values())} sessions, {n_trials} trials "
+                       "(run --rehearse; not counted above, never analysed)")
         for line in progress_lines(progress):
             typer.echo(line)

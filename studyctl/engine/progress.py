@@ -15,7 +15,8 @@ from sqlalchemy import select
 
 from studyctl.protocol.stored_plan import Schedule
 from studyctl.store import StudyStore
-from studyctl.store.models import Event, Participant, Session, Trial
+from studyctl.store.models import Participant, Session, Trial
+from studyctl.store.status import rehearsal_session_ids
 
 
 @dataclass(frozen=True)
@@ -78,9 +79,7 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
         sessions = list(s.scalars(select(Session).where(Session.participant_id.in_([p.id for p in people]))
                                   .order_by(Session.id)))
         trials = list(s.scalars(select(Trial).where(Trial.participant_id.in_([p.id for p in people]))))
-        heads = s.execute(select(Event.session_id, Event.payload).where(
-            Event.session_id.in_([x.id for x in sessions]), Event.kind == "session_plan")).all() if sessions else []
-    rehearsals = {sid for sid, payload in heads if (payload or {}).get("rehearsal")}
+        rehearsals = rehearsal_session_ids(s, [x.id for x in sessions])
     sessions = [x for x in sessions if x.id not in rehearsals]  # rehearsals are not progress
     latest = {x.participant_id: x for x in sessions}
     by_session: dict[int, list[Trial]] = defaultdict(list)

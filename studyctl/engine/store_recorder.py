@@ -36,6 +36,7 @@ from studyctl.store import StudyStore
 from studyctl.store.lease import SessionLeaseHandle, current_holder, owner_alive, take_lease
 from studyctl.store.models import Event, Participant, QuestionnaireResponse, Session, Trial, utcnow
 from studyctl.store.records import SealMark, load_mark, seal_session
+from studyctl.store.status import rehearsal_session_ids
 
 PLAN_EVENTS = ("session_plan", "plan_amended")
 # Events a participant produced (or that mark a fault) are fsynced at once; the rest ride on the next
@@ -150,9 +151,7 @@ def refuse_second_session(store: StudyStore, tx, participant: Participant) -> No
     """
     sessions = list(tx.scalars(select(Session).where(Session.participant_id == participant.id).order_by(Session.id)))
     if sessions:  # rehearsals (`studyctl run --rehearse`) are not taking part: any number, before or after
-        heads = tx.execute(select(Event.session_id, Event.payload).where(
-            Event.session_id.in_([x.id for x in sessions]), Event.kind == "session_plan")).all()
-        rehearsals = {sid for sid, payload in heads if (payload or {}).get("rehearsal")}
+        rehearsals = rehearsal_session_ids(tx, [x.id for x in sessions])
         sessions = [x for x in sessions if x.id not in rehearsals]
     for sess in sessions:
         if sess.status == "completed":

@@ -69,6 +69,16 @@ def test_rehearsals_are_left_out_of_analysis(study):
     rows = study_progress(opened.store, opened.study.name).rows
     assert rows and all(r.session_id is None and r.done == 0 for r in rows)  # status: a rehearsal is not progress
     assert len(opened.store.list_sessions(opened.store.get_participant(opened.study.id, code).id)) == 1  # recorded
+    # `studyctl status`: the totals are the study's data; the rehearsal is counted apart
+    from studyctl.store.status import study_status  # noqa: PLC0415
+
+    info = study_status(opened.store, opened.study)
+    assert sum(info.sessions.values()) == 0 and sum(info.trials.values()) == 0, info
+    assert info.rehearsal_sessions["completed"] == 1 and info.rehearsal_trials["completed"] == 4, info
+    run_session(opened.store, code, virtual=True, seed=3)  # the real session (simulated): counted, not the rehearsal
+    info = study_status(opened.store, opened.study)
+    assert info.sessions["completed"] == 1 and info.trials["completed"] == 4
+    assert info.rehearsal_sessions["completed"] == 1 and info.rehearsal_trials["completed"] == 4
 
 
 def test_a_virtual_participant_rehearses_on_the_emulated_board(tmp_path):
