@@ -163,6 +163,8 @@ def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> A
         s = v.value
         band = t.interval()
         lo, hi = band if band else (math.nan, math.nan)
+        if t.statistic in SPREADS and float(t.value) > 0:  # a spread is judged by its ratio: show that band
+            lo, hi = float(t.value) / SD_FACTOR, float(t.value) * SD_FACTOR
         direction = within = verdict = None
         ratio = math.nan
         sn = _num(s)

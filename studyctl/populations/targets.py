@@ -30,7 +30,14 @@ TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "uncertainty", "ro
                "baseline", "direction_vs", "unit", "headline")
 WHERE_KEYS = ("condition", "group", "level")
 LEVEL_ALIASES = ("nodule", "tumour", "class", "item")
-UNCERTAINTY_KEYS = ("sd", "n", "se", "interval")
+UNCERTAINTY_KEYS = ("sd", "n", "se", "interval", "basis")
+# What a target's uncertainty is (``basis``, required with an interval, se or sd): the paper's own number
+# (``paper``: its 95 % CI, SE or SD as printed); recomputed exactly from what it prints (``recomputed``; a
+# ``wilson`` score interval from the published count value · n of n, an ``exact_poisson`` (Garwood) interval from
+# a published count — both checked against the typed interval); or ``chosen`` by hand (the note says why).
+BASES = ("paper", "recomputed", "wilson", "exact_poisson", "chosen")
+SPREAD_BASES = ("paper", "recomputed", "chosen")  # for an se or sd
+RECOMPUTE_TOLERANCE = 0.006  # a typed recomputed interval may differ from ours by the paper's 2-3 digit rounding
 TEST_STATISTICS = ("test_p", "verdict")
 
 
@@ -91,15 +98,29 @@ class Target:
         return None if se is None else (v - 1.96 * se, v + 1.96 * se)
 
     def band(self) -> str:
-        """What :meth:`interval` is, in words (for the report)."""
+        """What :meth:`interval` is, in words (the report's and agreement.csv's ``band`` column): the paper's
+        95 % CI, an interval recomputed from published counts (Wilson, exact Poisson), a CHOSEN band, ±1 SD or
+        ±1.96 SE (published, recomputed from the paper, or CHOSEN), or ±1.96 SE derived from n."""
         u = self.uncertainty
+        basis = u.get("basis")
         if "interval" in u:
-            return "95% interval"
+            if basis == "wilson":
+                n = int(u["n"])
+                return f"Wilson 95% from {round(float(self.value) * n)}/{n}"
+            if basis == "exact_poisson":
+                return f"exact Poisson 95% from {float(self.value):g}"
+            return {"chosen": "CHOSEN band", "recomputed": "95% interval recomputed from the paper"}.get(
+                str(basis), "paper's 95% CI")
+        if self.statistic in SPREADS:
+            return "ratio within 1/1.5–1.5"
+        if basis == "pilot":  # set by --pilot-db, never written in a file
+            return "±1.96 pilot bootstrap SE"
+        word = {"chosen": "CHOSEN {}", "recomputed": "{} recomputed from the paper"}.get(str(basis), "published {}")
         if "se" in u:
-            return "±1.96 SE"
+            return "±1.96 " + word.format("SE")
         if "sd" in u and self.statistic in ("mean", "median"):
-            return "±1 SD"
-        return "±1.96 SE (from n)" if self.published_se() is not None else ""
+            return "±1 " + word.format("SD")
+        return "±1.96 SE derived from n" if self.published_se() is not None else ""
 
     def published_se(self) -> float | None:
         """The standard error of the published number (from what the paper prints), or None."""
@@ -276,7 +297,11 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
                 raise _fail(m, label, (*p, "uncertainty", key), f"unknown key {key!r}"
                             f"{did_you_mean(key, UNCERTAINTY_KEYS)}; allowed: {', '.join(UNCERTAINTY_KEYS)}",
                             value=False)
-            if key == "interval":
+            if key == "basis":
+                if val not in BASES:
+                    raise _fail(m, label, (*p, "uncertainty", key), f"basis {val!r} is not one of "
+                                f"{', '.join(BASES)}{did_you_mean(str(val), BASES)}")
+            elif key == "interval":
                 if (not isinstance(val, list) or len(val) != 2
                         or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in val)
                         or not val[0] <= val[1]):
@@ -292,6 +317,7 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
                     raise _fail(m, label, (*p, "uncertainty", key), f"{key} = {val:g} is negative; a spread is ≥ 0")
                 if key == "n" and (val < 1 or not float(val).is_integer()):
                     raise _fail(m, label, (*p, "uncertainty", key), f"n = {val!r} must be a whole number ≥ 1")
+        _check_basis(m, label, (*p, "uncertainty"), unc, stat, value)
         test = str(t.get("test") or "")
         if stat in TEST_STATISTICS:
             if not test:
@@ -330,6 +356,57 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
                         f"{did_you_mean(t.direction_vs, ids)} to compare the direction with")
     return TargetSet(protocol=pid, source=str(data.get("source") or ""), targets=tuple(out), alpha=float(alpha),
                      plan=str(data.get("plan") or pid), path=label, sha256=sha256)
+
+
+def recomputed_interval(basis: str, value: float, n: float | None) -> tuple[float, float] | None:
+    """The 95 % interval a ``wilson`` or ``exact_poisson`` basis stands for, recomputed from the published count."""
+    if basis == "wilson" and n:
+        from studyctl.stats import wilson_interval
+
+        w = wilson_interval(round(value * n), int(n))
+        return float(w.lower), float(w.upper)
+    if basis == "exact_poisson":
+        from scipy.stats import chi2
+
+        k = round(value)
+        lo = 0.0 if k == 0 else float(chi2.ppf(0.025, 2 * k) / 2)
+        return lo, float(chi2.ppf(0.975, 2 * k + 2) / 2)
+    return None
+
+
+def _check_basis(m: Any, label: str, p: tuple[Any, ...], unc: Mapping[str, Any], stat: str, value: Any) -> None:
+    """An uncertainty says what it is (``basis``); a recomputed interval must be what its published count gives."""
+    given = [k for k in ("interval", "se", "sd") if k in unc]
+    basis = unc.get("basis")
+    if not given:
+        if basis is not None:
+            raise _fail(m, label, (*p, "basis"), "basis says what an interval, se or sd is; give one with it",
+                        value=False)
+        return
+    if basis is None:
+        raise _fail(m, label, (*p, given[0]), f"say what this {given[0]} is: basis: "
+                    f"{' | '.join(BASES if given[0] == 'interval' else SPREAD_BASES)} (the paper's own number, "
+                    "recomputed exactly from what it prints, or chosen by hand with the reason in the note)",
+                    value=False)
+    if "interval" not in unc and basis not in SPREAD_BASES:
+        raise _fail(m, label, (*p, "basis"), f"basis {basis!r} is for an interval; an {given[0]} is "
+                    f"{' | '.join(SPREAD_BASES)}")
+    if basis == "wilson":
+        n = unc.get("n")
+        if stat != "proportion" or not n:
+            raise _fail(m, label, (*p, "basis"), "basis: wilson is for a proportion and needs the published "
+                        "count's n (uncertainty: {interval: …, basis: wilson, n: N})")
+    if basis == "exact_poisson" and (stat != "count_total" or not float(value).is_integer()):
+        raise _fail(m, label, (*p, "basis"), "basis: exact_poisson is for a count_total with a whole-number value")
+    ref = recomputed_interval(str(basis), float(value), unc.get("n"))
+    if ref is not None:
+        lo, hi = (float(v) for v in unc["interval"])
+        if abs(lo - ref[0]) > RECOMPUTE_TOLERANCE * max(1.0, abs(ref[0])) or abs(hi - ref[1]) > \
+                RECOMPUTE_TOLERANCE * max(1.0, abs(ref[1])):
+            of = f" of n = {float(unc['n']):g}" if basis == "wilson" else ""
+            raise _fail(m, label, (*p, "interval"), f"a {basis} 95 % interval for {value:g}{of} is "
+                        f"[{ref[0]:.3f}, {ref[1]:.3f}], not {unc['interval']}; fix the interval, the value or n, "
+                        "or say basis: paper / chosen")
 
 
 def _check_pair(m: Any, label: str, p: tuple[Any, ...], t: Mapping[str, Any], stat: str, entry: Any,

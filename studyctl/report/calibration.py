@@ -87,9 +87,11 @@ def agreement_blocks(frame: pd.DataFrame | None, info: pd.DataFrame | None, leve
     from studyctl.calibration.agreement import summary_from_frame
 
     out.append(("table", *summary_rows(summary_from_frame(frame))))
-    out.append(("p", "Bands: the paper's 95 % interval where printed, else ±1.96 SE, else ±1 SD for a mean with a "
-                "printed SD; an SD agrees when simulated/published lies within 1/1.5 … 1.5. Fit targets were used "
-                "to calibrate the population; validation targets never were."))
+    out.append(("p", "Each band says what it is: the paper's 95 % CI as printed; a Wilson or exact Poisson 95 % "
+                "interval recomputed from the paper's counts; ±1.96 SE or ±1 SD as published, recomputed from the "
+                "paper, or CHOSEN; a CHOSEN band is a tolerance picked by hand (the targets file's note says why), "
+                "not a confidence interval. An SD or CV agrees when simulated/published lies within 1/1.5 … 1.5. "
+                "Fit targets were used to calibrate the population; validation targets never were."))
     out.append(("table", *agreement_table(frame)))
     return out
 

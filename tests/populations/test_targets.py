@@ -27,7 +27,7 @@ def test_loads_targets_with_roles_and_bands():
     ts = _load(TARGETS)
     assert [t.id for t in ts.by_role("fit")] == ["time_nofb_mean", "time_nofb_sd"]
     mean = ts.get("time_nofb_mean")
-    assert mean.interval() == (17.0, 23.0) and mean.band() == "±1 SD"  # ±1 published SD
+    assert mean.interval() == (17.0, 23.0) and mean.band() == "±1 published SD"  # ±1 published SD
     assert mean.published_se() == pytest.approx(3.0 / math.sqrt(8))
     assert ts.get("time_linear_mean").interval() == pytest.approx((22 - 1.96 * 1.2, 22 + 1.96 * 1.2))
     assert ts.get("accuracy_linear").interval() == (0.4, 0.8)
@@ -42,13 +42,20 @@ def test_loads_targets_with_roles_and_bands():
         ("where: {condition: linear}\n    statistic: mean\n    value: 22.0",
          "where: {condition: linaer}\n    statistic: mean\n    value: 22.0", r"did you mean 'linear'"),
         ("statistic: sd", "statistic: stdev", r"unknown statistic 'stdev'"),
-        ("uncertainty: {sd: 3.0, n: 8}", "uncertainty: {sd: -3.0, n: 8}", r"sd = -3 is negative"),
+        ("uncertainty: {sd: 3.0, n: 8, basis: paper}", "uncertainty: {sd: -3.0, n: 8, basis: paper}",
+         r"sd = -3 is negative"),
+        ("{sd: 3.0, n: 8, basis: paper}", "{sd: 3.0, n: 8}", r"say what this sd is: basis: paper \| recomputed"),
         ("value: 0.6", "value: 1.6", r"a proportion|lies in"),
         ("role: validation\n    direction_vs", "role: check\n    direction_vs", r"role .check. must be fit or"),
         ("test: control_algorithm", "test: control_algoritm", r"did you mean 'control_algorithm'"),
         ("value: false", "value: 0.2", r"a verdict is true \(significant\) or false"),
         ("direction_vs: time_nofb_mean", "direction_vs: time_nofb_men", r"did you mean 'time_nofb_mean'"),
-        ("uncertainty: {interval: [0.4, 0.8]}", "uncertainty: {interval: [0.8, 0.4]}", r"low ≤ high"),
+        ("uncertainty: {interval: [0.4, 0.8], basis: chosen}", "uncertainty: {interval: [0.8, 0.4], basis: chosen}",
+         r"low ≤ high"),
+        ("interval: [0.4, 0.8], basis: chosen", "interval: [0.4, 0.8]", r"say what this interval is: basis: paper"),
+        ("basis: chosen", "basis: choosen", r"basis 'choosen' is not one of .*did you mean 'chosen'"),
+        ("interval: [0.4, 0.8], basis: chosen", "interval: [0.4, 0.8], basis: wilson, n: 10",
+         r"a wilson 95 % interval for 0.6 of n = 10 is \[0.313, 0.832\]"),
         ("format: studyctl-targets/1", "format: targets/2", r"format 'targets/2' is not supported"),
     ],
 )
