@@ -11,15 +11,12 @@ The force limit (10 N) and the workspace the emulator models are our choice, not
 
 from __future__ import annotations
 
-import contextlib
 import time
-from collections.abc import Iterator, Mapping
 from typing import Any
 
-from studyctl.devices.base import ParamDevice
-from studyctl.devices.omega import use_emulated_sdk
+from studyctl.devices.vendor import ForceAdapter, use_emulated_sdk
 from studyctl.errors import DeviceError
-from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits, Observation
+from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
 
 EXTRA_HINT = "pip install 'studyctl[haply]'"
@@ -36,12 +33,13 @@ def load_sdk(emulator: str = "") -> Any:
     return HaplyHardwareAPI
 
 
-class Inverse3Device(ParamDevice):
+class Inverse3Device(ForceAdapter):
     """Haply Inverse3 (3 active translational DoF) behind the plugin Device interface."""
 
     name = "inverse3"
-    simulated = False
     EXTRA = EXTRA_HINT
+    EMULATED_MODEL, EMULATED_WHAT = "inverse3", "Inverse3"
+    load_sdk = staticmethod(load_sdk)
     PARAMS = (
         Param("max_force_n", 10.0, 1e-3, 10.0, unit="N", source="CHOSEN: about the Inverse3's peak; check the unit"),
         Param("port", "", kind=str, source="serial port of the Inverse3 (empty: the first detected)"),
@@ -53,35 +51,12 @@ class Inverse3Device(ParamDevice):
     )  # fmt: skip
 
     def setup(self, p: dict[str, Any]) -> None:
-        self.max_force_n = float(p["max_force_n"])
-        self.limits = DeviceLimits(
-            outputs=tuple(ChannelLimit(ch, -self.max_force_n, self.max_force_n, 0.0, None, "N")
-                          for ch in ("fx_n", "fy_n", "fz_n")),
-            max_force_n=self.max_force_n, sensor_stale_s=0.01, ramp_up_s=float(p["ramp_up_s"]),
-        )
+        self.force_limits(p, sensor_stale_s=0.01)
         self._k = 1000.0 * float(p["scale"])
         self._offset = tuple(float(v) for v in p["offset_mm"])
         self._dev: Any = None
         self._stream: Any = None
         self._info: dict[str, Any] = {}
-        self._force = [0.0, 0.0, 0.0]
-        self._feedback = {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0}
-
-    @classmethod
-    def check_installed(cls) -> None:
-        """Raise DeviceError naming the extra to install when the vendor package is missing (before a session)."""
-        load_sdk()
-
-    @classmethod
-    @contextlib.contextmanager
-    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
-        from studyctl.devices.emulation import start_emulator  # noqa: PLC0415
-
-        args = ["--model", "inverse3", "--exit-with-parent"]
-        if hang_after_s is not None:
-            args += ["--hang-after", str(hang_after_s)]
-        with start_emulator("studyctl.devices.emulators.shm_device", args, what="Inverse3") as name:
-            yield {**dict(params), "emulator": name}
 
     def identity(self) -> dict[str, Any]:
         return {"model": "Inverse3", **self._info} if self._info else {}
@@ -115,13 +90,7 @@ class Inverse3Device(ParamDevice):
     def write(self, command: Channels) -> None:
         if self._dev is None:
             raise DeviceError("device inverse3: write before open()")
-        f = self._force
-        f[0], f[1], f[2] = command.get("fx_n", 0.0), command.get("fy_n", 0.0), command.get("fz_n", 0.0)
-        fb = self._feedback
-        fb["fx_n"], fb["fy_n"], fb["fz_n"] = f
-
-    def feedback(self) -> dict[str, float]:
-        return self._feedback
+        self.store_force(command)  # sent by the next read's end_effector_force
 
     def close(self) -> None:
         dev, self._dev = self._dev, None

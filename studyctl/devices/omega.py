@@ -16,13 +16,11 @@ own process and measures the period jitter.
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Iterator, Mapping
 from typing import Any
 
-from studyctl.devices.base import ParamDevice
+from studyctl.devices.vendor import ForceAdapter, use_emulated_sdk
 from studyctl.errors import DeviceError, ModelParameterError
-from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits, Observation
+from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
 
 EXTRA_HINT = "pip install 'studyctl[omega]'"
@@ -50,26 +48,12 @@ def load_sdk(emulator: str = "") -> Any:
     return dhd
 
 
-def use_emulated_sdk(package: str, env: str, emulator: str) -> None:
-    """Make ``import package`` find studyctl's stand-in (emulators/sdk) driving ``emulator`` in this process."""
-    import os  # noqa: PLC0415
-    import sys  # noqa: PLC0415
-
-    from studyctl.devices.emulators import SDK_DIR  # noqa: PLC0415
-
-    loaded = sys.modules.get(package)
-    if loaded is not None and not getattr(loaded, "EMULATED", False):
-        raise DeviceError(f"the real {package} is already loaded in this process; an emulated device needs its own")
-    os.environ[env] = emulator
-    if SDK_DIR not in sys.path:
-        sys.path.insert(0, SDK_DIR)
-
-
-class Omega6Device(ParamDevice):
+class Omega6Device(ForceAdapter):
     """omega.6 (3 active translational DoF, passive wrist) behind the plugin Device interface."""
 
     name = "omega6"
-    simulated = False
+    EMULATED_MODEL, EMULATED_WHAT = "omega6", "omega.6"
+    load_sdk = staticmethod(load_sdk)
     PARAMS = (
         Param("max_force_n", 12.0, 1e-3, 12.0, unit="N", source="omega.6 peak force (CHAI3D driver spec)"),
         Param("scale", 1.0, 1e-3, 100.0, source="device mm → scene mm"),
@@ -95,45 +79,16 @@ class Omega6Device(ParamDevice):
         self._sign = -1.0 if axis.startswith("-") else 1.0
         self._offset = tuple(float(v) for v in p["offset_mm"])
         self._scale = float(p["scale"])
-        self.max_force_n = float(p["max_force_n"])
-        rate = p["max_force_rate_n_per_s"]
-        self.limits = DeviceLimits(
-            outputs=tuple(
-                ChannelLimit(ch, -self.max_force_n, self.max_force_n, 0.0, rate, "N") for ch in ("fx_n", "fy_n", "fz_n")
-            ),
-            max_force_n=self.max_force_n,
-            sensor_stale_s=0.01,
-            ramp_up_s=float(p["ramp_up_s"]),
-        )
+        self.force_limits(p, sensor_stale_s=0.01, max_rate_per_s=p["max_force_rate_n_per_s"])
         self._dhd: Any = None
         self._id = -1
         self._pos = [0.0, 0.0, 0.0]
         self._vel = [0.0, 0.0, 0.0]
         self._rot = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-        self._force = [0.0, 0.0, 0.0]
-        self._feedback = {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0}
 
     def _check(self, ret: int, op: str) -> None:
         if ret is not None and ret < 0:
             raise DeviceError(f"device omega6: {op} failed: {self._dhd.errorGetLastStr()}")
-
-    @classmethod
-    def check_installed(cls) -> None:
-        """Raise DeviceError naming the extra to install when the vendor package is missing (before a session)."""
-        load_sdk()
-
-    @classmethod
-    @contextlib.contextmanager
-    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
-        """Start an omega.6 emulator (:mod:`studyctl.devices.emulators.shm_device`, its own process) and yield
-        the params that drive it through the SDK's own API (a rehearsal's device)."""
-        from studyctl.devices.emulation import start_emulator  # noqa: PLC0415
-
-        args = ["--model", "omega6", "--exit-with-parent"]
-        if hang_after_s is not None:  # tests: a device that stops answering
-            args += ["--hang-after", str(hang_after_s)]
-        with start_emulator("studyctl.devices.emulators.shm_device", args, what="omega.6") as name:
-            yield {**dict(params), "emulator": name}
 
     def open(self) -> None:
         dhd = load_sdk(str(self.params.get("emulator") or ""))
@@ -213,14 +168,7 @@ class Omega6Device(ParamDevice):
     def write(self, command: Channels) -> None:
         if self._dhd is None:
             raise DeviceError("device omega6: write before open()")
-        f = self._force
-        f[0], f[1], f[2] = command.get("fx_n", 0.0), command.get("fy_n", 0.0), command.get("fz_n", 0.0)
-        self._check(self._dhd.setForce(f, ID=self._id), "setForce")
-        fb = self._feedback
-        fb["fx_n"], fb["fy_n"], fb["fz_n"] = f
-
-    def feedback(self) -> dict[str, float]:
-        return self._feedback
+        self._check(self._dhd.setForce(self.store_force(command), ID=self._id), "setForce")
 
     def close(self) -> None:
         dhd, self._dhd = self._dhd, None

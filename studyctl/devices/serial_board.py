@@ -14,6 +14,7 @@ from typing import Any
 
 from studyctl.devices import board_protocol as bp
 from studyctl.devices.udp_board import UdpDriverBoard
+from studyctl.devices.vendor import run_emulator
 from studyctl.errors import DeviceError
 from studyctl.plugins.params import Param
 
@@ -48,12 +49,8 @@ class SerialDriverBoard(UdpDriverBoard):
     @contextlib.contextmanager
     def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
         """Start the board emulator on a pseudo-terminal; yield the params that reach it."""
-        from studyctl.devices.emulation import start_emulator  # noqa: PLC0415
-
-        args = ["--serial", "--max-runtime", "0", "--exit-with-parent"]
-        if hang_after_s is not None:
-            args += ["--silence-after", str(hang_after_s)]
-        with start_emulator("studyctl.devices.board_emulator", args, what="serial driver board") as path:
+        with run_emulator("studyctl.devices.board_emulator", ["--serial", "--max-runtime", "0"],
+                          what="serial driver board", hang_after_s=hang_after_s, hang_flag="--silence-after") as path:
             yield {**dict(params), "port": path}
 
     def _connect(self) -> Any:

@@ -16,15 +16,12 @@ in N in the device frame, clamped by the safety layer to 3.3 N (the Omni/Touch p
 
 from __future__ import annotations
 
-import contextlib
 import time
-from collections.abc import Iterator, Mapping
 from typing import Any
 
-from studyctl.devices.base import ParamDevice
-from studyctl.devices.omega import use_emulated_sdk
+from studyctl.devices.vendor import ForceAdapter, use_emulated_sdk
 from studyctl.errors import DeviceError
-from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits, Observation
+from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
 
 EXTRA_HINT = "pip install 'studyctl[openhaptics]'"
@@ -45,12 +42,13 @@ def load_sdk(emulator: str = "") -> Any:
     return hd, hd_callback, hd_device
 
 
-class TouchDevice(ParamDevice):
+class TouchDevice(ForceAdapter):
     """PHANToM Omni / 3D Systems Touch (3 active translational DoF) behind the plugin Device interface."""
 
     name = "touch"
-    simulated = False
     EXTRA = "pip install 'studyctl[openhaptics]' + the OpenHaptics SDK"
+    EMULATED_MODEL, EMULATED_WHAT = "touch", "Touch"
+    load_sdk = staticmethod(load_sdk)
     PARAMS = (
         Param("max_force_n", 3.3, 1e-3, 3.3, unit="N", source="Omni/Touch peak force (CHAI3D driver table)"),
         Param("device_name", "Default Device", kind=str, source="the OpenHaptics device configuration name"),
@@ -62,12 +60,7 @@ class TouchDevice(ParamDevice):
     )  # fmt: skip
 
     def setup(self, p: dict[str, Any]) -> None:
-        self.max_force_n = float(p["max_force_n"])
-        self.limits = DeviceLimits(
-            outputs=tuple(ChannelLimit(ch, -self.max_force_n, self.max_force_n, 0.0, None, "N")
-                          for ch in ("fx_n", "fy_n", "fz_n")),
-            max_force_n=self.max_force_n, sensor_stale_s=float(p["sensor_stale_s"]), ramp_up_s=float(p["ramp_up_s"]),
-        )
+        self.force_limits(p, sensor_stale_s=float(p["sensor_stale_s"]))
         self._k = float(p["scale"])
         self._offset = tuple(float(v) for v in p["offset_mm"])
         self._hd: Any = None
@@ -76,25 +69,6 @@ class TouchDevice(ParamDevice):
         self._pose = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]  # x y z vx vy vz buttons (mm, mm/s)
         self._stamp = 0.0  # perf_counter of the last HD callback
         self._t0 = 0.0
-        self._feedback = {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0}
-
-    @classmethod
-    def check_installed(cls) -> None:
-        """Raise DeviceError naming the extra to install when the vendor package is missing (before a session)."""
-        load_sdk()
-
-    @classmethod
-    @contextlib.contextmanager
-    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
-        """Start a Touch emulator (:mod:`studyctl.devices.emulators.shm_device`, its own process) and yield the
-        params that drive it through the wrapper's own API."""
-        from studyctl.devices.emulation import start_emulator  # noqa: PLC0415
-
-        args = ["--model", "touch", "--exit-with-parent"]
-        if hang_after_s is not None:  # tests: a device that stops answering
-            args += ["--hang-after", str(hang_after_s)]
-        with start_emulator("studyctl.devices.emulators.shm_device", args, what="Touch") as name:
-            yield {**dict(params), "emulator": name}
 
     def identity(self) -> dict[str, Any]:
         hd = self._hd
@@ -144,12 +118,10 @@ class TouchDevice(ParamDevice):
     def write(self, command: Channels) -> None:
         if self._hd is None:
             raise DeviceError("device touch: write before open()")
+        # a new list, not filled in place: the HD thread reads _cmd at any moment and must never see half a command
         self._cmd = [float(command.get("fx_n", 0.0)), float(command.get("fy_n", 0.0)), float(command.get("fz_n", 0.0))]
         fb = self._feedback
         fb["fx_n"], fb["fy_n"], fb["fz_n"] = self._cmd
-
-    def feedback(self) -> dict[str, float]:
-        return self._feedback
 
     def close(self) -> None:
         device, self._device = self._device, None
