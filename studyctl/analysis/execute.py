@@ -29,6 +29,7 @@ from studyctl.analysis.results import AnalysisResult, TestRow
 from studyctl.analysis.shape import Prepared, factor_column, ordered_levels, prepare, unit_values
 from studyctl.analysis.table import MetricTable
 from studyctl.errors import StudyctlError
+from studyctl.stats.summary import TestSummary
 
 
 def p_adjust(pvalues: Sequence[float], method: str) -> np.ndarray:
@@ -57,6 +58,12 @@ def p_adjust(pvalues: Sequence[float], method: str) -> np.ndarray:
         raise ValueError(f"unknown p adjustment {method!r}")
     out[ok] = adj
     return out
+
+
+#: the row columns a finding's typed summary fills as they are (its p_adjust and warnings are merged with the entry's)
+_SUMMARY_COLUMNS = tuple(
+    f.name for f in dataclasses.fields(TestSummary) if f.name not in ("p_adjust", "warnings")
+)
 
 
 def _join(*parts: Sequence[str]) -> str:
@@ -98,23 +105,10 @@ class _EntryRunner:
             metric,
             split,
             test=f.test or spec.name,
-            statistic_name=s.statistic_name,
-            statistic=s.statistic,
-            df=s.df,
-            df2=s.df2,
-            z=s.z,
-            p=s.p,
-            p_adj=s.p_adj,
+            **{name: getattr(s, name) for name in _SUMMARY_COLUMNS},
             p_adjust=f.p_adjust or s.p_adjust or "none",
             significant=f.significant,
             critical_value=f.critical_value,
-            effect_size_name=s.effect_size_name,
-            effect_size=s.effect_size,
-            estimate=s.estimate,
-            ci_low=s.ci_low,
-            ci_high=s.ci_high,
-            ci_level=s.ci_level,
-            method=s.method,
             warnings=_join(notes, f.warnings),
             status=f.status,
             **kw,

@@ -249,18 +249,15 @@ def check_against_protocol(plan: AnalysisPlan, doc: MarkedData) -> list[str]:
     if protocol is None:
         return []
     problems = []
-    known = list(protocol.condition_ids)
-    for i, c in enumerate(plan.condition_ids):
-        if c not in known:
-            problems.append(
-                f"{doc.where(('conditions', i))}: conditions[{i}]: protocol {plan.study!r} has no "
-                f"condition {c!r}{did_you_mean(c, known)} (its conditions: {', '.join(known)})"
-            )
-    strata = list(protocol.stratum_ids)
-    for i, g in enumerate(plan.group_ids):
-        if g not in strata:
-            problems.append(
-                f"{doc.where(('groups', i))}: groups[{i}]: protocol {plan.study!r} has no group "
-                f"(stratum) {g!r}{did_you_mean(g, strata)} (its strata: {', '.join(strata)})"
-            )
+    names = (
+        ("conditions", plan.condition_ids, list(protocol.condition_ids), "condition", "conditions"),
+        ("groups", plan.group_ids, list(protocol.stratum_ids), "group (stratum)", "strata"),
+    )
+    for key, used, known, what, listed in names:
+        for i, name in enumerate(used):
+            if name not in known:
+                problems.append(
+                    f"{doc.where((key, i))}: {key}[{i}]: protocol {plan.study!r} has no {what} "
+                    f"{name!r}{did_you_mean(name, known)} (its {listed}: {', '.join(known)})"
+                )
     return problems

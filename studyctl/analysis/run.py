@@ -7,6 +7,7 @@ This is where a plan is loaded (once) and where a stored study is opened (once, 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -124,13 +125,4 @@ def analyze(
             t1 = time.perf_counter()
             figure_data = collect(plan, stored)
             timings["figure_data_s"] = time.perf_counter() - t1
-    return AnalysisResult(
-        plan=result.plan,
-        data=result.data,
-        rows=result.rows,
-        tables=result.tables,
-        missing=result.missing,
-        problems=result.problems,
-        timings=timings,
-        figures=figure_data,
-    )
+    return dataclasses.replace(result, timings=timings, figures=figure_data)

@@ -44,20 +44,13 @@ _RANGE_WHAT = {
 }
 
 
+#: how a YAML value's type is named in messages (bool before int: True is an int too)
+_TYPE_NAMES = ((bool, "boolean"), (int, "integer"), (float, "number"), (str, "string"), (dict, "mapping"),
+               (list, "list"))
+
+
 def _typename(value: Any) -> str:
-    if isinstance(value, bool):
-        return "boolean"
-    if isinstance(value, int):
-        return "integer"
-    if isinstance(value, float):
-        return "number"
-    if isinstance(value, str):
-        return "string"
-    if isinstance(value, dict):
-        return "mapping"
-    if isinstance(value, list):
-        return "list"
-    return type(value).__name__
+    return next((name for kind, name in _TYPE_NAMES if isinstance(value, kind)), type(value).__name__)
 
 
 def _data_path(data: Any, loc: tuple[Any, ...]) -> KeyPath:
