@@ -15,6 +15,7 @@ from typing import Any
 
 import pandas as pd
 
+from studyctl.closing import Closeable
 from studyctl.errors import StoreError, UsageError
 from studyctl.power.replicate import ROW_COLUMNS, ReplicateResult
 
@@ -47,7 +48,7 @@ CREATE INDEX IF NOT EXISTS rows_by_replicate ON rows (participants, replicate);
 """
 
 
-class ResultsFile:
+class ResultsFile(Closeable):
     """Finished replicates of one power setup, kept in a SQLite file (open with :meth:`open`)."""
 
     def __init__(self, path: Path, conn: sqlite3.Connection) -> None:
@@ -107,12 +108,6 @@ class ResultsFile:
 
     def close(self) -> None:
         self._conn.close()
-
-    def __enter__(self) -> ResultsFile:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def done(self) -> set[tuple[int, int]]:
         """(sample size, replicate) pairs already finished."""

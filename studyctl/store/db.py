@@ -32,6 +32,7 @@ from sqlalchemy import exc as sa_exc
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
+from studyctl.closing import Closeable
 from studyctl.errors import ConfigError, SchemaVersionError, StoreError, UsageError
 from studyctl.resources import resource_dir
 
@@ -265,7 +266,7 @@ def require_head(state: SchemaState, where: str) -> None:
 # --------------------------------------------------------------------------------------- Database
 
 
-class Database:
+class Database(Closeable):
     """An open study database: engine, session factory and transaction helpers.
 
     Use :meth:`open` (checks the schema is at head) or :meth:`create` (new database, migrated to head).
@@ -324,12 +325,6 @@ class Database:
     def close(self) -> None:
         """Close every pooled connection (SQLite then checkpoints and removes its -wal/-shm files)."""
         self.engine.dispose()
-
-    def __enter__(self) -> Database:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def describe(self) -> str:
         path = sqlite_path(self.url)

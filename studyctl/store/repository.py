@@ -24,6 +24,7 @@ from sqlalchemy import func, insert, select
 from sqlalchemy.orm import Session as OrmSession
 
 from studyctl import __version__
+from studyctl.closing import Closeable
 from studyctl.errors import NotFoundError, UsageError
 from studyctl.store.audit import AuditReport, append_audit, canonical_json, verify_audit
 from studyctl.store.db import Database
@@ -99,7 +100,7 @@ def schedule_sha256(schedule: Any) -> str:
     return hashlib.sha256(canonical_json(schedule).encode("utf-8")).hexdigest()
 
 
-class StudyStore:
+class StudyStore(Closeable):
     """Repository over one study database (SQLite file or PostgreSQL).
 
     Create with :meth:`open` / :meth:`create`, or wrap an existing :class:`Database`.
@@ -121,12 +122,6 @@ class StudyStore:
 
     def close(self) -> None:
         self.db.close()
-
-    def __enter__(self) -> StudyStore:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- transactions -----------------------------------------------------------------------------
     def in_transaction(

@@ -21,6 +21,7 @@ from pathlib import Path
 from sqlalchemy import URL
 
 from studyctl import __version__
+from studyctl.closing import Closeable
 from studyctl.errors import ConfigError, StoreError, StudyctlError, UsageError
 from studyctl.protocol import load_protocol, resolve_protocol
 from studyctl.store.db import Database, describe_url, parse_url, require_head, sqlite_path
@@ -101,7 +102,7 @@ def resolve_database(
 
 
 @dataclass
-class OpenStudy:
+class OpenStudy(Closeable):
     """A store opened for one study (close it, or use it as a context manager)."""
 
     store: StudyStore
@@ -110,12 +111,6 @@ class OpenStudy:
 
     def close(self) -> None:
         self.store.close()
-
-    def __enter__(self) -> OpenStudy:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def open_study(

@@ -21,7 +21,8 @@ import studyctl
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("studyctl",),  # the package's __init__: its version only
     ("errors",),  # the one exception tree
-    ("suggest", "resources", "inputs", "problems"),  # did-you-mean; shipped files; bounded reading; file:line problems
+    ("suggest", "resources", "inputs", "problems", "closing"),  # did-you-mean; shipped files; bounded reading;
+    # file:line problems; `with` closes a handle
     ("yamlmarks",),  # YAML with positions and size limits (protocols, plans, populations, stiffness manifests)
     ("stats", "models"),  # pure statistics; pure numerical models (arrays in, frozen results out)
     ("plugins",),  # the Controller/Device/Scene/Participant interfaces, parameters, safety, discovery
