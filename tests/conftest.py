@@ -24,12 +24,13 @@ connections to it are terminated, every table truncated, identities restarted), 
 from __future__ import annotations
 
 import itertools
+import os
 import shutil
 
-import matplotlib
 import pytest
 
-matplotlib.use("Agg")
+# headless figures; set for matplotlib's first import (by a test), so collection does not import it
+os.environ["MPLBACKEND"] = "Agg"
 
 _counter = itertools.count()
 
@@ -39,6 +40,30 @@ def _audit_head_dir(tmp_path_factory, monkeypatch):
     """Each test keeps PostgreSQL audit head files in a folder of its own: the shared test database is
     emptied between tests, which to a head file kept across tests looks exactly like a rewritten log."""
     monkeypatch.setenv("STUDYCTL_AUDIT_HEAD_DIR", str(tmp_path_factory.mktemp("audit-heads")))
+
+
+@pytest.fixture
+def pty_workspace(tmp_path):
+    """A workspace of the engine's small terminal-test study (palpation, grid reports, 2 conditions) with PTY-AAAAA
+    enrolled, made in a fresh process, and the environment for running ``studyctl`` on a terminal in it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    protocol = Path(__file__).parent / "engine" / "data" / "pty_protocol.yaml"
+    ws = tmp_path / "ws"
+    env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"}
+    script = (
+        "from studyctl.store.workspace import init_workspace, open_study\n"
+        "from studyctl.store.enrollment import enroll\n"
+        f"init_workspace({str(ws)!r}, protocol={str(protocol)!r})\n"
+        f"with open_study(workspace={str(ws)!r}) as o:\n"
+        "    enroll(o.store, code='PTY-AAAAA')\n"
+    )
+    subprocess.run([sys.executable, "-c", script], check=True, env=env, timeout=120)
+    env.update(TERM="xterm", COLUMNS="120", LINES="40")
+    return ws, env
 
 
 @pytest.fixture(scope="session")

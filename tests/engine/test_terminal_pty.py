@@ -12,7 +12,6 @@ import pty
 import re
 import select
 import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -23,7 +22,6 @@ from studyctl.store import StudyStore
 
 pytestmark = pytest.mark.slow
 
-PROTOCOL = Path(__file__).parent / "data" / "pty_protocol.yaml"
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b\][^\x07]*\x07|\r")
 
 
@@ -101,20 +99,8 @@ class Term:
 
 
 @pytest.fixture
-def workspace(tmp_path):
-    ws = tmp_path / "ws"
-    env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"}
-    script = (
-        "import sys\n"
-        "from studyctl.store.workspace import init_workspace, open_study\n"
-        "from studyctl.store.enrollment import enroll\n"
-        f"init_workspace({str(ws)!r}, protocol={str(PROTOCOL)!r})\n"
-        f"with open_study(workspace={str(ws)!r}) as o:\n"
-        "    enroll(o.store, code='PTY-AAAAA')\n"
-    )
-    subprocess.run([sys.executable, "-c", script], check=True, env=env, timeout=120)
-    env.update(TERM="xterm", COLUMNS="120", LINES="40")
-    return ws, env
+def workspace(pty_workspace):
+    return pty_workspace
 
 
 def practise(term: Term) -> None:

@@ -137,6 +137,22 @@ def _last_trial(conn):
                         .order_by(Trial.id.desc())).first()
 
 
+def _delete_last(conn, model, label):
+    rid = conn.execute(select(func.max(model.id))).scalar()
+    conn.execute(delete(model).where(model.id == rid))
+    return rf"{label} {rid} deleted"
+
+
+def _insert_copy(conn, model, label, *, newest=True, bump=None):
+    """A copy of the newest (or the oldest) row under a new id; ``bump``: a column advanced so the copy is unique."""
+    row = conn.execute(select(model).order_by(model.id.desc() if newest else model.id)).mappings().first()
+    values = {k: v for k, v in row.items() if k != "id"}
+    if bump:
+        values[bump] += 1
+    new = conn.execute(insert(model).values(**values).returning(model.id)).scalar()
+    return rf"{label} {new} inserted"
+
+
 def edit_audit(conn):
     conn.execute(update(AuditLog).where(AuditLog.id == 3).values(actor="mallory"))
     return r"audit row 3 \(.*\) was edited"
@@ -184,10 +200,7 @@ def delete_trial(conn):
 
 
 def insert_trial(conn):
-    row = conn.execute(select(Trial).order_by(Trial.id.desc())).mappings().first()
-    values = {k: v for k, v in row.items() if k != "id"}
-    new = conn.execute(insert(Trial).values(**values).returning(Trial.id)).scalar()
-    return rf"trial {new} inserted"
+    return _insert_copy(conn, Trial, "trial")
 
 
 def edit_outcome(conn):
@@ -205,17 +218,11 @@ def edit_event(conn):
 
 
 def delete_event(conn):
-    eid = conn.execute(select(func.max(Event.id))).scalar()
-    conn.execute(delete(Event).where(Event.id == eid))
-    return rf"event {eid} deleted"
+    return _delete_last(conn, Event, "event")
 
 
 def insert_event(conn):
-    row = conn.execute(select(Event).order_by(Event.id.desc())).mappings().first()
-    values = {k: v for k, v in row.items() if k != "id"}
-    values["seq"] += 1
-    new = conn.execute(insert(Event).values(**values).returning(Event.id)).scalar()
-    return rf"event {new} inserted"
+    return _insert_copy(conn, Event, "event", bump="seq")
 
 
 def edit_answer(conn):
@@ -227,16 +234,11 @@ def edit_answer(conn):
 
 
 def delete_answer(conn):
-    aid = conn.execute(select(func.max(QuestionnaireResponse.id))).scalar()
-    conn.execute(delete(QuestionnaireResponse).where(QuestionnaireResponse.id == aid))
-    return rf"answer {aid} deleted"
+    return _delete_last(conn, QuestionnaireResponse, "answer")
 
 
 def insert_answer(conn):
-    row = conn.execute(select(QuestionnaireResponse).order_by(QuestionnaireResponse.id)).mappings().first()
-    new = conn.execute(insert(QuestionnaireResponse).values(**{k: v for k, v in row.items() if k != "id"})
-                       .returning(QuestionnaireResponse.id)).scalar()
-    return rf"answer {new} inserted"
+    return _insert_copy(conn, QuestionnaireResponse, "answer", newest=False)
 
 
 def edit_report(conn):
@@ -263,17 +265,11 @@ def rehash_chunk(conn):
 
 
 def delete_chunk(conn):
-    cid = conn.execute(select(func.max(SampleChunk.id))).scalar()
-    conn.execute(delete(SampleChunk).where(SampleChunk.id == cid))
-    return rf"sample chunk {cid} deleted"
+    return _delete_last(conn, SampleChunk, "sample chunk")
 
 
 def insert_chunk(conn):
-    row = conn.execute(select(SampleChunk).order_by(SampleChunk.id.desc())).mappings().first()
-    values = {k: v for k, v in row.items() if k != "id"}
-    values["chunk_index"] += 1
-    new = conn.execute(insert(SampleChunk).values(**values).returning(SampleChunk.id)).scalar()
-    return rf"sample chunk {new} inserted"
+    return _insert_copy(conn, SampleChunk, "sample chunk", bump="chunk_index")
 
 
 CASES = [edit_audit, delete_audit, insert_audit, truncate_tail, edit_trial, delete_trial, insert_trial, edit_outcome,

@@ -85,3 +85,13 @@ def shots(tmp_path_factory):
 
     save.folder = folder
     return save
+
+
+@pytest.fixture
+def store(tmp_path):
+    """A fresh SQLite study store of the view tests' own (the root ``store`` runs on both backends)."""
+    from studyctl.store import StudyStore
+
+    s = StudyStore.create(tmp_path / "study.db")
+    yield s
+    s.close()

@@ -11,17 +11,9 @@ import pytest
 from selenium.webdriver.common.by import By
 from view_support import NeedleHand, TissueHand, short_plan, start_session, wait_for
 
-from studyctl.store import StudyStore
 from studyctl.view import ParticipantView
 
 pytestmark = pytest.mark.slow
-
-
-@pytest.fixture
-def store(tmp_path):
-    s = StudyStore.create(tmp_path / "study.db")
-    yield s
-    s.close()
 
 
 def screen_of(driver) -> str:

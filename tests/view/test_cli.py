@@ -4,10 +4,7 @@ keeps the terminal (ends practice early); then the database is checked."""
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 from selenium.webdriver.common.by import By
@@ -18,24 +15,10 @@ from studyctl.store.workspace import open_study
 
 pytestmark = pytest.mark.slow
 
-# The engine's small terminal-test study: palpation (no visual channel), grid reports, 2 conditions.
-PROTOCOL = Path(__file__).parents[1] / "engine" / "data" / "pty_protocol.yaml"
-
-
 @pytest.fixture
-def workspace(tmp_path):
-    ws = tmp_path / "ws"
-    env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"}
-    script = (
-        "from studyctl.store.workspace import init_workspace, open_study\n"
-        "from studyctl.store.enrollment import enroll\n"
-        f"init_workspace({str(ws)!r}, protocol={str(PROTOCOL)!r})\n"
-        f"with open_study(workspace={str(ws)!r}) as o:\n"
-        "    enroll(o.store, code='PTY-AAAAA')\n"
-    )
-    subprocess.run([sys.executable, "-c", script], check=True, env=env, timeout=120)
-    env.update(TERM="xterm", COLUMNS="120", LINES="40")
-    return ws, env
+def workspace(pty_workspace):
+    """The engine's small terminal-test study: palpation (no visual channel), grid reports, 2 conditions."""
+    return pty_workspace
 
 
 @pytest.mark.slow

@@ -7,17 +7,9 @@ import pytest
 from http_client import Stream, request
 from view_support import NeedleHand, short_plan, start_session, wait_for
 
-from studyctl.store import StudyStore
 from studyctl.view import ParticipantView
 
 pytestmark = pytest.mark.slow
-
-
-@pytest.fixture
-def store(tmp_path):
-    s = StudyStore.create(tmp_path / "study.db")
-    yield s
-    s.close()
 
 
 def _screen(view, name: str) -> dict:
