@@ -9,7 +9,7 @@ which paper, code or measurement gave its default, or that the value was chosen 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -121,6 +121,26 @@ def declared_problems(plugin: type, params: Mapping[str, Any] | None) -> list[Pa
         return list(own(params or {}))
     spec = getattr(plugin, "PARAMS", None)
     return [] if spec is None else param_problems(params, spec)
+
+
+def checked_problems(
+    params: Mapping[str, Any] | None, spec: Sequence[Param], check: Callable[[Mapping[str, Any]], Any], owner: str
+) -> list[ParamProblem]:
+    """What a plugin with rules between its parameters refuses: each value against ``spec`` (every problem at its
+    key), then, when they all pass, the plugin's own ``check(params)`` (the rules between them), whose
+    :class:`~studyctl.errors.ModelParameterError` becomes a problem at the field it names first, else at the
+    mapping. ``owner`` is the prefix of ``check``'s messages (``"scene needle_liver: "``)."""
+    problems = param_problems(params, spec)
+    if problems:
+        return problems
+    try:
+        check(dict(params or {}))
+    except ModelParameterError as exc:
+        text = str(exc).removeprefix(owner)
+        field = text.split(" ", 1)[0]
+        key = (field,) if field in dict(params or {}) else ()
+        return [ParamProblem(key, "refused", text)]
+    return []
 
 
 def validate_params(owner: str, params: Mapping[str, Any] | None, spec: Sequence[Param]) -> dict[str, Any]:

@@ -23,23 +23,33 @@ import numpy as np
 from studyctl.errors import ModelParameterError
 from studyctl.models.needle import NeedleGeometry
 from studyctl.plugins.interfaces import Channels, Scene
+from studyctl.plugins.params import Param, ParamProblem, checked_problems
 
 # Grey levels of the synthetic CT (uint8). Bands are far apart (> 5 σ of the texture noise), so that
 # a reader can tell the structures apart, as a radiologist tells tissue from metal.
 AIR, LIVER_LEVEL, LIVER_NOISE, CAPSULE_LEVEL, TUMOUR_LEVEL, MARKER_LEVEL, NEEDLE_LEVEL = 15, 105, 9, 140, 200, 235, 255
 
-DEFAULT_SPEC: dict[str, Any] = {
-    "liver_radius_mm": 55.0,  # liver tissue sphere; the capsule is its surface
-    "tumour_diameter_mm": 2.5,  # hepatocellular carcinoma of a small size range (the paper)
-    "center_mm": [0.0, 0.0, -25.0],  # nominal tumour centroid in the device frame
-    "center_jitter_mm": 5.0,  # per-trial uniform jitter of the centroid on each axis
-    "approach_max_deg": 35.0,  # incision point: direction from the tumour within this cone about +z
-    "needle_length_mm": 150.0,
-    "view_size_px": 256,  # each slice panel is square
-    "view_mm_per_px": 0.5,
-    "view_center_mm": [0.0, 0.0, -20.0],  # device point at the centre of both panels
-    "site_seed": 2024,  # configurations ("sites") of the protocol's placement are drawn from this seed
-}
+#: The scene's parameters (the protocol's ``scene.params``), checked by ``studyctl protocol check`` with their line;
+#: the rules between them (tumour inside the liver) are :func:`_spec`'s.
+PARAMS = (
+    Param("liver_radius_mm", 55.0, 0.0, None, unit="mm", doc="liver tissue sphere; the capsule is its surface",
+          source="CHOSEN: an adult liver lobe's scale; seed 001 gives no size"),
+    Param("tumour_diameter_mm", 2.5, 0.0, None, unit="mm", source="seed 001: a 2.5 mm tumour"),
+    Param("center_mm", (0.0, 0.0, -25.0), kind=tuple, unit="mm", doc="nominal tumour centroid in the device frame",
+          source="CHOSEN: inside the Omega.6 workspace"),
+    Param("center_jitter_mm", 5.0, 0.0, None, unit="mm", doc="per-trial uniform jitter of the centroid on each axis",
+          source="CHOSEN"),
+    Param("approach_max_deg", 35.0, 0.0, 80.0, unit="deg",
+          doc="incision point: direction from the tumour within this cone about +z", source="CHOSEN"),
+    Param("needle_length_mm", 150.0, 0.0, None, unit="mm", source="CHOSEN: a biopsy needle's length"),
+    Param("view_size_px", 256, 32, 2048, kind=int, doc="each slice panel is square", source="CHOSEN"),
+    Param("view_mm_per_px", 0.5, 0.0, None, unit="mm/px", source="CHOSEN: a CT slice's pixel size"),
+    Param("view_center_mm", (0.0, 0.0, -20.0), kind=tuple, unit="mm",
+          doc="device point at the centre of both panels", source="CHOSEN"),
+    Param("site_seed", 2024, 0, None, kind=int,
+          doc="configurations ('sites') of the protocol's placement are drawn from this seed", source="CHOSEN"),
+)
+DEFAULT_SPEC: dict[str, Any] = {p.name: p.default for p in PARAMS}
 
 
 def _vec3(value: Any, name: str) -> tuple[float, float, float]:
@@ -97,6 +107,12 @@ class NeedleLiverScene(Scene):
     """
 
     name = "needle_liver"
+    PARAMS = PARAMS
+
+    @classmethod
+    def param_problems(cls, params: Mapping[str, Any]) -> list[ParamProblem]:
+        """Every refused scene parameter, at its key, for ``studyctl protocol check``."""
+        return checked_problems(params, PARAMS, _spec, "scene needle_liver: ")
 
     def __init__(self, spec: dict[str, Any], placement: Mapping[str, Any], needs: frozenset[str]) -> None:
         self.spec = spec

@@ -46,20 +46,29 @@ from studyctl.models.stiffness_map_files import load_stiffness_map
 from studyctl.models.surface_mesh import SurfaceMesh, surface_from_point_cloud
 from studyctl.models.synthetic_phantom import PHANTOMS, Nodule
 from studyctl.plugins.interfaces import Channels, Scene
+from studyctl.plugins.params import Param, ParamProblem, checked_problems
 
-DEFAULT_SPEC: dict[str, Any] = {
-    "phantom": "seed003_block",
-    "phantom_options": {},
-    "map_seed": 0,
-    "stiffness_map": None,
-    "surface": None,
-    "nodules": None,
-    "indenter_radius_mm": 5.0,
-    "view_grid_mm": 2.0,
-    "warm_depth_mm": None,
-    "tell_nodule_count": False,
-}
 PHANTOM_CHOICES = (*PHANTOMS, "measured")
+#: The scene's parameters (the protocol's ``scene.params``; see the module docstring), checked by ``studyctl
+#: protocol check`` with their line. ``object``: null or a value :func:`_check_spec` checks (paths, nested specs).
+PARAMS = (
+    Param("phantom", "seed003_block", choices=PHANTOM_CHOICES, kind=str,
+          source="CHOSEN: the seed 003 block, the synthetic stand-in closest to a paper's printed numbers"),
+    Param("phantom_options", {}, kind=dict, doc="keyword arguments of the synthetic generator",
+          source="CHOSEN: the generator's own defaults"),
+    Param("map_seed", 0, 0, None, kind=int, doc="seed of the synthetic sensor noise", source="CHOSEN"),
+    Param("stiffness_map", None, kind=object, doc="(measured) an .npz map or a manifest", source="the study's files"),
+    Param("surface", None, kind=object, doc="(measured) flat, heights or point_cloud", source="the study's files"),
+    Param("nodules", None, kind=object, doc="(measured) ground truth in the tissue frame", source="the study's files"),
+    Param("indenter_radius_mm", 5.0, 0.0, None, unit="mm", doc="the avatar sphere of the deformation view",
+          source="CHOSEN: inside seed 003's 6-10 mm indenter diameters"),
+    Param("view_grid_mm", 2.0, 0.0, None, unit="mm", doc="display-grid spacing of the deformation view",
+          source="CHOSEN"),
+    Param("warm_depth_mm", None, kind=object, unit="mm", doc="depth the depth index is pre-built to",
+          source="CHOSEN: the deepest map depth + 3 mm"),
+    Param("tell_nodule_count", False, kind=bool, doc="put the number of nodules into public()", source="CHOSEN"),
+)
+DEFAULT_SPEC: dict[str, Any] = {p.name: p.default for p in PARAMS}
 
 
 def _number(value: Any, name: str, *, low: float = 0.0, strict: bool = True) -> float:
@@ -219,6 +228,12 @@ class StiffnessTissueScene(Scene):
     """
 
     name = "stiffness_tissue"
+    PARAMS = PARAMS
+
+    @classmethod
+    def param_problems(cls, params: Mapping[str, Any]) -> list[ParamProblem]:
+        """Every refused scene parameter, at its key, for ``studyctl protocol check``."""
+        return checked_problems(params, PARAMS, _check_spec, "scene stiffness_tissue: ")
 
     def __init__(self, spec: dict[str, Any], placement: Mapping[str, Any], needs: frozenset[str]) -> None:
         self.spec = spec

@@ -52,6 +52,29 @@ def test_controller_device_scene_values_are_checked_with_their_line(tmp_path):
                for p in problems), problems
 
 
+def test_scene_params_and_the_rules_between_them_are_checked_with_their_line(tmp_path):
+    bad = "  plugin: needle_liver\n  params: {approach_max_deg: 95, liver_radius: 3}\n"
+    needle = _edited(tmp_path, "needle_insertion", ("  plugin: needle_liver\n", bad))
+    problems = [str(p) for p in check_protocol(needle)]
+    line = _line_of(needle, "approach_max_deg: 95")
+    assert len(problems) == 2, problems
+    assert any(p.startswith(f"{needle}:{line}:") and "scene.params.approach_max_deg: scene 'needle_liver': out of "
+               "range: found 95, allowed a float in [0, 80] deg" in p for p in problems), problems
+    assert any("scene.params.liver_radius" in p and "did you mean 'liver_radius_mm'?" in p for p in problems), problems
+    inside = _edited(tmp_path, "needle_insertion",
+                     ("  plugin: needle_liver\n", "  plugin: needle_liver\n  params: {tumour_diameter_mm: 60}\n"))
+    (problem,) = [str(p) for p in check_protocol(inside)]
+    assert "scene.params.tumour_diameter_mm" in problem and "must be smaller than liver_radius_mm" in problem
+    tissue = _edited(tmp_path, "data_driven_palpation", ("    phantom: seed002_curved", "    phantom: measured"))
+    (problem,) = [str(p) for p in check_protocol(tissue)]
+    assert problem.startswith(f"{tissue}:{_line_of(tissue, 'phantom: measured')}:"), problem
+    assert "scene 'stiffness_tissue'" in problem and "needs field 'stiffness_map'" in problem
+    thin = "  plugin: sponge_phantom\n  params: {size_mm: [140, 140, 20], tumour_height_mm: 25}\n"
+    sponge = _edited(tmp_path, "bio_inspired_palpation", ("  plugin: sponge_phantom\n", thin))
+    sponge_problems = [str(p) for p in check_protocol(sponge)]
+    assert len(sponge_problems) == 1 and "scene.params.tumour_height_mm" in sponge_problems[0], sponge_problems
+
+
 def test_needle_blocks_are_checked_at_the_key_that_holds_the_value(tmp_path):
     path = _edited(
         tmp_path,
