@@ -38,6 +38,7 @@ def test_device_check_emulated_exercises_the_safety_layer(device, model, rate):
     assert data["rt"]["gc"] == "frozen+disabled" and data["rt"]["cpus"]
 
 
+@pytest.mark.slow
 def test_a_missing_sdk_is_one_error_line_naming_the_extra():
     out = _run("device", "check", "omega6")
     assert out.returncode != 0
@@ -45,6 +46,7 @@ def test_a_missing_sdk_is_one_error_line_naming_the_extra():
     assert len(lines) == 1 and lines[0].startswith("Error:") and "pip install 'studyctl[omega]'" in lines[0], out.stderr
 
 
+@pytest.mark.slow
 def test_bad_device_name_and_param_are_one_error_line():
     for args, needle in ((("device", "check", "nope"), "known devices"),
                          (("device", "check", "udp_driver_board", "--param", "port"), "KEY=VALUE"),
@@ -55,6 +57,7 @@ def test_bad_device_name_and_param_are_one_error_line():
             args, out.stderr)
 
 
+@pytest.mark.slow
 def test_serial_board_absent_or_busy_port_is_named_with_the_fix(tmp_path):
     out = _run("device", "check", "serial_driver_board", "--param", "port=/dev/ttyNOPE9")
     lines = out.stderr.strip().splitlines()

@@ -29,6 +29,7 @@ def population_with_inert_trait(tmp_path):
                          "    sd: 0.05\n    range: [0.05, 0.6]\n    source: \"CHOSEN: test\"\nfixed: {hold_s: 0.3}")
 
 
+@pytest.mark.slow
 def test_calibrate_fits_resumes_and_flags_unidentified(tmp_path, protocol, population_with_inert_trait):
     from studyctl.workflows.calibrate import prepare_calibration, run_calibration
 
@@ -66,6 +67,7 @@ def test_calibrate_fits_resumes_and_flags_unidentified(tmp_path, protocol, popul
     assert again.seconds < result.seconds
 
 
+@pytest.mark.slow
 def test_unreachable_targets_finish_and_say_what_was_missed(tmp_path, protocol):
     from studyctl.workflows.calibrate import prepare_calibration, run_calibration
 
@@ -132,6 +134,7 @@ def test_simulated_report_compares_with_published(tmp_path, protocol):
     assert rep2.files.html.is_file()
 
 
+@pytest.mark.slow
 def test_replicates_run_on_a_dask_scheduler(tmp_path, protocol):
     distributed = pytest.importorskip("distributed")
     from studyctl.workflows.calibrate import evaluate, prepare_calibration

@@ -158,6 +158,7 @@ def _rigid(rng):
     return q, rng.normal(0, 200, 3)
 
 
+@pytest.mark.slow
 def test_point_cloud_reconstruction_recovers_the_dome():
     rng = np.random.default_rng(8)
     # a 90 × 50 mm dome (long axis along x), 20 mm high, on a table extending 40 mm around it
