@@ -40,10 +40,11 @@ import numpy as np
 
 from studyctl.errors import ModelParameterError, NotFoundError
 from studyctl.models.force_render import Placement
+from studyctl.models.point_cloud import surface_from_point_cloud
 from studyctl.models.pseudo_haptics import DeformationView
 from studyctl.models.stiffness_map import StiffnessMap
 from studyctl.models.stiffness_map_files import load_stiffness_map
-from studyctl.models.surface_mesh import SurfaceMesh, surface_from_point_cloud
+from studyctl.models.surface_mesh import SurfaceMesh
 from studyctl.models.synthetic_phantom import PHANTOMS, Nodule
 from studyctl.plugins.interfaces import Channels, Scene
 from studyctl.plugins.params import Param, ParamProblem, checked_problems

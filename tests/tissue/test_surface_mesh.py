@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from studyctl.errors import ModelParameterError
-from studyctl.models.surface_mesh import SurfaceMesh, surface_from_point_cloud
+from studyctl.models.point_cloud import surface_from_point_cloud
+from studyctl.models.surface_mesh import SurfaceMesh
 from studyctl.models.synthetic_phantom import curved_phantom_002
 
 
