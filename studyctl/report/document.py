@@ -11,10 +11,8 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import os
-import platform
 import re
 from collections.abc import Sequence
-from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,6 +23,15 @@ from studyctl import __version__
 from studyctl.analysis import catalog
 from studyctl.report import apa
 from studyctl.report.compose import likert_items_table
+from studyctl.report.findings import (
+    agreement_headline,
+    headline_lines,
+    methods_text,
+    posthoc_text,
+    split_levels,
+    tests_frame,
+    where_text,
+)
 from studyctl.report.render import Block, render_html, render_latex, render_markdown
 from studyctl.report.style import fmt_num
 
@@ -67,14 +74,6 @@ def relative_source(source: str, base: Path | str | None) -> str:
     if rel.split(os.sep).count("..") > 2:  # far from the report (e.g. a shipped data file): its name only
         rel = Path(path).name
     return rel + sep + rest
-
-
-def _splits(split: str) -> dict[str, str]:
-    out = {}
-    for part in filter(None, (s.strip() for s in str(split or "").split(", "))):
-        key, _, value = part.partition("=")
-        out[key] = value
-    return out
 
 
 # ------------------------------------------------------------------------------------------ tidy tables
@@ -142,7 +141,7 @@ def _test_rows_table(entry: PlanTest, rows: pd.DataFrame, result: AnalysisResult
     head += ["method", "notes"]
     body = []
     for _, r in rows.iterrows():
-        split = _splits(r["split"])
+        split = split_levels(r["split"])
         n, per = _n_cells(r)
         groups = str(r["groups"])
         cells = [label(r["metric"]), *[split.get(f, "") for f in factors], groups, n, per]
@@ -195,141 +194,6 @@ def _descriptive_table(frame: pd.DataFrame, result: AnalysisResult, level_name: 
         for _, r in frame.iterrows()
     ]
     return tidy(head, body, keep=("metric",))
-
-
-def tests_frame(result: AnalysisResult) -> pd.DataFrame:
-    """The tests table with the bootstrap intervals of the effect sizes (``effect_ci_low/high``) when the
-    result has them (table ``effect_sizes``)."""
-    frame = result.to_frame()
-    ci = result.tables.get("effect_sizes")
-    if ci is None or ci.empty:
-        return frame.assign(effect_ci_low=np.nan, effect_ci_high=np.nan)
-    keys = ["test_id", "metric", "split", "groups"]
-    ci = ci[keys + ["ci_low", "ci_high"]].rename(columns={"ci_low": "effect_ci_low", "ci_high": "effect_ci_high"})
-    return frame.merge(ci, on=keys, how="left")
-
-
-# ------------------------------------------------------------------------------------------- headlines
-
-
-def _where(r: Any, result: AnalysisResult, with_metric: bool = True) -> str:
-    bits = [result.plan.metric_label(r.metric)] if with_metric else []
-    if r.split:
-        bits.append(", ".join(f"{k} {v}" for k, v in _splits(r.split).items()))
-    if r.kind in ("two_sample", "posthoc", "pairwise", "interval") and r.groups:
-        bits.append(str(r.groups))
-    return ", ".join(bits)
-
-
-def headline_lines(entry: PlanTest, result: AnalysisResult) -> list[str]:
-    """The entry's headline: one APA line per test (up to four), else the count significant and the strongest."""
-    frame = tests_frame(result)
-    rows = frame[(frame["test_id"] == entry.id) & (frame["kind"].isin(["omnibus", "two_sample"]))]
-    if rows.empty:  # pairwise-only entries (signed-rank pairs against W_critical, Newcombe margins)
-        rows = frame[(frame["test_id"] == entry.id) & (frame["kind"] == "pairwise")]
-    name = catalog.ALIASES.get(entry.test, entry.test)
-    if name in ("percent_change", "likert_table", "descriptive"):  # tables, not tests: read in their section
-        return []
-    if rows.empty:
-        intervals = frame[(frame["test_id"] == entry.id) & (frame["kind"] == "interval") & frame["estimate"].notna()]
-        if not intervals.empty:
-            lo, hi = intervals.loc[intervals["estimate"].idxmin()], intervals.loc[intervals["estimate"].idxmax()]
-            if lo["estimate"] == hi["estimate"]:
-                return [f"{len(intervals)} intervals, every estimate p̂ = {apa.bounded(lo['estimate'])}"]
-            return [f"{len(intervals)} intervals; lowest {_where(lo, result)}: {apa.line(lo.to_dict())}; highest "
-                    f"{_where(hi, result)}: {apa.line(hi.to_dict())}"]
-        return []
-    ok = rows[rows["status"] == "ok"]
-    lines = []
-    if len(rows) <= 4:
-        for r in rows.itertuples(index=False):
-            lines.append(f"{_where(r, result)}: {apa.line(r._asdict())}")
-        return lines
-    sig = ok[ok["significant"] == True]  # noqa: E712
-    what = "pairs" if set(rows["kind"]) == {"pairwise"} else "tests"
-    lines.append(f"{len(sig)} of {len(rows)} {what} significant at α = {apa.bounded(float(rows['alpha'].iloc[0]))}"
-                 + (f" ({len(rows) - len(ok)} not computed)" if len(ok) < len(rows) else ""))
-    p = ok["p"].where(ok["p"].notna(), ok["p_adj"]) if not ok.empty else ok.get("p")
-    if not ok.empty and p.notna().any():
-        best = ok.loc[p.idxmin()]
-        lines.append(f"strongest: {_where(best, result)}: {apa.line(best.to_dict())}")
-    return lines
-
-
-def _agreement_headline(result: AnalysisResult) -> str | None:
-    frame = result.tables.get("agreement")
-    if frame is None or frame.empty:
-        return None
-    from studyctl.calibration.agreement import summary_from_frame
-
-    s = summary_from_frame(frame).get("all") or {}
-    if not s.get("targets"):
-        return None
-
-    def frac(key: str) -> str:
-        f, n = s.get(f"{key}_fraction"), s.get(f"{key}_n")
-        return "–" if f is None or not n else f"{round(f * n)}/{n} ({f:.0%})"
-
-    return (f"{frac('agree')} published targets agree on every check; directions right {frac('direction')}; "
-            f"verdicts reproduced {frac('verdict')}; within the published band {frac('within')}")
-
-
-# --------------------------------------------------------------------------------------------- methods
-
-
-def _versions() -> str:
-    names = ("numpy", "scipy", "pandas", "statsmodels")
-    found = []
-    for n in names:
-        try:
-            found.append(f"{n} {metadata.version(n)}")
-        except metadata.PackageNotFoundError:
-            continue
-    return f"studyctl {__version__} (Python {platform.python_version()}; {', '.join(found)})"
-
-
-def _posthoc_text(entry: PlanTest) -> str:
-    ph = entry.posthoc
-    if ph.test == "multcompare":
-        how = "MATLAB multcompare: studentized range on mean ranks"
-    elif ph.test == "tukey_hsd":
-        how = "Tukey HSD, studentized range"
-    else:
-        how = f"{ph.test.replace('_', ' ')}, {ph.p_adjust}-adjusted"
-    when = "after a significant omnibus test" if ph.when == "significant" else "always"
-    return f"{how}, {when}"
-
-
-def methods_text(result: AnalysisResult) -> list[str]:
-    """The statistical-analysis paragraph(s), generated from the plan."""
-    plan = result.plan
-    agg = {"mean": "averaged", "median": "summarised by their median", "none": "kept as separate rows"}.get(
-        plan.aggregate, f"aggregated by {plan.aggregate}")
-    paras = [f"Repeated trials of a participant in one condition were {agg}, giving one value per participant and "
-             f"cell. Missing values: {plan.missing} (every missing value is listed under Missing data). Tests were "
-             f"two-sided unless stated, at α = {apa.bounded(plan.alpha)}."]
-    for entry in plan.tests:
-        name = catalog.ALIASES.get(entry.test, entry.test)
-        spec = catalog.TESTS[name]
-        if spec.design == catalog.DESCRIPTIVE:
-            continue
-        text = f"{entry.title or entry.id}: {spec.summary}, comparing the levels of {entry.compare.replace('_', ' ')}"
-        if entry.by:
-            text += f" separately for each {' × '.join(b.replace('_', ' ') for b in entry.by)}"
-        if entry.posthoc:
-            text += f"; post-hoc pairs: {_posthoc_text(entry)}"
-        if entry.correction != "none":
-            text += f"; p-values adjusted across rows ({entry.correction})"
-        if entry.effect_size:
-            text += f"; effect size: {', '.join(apa.EFFECT_SYMBOLS.get(e, e) for e in entry.effect_size)}"
-        paras.append(text + ".")
-    ci = result.tables.get("effect_sizes")
-    if ci is not None and not ci.empty:
-        paras.append(f"Effect sizes are given with 95% percentile-bootstrap intervals ({int(ci['replicates'].max())} "
-                     f"resamples, seeded generator, seed {int(ci['seed'].iloc[0])}; participants resampled within "
-                     "each level for independent samples and as whole blocks for paired designs).")
-    paras.append(f"Computed with {_versions()}.")
-    return paras
 
 
 # ------------------------------------------------------------------------------------------- sections
@@ -397,7 +261,7 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
         blocks.append(("alert", "no rows: nothing could be computed for this entry"))
     else:
         main = rows[rows["kind"] != "posthoc"]
-        lines = [f"{_where(r, result)}: {apa.line(r._asdict())}" for r in main.itertuples(index=False)
+        lines = [f"{where_text(r, result)}: {apa.line(r._asdict())}" for r in main.itertuples(index=False)
                  if r.kind in ("omnibus", "two_sample")]
         if lines:
             blocks.append(("apa", lines))
@@ -405,7 +269,7 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
             blocks.append(("table", *_test_rows_table(entry, main, result)))
         post = rows[rows["kind"] == "posthoc"]
         if not post.empty:
-            blocks.append(("p", f"Post-hoc pairs ({_posthoc_text(entry)}):"))
+            blocks.append(("p", f"Post-hoc pairs ({posthoc_text(entry)}):"))
             blocks.append(("table", *_test_rows_table(entry, post, result)))
     if entry.published:
         text = ", ".join(f"{k} = {v}" for k, v in entry.published.items())
@@ -469,7 +333,7 @@ def blocks(
         out.append(("alert", "PARTIAL RESULTS: some of what the plan asks for could not be computed "
                     "(listed under Missing data and marked NOT COMPUTED in the tables)."))
     findings = []
-    agreement = _agreement_headline(result)
+    agreement = agreement_headline(result)
     if agreement:  # one line, first: how far a simulated study is from the paper
         findings.append(("Simulated vs published", "simulated-vs-published", [agreement]))
     for entry in plan.tests:
