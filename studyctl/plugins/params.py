@@ -143,6 +143,19 @@ def checked_problems(
     return []
 
 
+def problems_with_rules(
+    spec: Sequence[Param], check: Callable[[Mapping[str, Any]], Any], owner: str
+) -> classmethod:
+    """A plugin class's ``param_problems`` (what ``studyctl protocol check`` asks) from its declared ``spec`` and
+    the check of the rules between its parameters: ``param_problems = problems_with_rules(PARAMS, check, owner)``
+    (see :func:`checked_problems`)."""
+
+    def param_problems(cls: type, params: Mapping[str, Any]) -> list[ParamProblem]:
+        return checked_problems(params, spec, check, owner)
+
+    return classmethod(param_problems)
+
+
 def validate_params(owner: str, params: Mapping[str, Any] | None, spec: Sequence[Param]) -> dict[str, Any]:
     """Merge ``params`` over the spec's defaults and check every value.
 

@@ -23,7 +23,7 @@ import numpy as np
 from studyctl.errors import ModelParameterError
 from studyctl.models.needle import NeedleGeometry
 from studyctl.plugins.interfaces import Channels, Scene
-from studyctl.plugins.params import Param, ParamProblem, checked_problems
+from studyctl.plugins.params import Param, problems_with_rules
 
 # Grey levels of the synthetic CT (uint8). Bands are far apart (> 5 σ of the texture noise), so that
 # a reader can tell the structures apart, as a radiologist tells tissue from metal.
@@ -108,11 +108,8 @@ class NeedleLiverScene(Scene):
 
     name = "needle_liver"
     PARAMS = PARAMS
-
-    @classmethod
-    def param_problems(cls, params: Mapping[str, Any]) -> list[ParamProblem]:
-        """Every refused scene parameter, at its key, for ``studyctl protocol check``."""
-        return checked_problems(params, PARAMS, _spec, "scene needle_liver: ")
+    # protocol check: every refused value at its key, and the rules between them
+    param_problems = problems_with_rules(PARAMS, _spec, "scene needle_liver: ")
 
     def __init__(self, spec: dict[str, Any], placement: Mapping[str, Any], needs: frozenset[str]) -> None:
         self.spec = spec

@@ -30,7 +30,7 @@ import numpy as np
 
 from studyctl.errors import ModelParameterError
 from studyctl.plugins.interfaces import Channels, Scene
-from studyctl.plugins.params import Param, ParamProblem, checked_problems, validate_params
+from studyctl.plugins.params import Param, problems_with_rules, validate_params
 
 TUMOUR_MODULUS_KPA = {"soft": 58.0, "medium": 70.0, "hard": 120.0}  # paper, Methods D.2
 
@@ -98,12 +98,11 @@ class SpongePhantomScene(Scene):
         Param("sensing_diameter_mm", 9.53, 1.0, 50.0, unit="mm", source="FlexiForce A201 datasheet"),
     )
 
-    @classmethod
-    def param_problems(cls, params: Mapping[str, Any]) -> list[ParamProblem]:
-        """Every refused scene parameter, at its key, and the geometry rules between them (``protocol check``)."""
-        return checked_problems(params, cls.PARAMS,
-                                lambda p: _check_geometry(validate_params("sponge_phantom scene", p, cls.PARAMS)),
-                                "sponge_phantom scene: ")
+    # protocol check: every refused value at its key, and the geometry rules between them
+    param_problems = problems_with_rules(
+        PARAMS, lambda p, spec=PARAMS: _check_geometry(validate_params("sponge_phantom scene", p, spec)),
+        "sponge_phantom scene: ",
+    )
 
     def __init__(self, params: Mapping[str, Any], tumours: tuple[Tumour, ...], needs: frozenset[str]) -> None:
         self.params = params

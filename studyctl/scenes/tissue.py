@@ -47,7 +47,7 @@ from studyctl.models.stiffness_map_files import load_stiffness_map
 from studyctl.models.surface_mesh import SurfaceMesh
 from studyctl.models.synthetic_phantom import PHANTOMS, Nodule
 from studyctl.plugins.interfaces import Channels, Scene
-from studyctl.plugins.params import Param, ParamProblem, checked_problems
+from studyctl.plugins.params import Param, problems_with_rules
 
 PHANTOM_CHOICES = (*PHANTOMS, "measured")
 #: The scene's parameters (the protocol's ``scene.params``; see the module docstring), checked by ``studyctl
@@ -230,11 +230,8 @@ class StiffnessTissueScene(Scene):
 
     name = "stiffness_tissue"
     PARAMS = PARAMS
-
-    @classmethod
-    def param_problems(cls, params: Mapping[str, Any]) -> list[ParamProblem]:
-        """Every refused scene parameter, at its key, for ``studyctl protocol check``."""
-        return checked_problems(params, PARAMS, _check_spec, "scene stiffness_tissue: ")
+    # protocol check: every refused value at its key, and the rules between them
+    param_problems = problems_with_rules(PARAMS, _check_spec, "scene stiffness_tissue: ")
 
     def __init__(self, spec: dict[str, Any], placement: Mapping[str, Any], needs: frozenset[str]) -> None:
         self.spec = spec

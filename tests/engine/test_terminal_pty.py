@@ -113,6 +113,16 @@ def practise(term: Term) -> None:
     term.expect(r"Practice: finished after \d+\.\d s")
 
 
+def finish_trial_and_rate(term: Term) -> None:
+    """A trial started at the prompt and finished at once (f), then the first Likert item answered 3."""
+    term.expect("Press Enter to start the trial")
+    term.send("\r")
+    term.expect(r"time left")
+    term.send("f")
+    term.expect(r"Answer \(1–5\):")
+    term.send("3\r")
+
+
 def studyctl(*args: str) -> list[str]:
     return [sys.executable, "-m", "studyctl", *args]
 
@@ -208,19 +218,9 @@ def test_ctrl_c_in_a_trial_stops_safely_and_resumes(workspace):
     # resume at the terminal: the interrupted trial is repeated, the rest follows
     term = Term(studyctl("resume", "1"), ws, env)
     term.expect(r"Resuming session 1 at step 3 trial")
-    term.expect("Press Enter to start the trial")
-    term.send("\r")
-    term.expect(r"time left")
-    term.send("f")
-    term.expect(r"Answer \(1–5\):")
-    term.send("3\r")
+    finish_trial_and_rate(term)
     practise(term)
-    term.expect("Press Enter to start the trial")
-    term.send("\r")
-    term.expect(r"time left")
-    term.send("f")
-    term.expect(r"Answer \(1–5\):")
-    term.send("3\r")
+    finish_trial_and_rate(term)
     term.expect(r"Answer \(1–5\):")
     term.send("3\r")
     term.expect(r"completed; 2 trials completed, 1 aborted")
