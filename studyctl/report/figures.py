@@ -287,6 +287,13 @@ def proportion_figure(
     return fig
 
 
+def _legend_below(fig: Figure, handles: Sequence[Any], labels: Sequence[str], **kw: Any) -> None:
+    """One row of legend entries under the panels (a figure legend, not an axes one: it names every panel's
+    colours once), in the report's small type."""
+    fig.legend(list(handles), list(labels), loc="outside lower center", ncols=len(labels), fontsize=8, frameon=False,
+               **kw)
+
+
 def percent_change_figure(
     pct: pd.DataFrame,
     *,
@@ -319,14 +326,8 @@ def percent_change_figure(
         ax.set_ylim(lo - pad, hi + pad)
     from matplotlib.patches import Patch
 
-    fig.legend(
-        [Patch(color=PALETTE[0], alpha=0.85), Patch(color=PALETTE[1], alpha=0.85)],
-        [f"lower than {reference}", f"higher than {reference}"],
-        loc="outside lower center",
-        ncols=2,
-        fontsize=8,
-        frameon=False,
-    )
+    _legend_below(fig, [Patch(color=PALETTE[0], alpha=0.85), Patch(color=PALETTE[1], alpha=0.85)],
+                  [f"lower than {reference}", f"higher than {reference}"])
     fig.suptitle(title, fontsize=11)
     return fig
 
@@ -379,16 +380,7 @@ def likert_figure(
         ax.set_xlabel("% of answers (left: below the middle, right: above)", fontsize=8)
         ax.set_title(item.replace("_", " "), fontsize=10)
         ax.grid(axis="x", alpha=0.3)
-    fig.legend(
-        [Patch(color=c) for c in colors],
-        labels,
-        title=f"answer (1–{points})",
-        title_fontsize=8,
-        loc="outside lower center",
-        ncols=points,
-        fontsize=8,
-        frameon=False,
-    )
+    _legend_below(fig, [Patch(color=c) for c in colors], labels, title=f"answer (1–{points})", title_fontsize=8)
     fig.suptitle(title, fontsize=11)
     return fig
 
@@ -445,14 +437,7 @@ def trace_figure(
                 right.set_ylim(*right_limits)
         ax.grid(alpha=0.3)
     if legend:
-        fig.legend(
-            list(legend.values()),
-            list(legend),
-            loc="outside lower center",
-            ncols=len(legend),
-            fontsize=8,
-            frameon=False,
-        )
+        _legend_below(fig, list(legend.values()), list(legend))
     fig.suptitle(title, fontsize=11)
     return fig
 

@@ -8,16 +8,9 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-import yaml
 
-from studyctl.engine.api import run_session
 from studyctl.engine.export import export_study, read_export
-from studyctl.store.enrollment import enroll
-from studyctl.store.workspace import init_workspace, open_study
-
-PROTOCOL = Path(__file__).parent / "data" / "pty_protocol.yaml"
-SCRIPT = {"likert": {"easy": [4, 5], "prefer_feedback": [4]},
-          "trials": {1: [{"t": 2.0, "request": "finish"}], 2: [{"t": 2.5, "request": "finish"}]}}
+from studyctl.store.workspace import open_study
 
 
 def _size(folder: Path) -> int:
@@ -43,14 +36,8 @@ def _check_package(folder: Path, tables: dict[str, pd.DataFrame]) -> None:
         assert (folder / res["path"]).is_file()
 
 
-def test_csv_and_parquet_read_back_equal_with_payload_columns(tmp_path):
-    ws = tmp_path / "ws"
-    init_workspace(ws, protocol=str(PROTOCOL))
-    answers = tmp_path / "answers.yaml"
-    answers.write_text(yaml.safe_dump(SCRIPT))
-    with open_study(workspace=ws) as o:
-        enroll(o.store, code="PTY-AAAAA")
-        run_session(o.store, "PTY-AAAAA", virtual=False, script=answers)
+def test_csv_and_parquet_read_back_equal_with_payload_columns(tmp_path, scripted_person_study):
+    with open_study(workspace=scripted_person_study) as o:
         export_study(o.store, tmp_path / "csv")
         export_study(o.store, tmp_path / "pq", format="parquet")
     tables = _check_same(tmp_path / "csv", tmp_path / "pq")

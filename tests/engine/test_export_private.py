@@ -4,28 +4,14 @@ from __future__ import annotations
 
 import socket
 import stat
-from pathlib import Path
-
-import yaml
 
 from studyctl.cli.app import main
-from studyctl.engine.api import run_session
-from studyctl.store.enrollment import enroll
-from studyctl.store.workspace import init_workspace, open_study
-
-PROTOCOL = Path(__file__).parent / "data" / "pty_protocol.yaml"
-SCRIPT = {"likert": {"easy": [4, 5], "prefer_feedback": [4]},
-          "trials": {1: [{"t": 2.0, "request": "finish"}], 2: [{"t": 2.5, "request": "finish"}]}}
+from studyctl.store.workspace import open_study
 
 
-def test_export_files_are_private_and_anonymous(tmp_path, capsys):
-    ws = tmp_path / "ws"
-    init_workspace(ws, protocol=str(PROTOCOL))
-    answers = tmp_path / "answers.yaml"
-    answers.write_text(yaml.safe_dump(SCRIPT))
+def test_export_files_are_private_and_anonymous(tmp_path, capsys, scripted_person_study):
+    ws = scripted_person_study
     with open_study(workspace=ws) as o:
-        enroll(o.store, code="PTY-AAAAA")
-        run_session(o.store, "PTY-AAAAA", virtual=False, script=answers)
         # what older studyctl versions stored with every session start and resume
         o.store.append_event(1, "session_process", {"pid": 4242, "host": socket.gethostname()}, t_mono=0.0)
     out = tmp_path / "export"
