@@ -28,10 +28,9 @@ def test_each_short_flag_has_one_meaning():
     assert meanings["-w"] == {"--workspace"}
 
 
-# Commands that print results but have no --json yet (issue 21, left for later); the list may only shrink.
-NO_JSON_YET = {"calibrate", "report", "simulate", "protocol show", "db check"}
-# JSON through their --format option instead
-FORMAT_JSON = {"protocol schedule"}
+# Commands that print results but have no --json, each with the reason; a command added without --json fails
+# the walk below until it gets one or is listed here.
+NO_JSON = {"calibrate": "calib-core adds it (issue 17)"}
 
 
 def _commands(group, path=()):
@@ -45,11 +44,9 @@ def _commands(group, path=()):
 
 def test_every_command_has_json_but_the_listed_ones():
     commands = dict(_commands(typer.main.get_command(app)))
-    missing = {name for name, cmd in commands.items()
-               if not any("--json" in p.opts for p in cmd.params) and name not in FORMAT_JSON}
-    assert missing == NO_JSON_YET, missing ^ NO_JSON_YET
-    assert {"run", "resume", "export", "init", "withdraw", "consent", "note", "status", "enroll"} <= \
-        set(commands) - missing
+    assert len(commands) >= 25 and {"protocol show", "db check", "device list"} <= set(commands)  # walks groups
+    missing = {name for name, cmd in commands.items() if not any("--json" in p.opts for p in cmd.params)}
+    assert missing == set(NO_JSON), missing ^ set(NO_JSON)
 
 
 def test_json_output_is_one_parseable_object(tmp_path, capsys):
@@ -84,3 +81,16 @@ def test_json_output_is_one_parseable_object(tmp_path, capsys):
     assert state["revision"] == state["head"]
     assert main(["db", "upgrade", "--json", "-w", str(ws)]) == 0
     assert json.loads(capsys.readouterr().out)["changed"] is False
+    assert main(["db", "check", "--json", "-w", str(ws)]) == 0
+    checked = json.loads(capsys.readouterr().out)
+    assert checked["ok"] is True and {"schema", "sqlite integrity"} <= {c["check"] for c in checked["checks"]}
+    assert main(["protocol", "show", "needle_insertion", "--json"]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["study"] == "needle_insertion" and shown["sequences"]
+    assert [c["id"] for c in shown["protocol"]["conditions"]] == checked_conditions(shown)
+    assert main(["protocol", "schedule", "needle_insertion", "-n", "2", "--json"]) == 0
+    assert len({r["participant"] for r in json.loads(capsys.readouterr().out)["rows"]}) == 2
+
+
+def checked_conditions(shown):
+    return [c for c in ("BL", "RT", "ES", "EG", "ESG") if c in {x["id"] for x in shown["protocol"]["conditions"]}]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
@@ -63,12 +64,14 @@ def register(app: typer.Typer) -> None:
                                      ".targets.yaml)."),
         figure_format: str = typer.Option("png,svg,pdf", "--figure-format", help="Figure files to write, "
                                           "comma-separated: png (300 dpi), svg, pdf."),
+        as_json: bool = typer.Option(False, "--json", help="Print the files written (and any problems) as one "
+                                     "JSON object."),
     ) -> None:
         """Analyse a plan and write tidy CSV tables, figures, an HTML report and Markdown into a folder."""
         from studyctl.workflows.report import build_report
 
         console = _console()
-        with console.status("analysing…") as status:
+        with _console(err=True).status("analysing…") as status:
             run = build_report(
                 plan,
                 out,
@@ -80,6 +83,11 @@ def register(app: typer.Typer) -> None:
                 figure_formats=tuple(figure_format.split(",")),
             )
         files = run.files
+        if as_json:
+            typer.echo(json.dumps({"html": str(files.html), "markdown": str(files.markdown),
+                                   "tables": [str(t) for t in files.tables], "figures": [str(f) for f in files.figures],
+                                   "partial": files.partial, "problems": list(files.problems)}))
+            return
         console.print(f"Report: {files.html}", markup=False)
         console.print(
             f"        {files.markdown}  ({len(files.tables)} tables, {len(files.figures)} figures)", markup=False
@@ -113,6 +121,8 @@ def register_sim(app: typer.Typer) -> None:
         population: Path = typer.Option(
             None, "--population", help="Population file the virtual people are drawn from (default: the "
             "protocol's shipped population, studyctl/populations/<protocol>.yaml, when there is one)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result (workspace, database, counts, "
+                                     "seconds, population) as one JSON object."),
     ) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -145,6 +155,9 @@ def register_sim(app: typer.Typer) -> None:
                 on_progress=lambda i, n, code: progress.update(task, completed=i, code=code),
                 population=pop,
             )
+        if as_json:
+            typer.echo(result.to_frame().iloc[0].to_json())
+            return
         typer.echo(
             f"Simulated {result.participants} participants of {result.study!r} in {result.seconds:.1f} s: "
             f"{result.trials_completed} trials completed, {result.trials_not_completed} not"

@@ -44,12 +44,16 @@ def register(app: typer.Typer) -> None:
             require_head(state, database.describe())
 
     @db_app.command("check")
-    def check(db: str = DB_OPTION, workspace: Path = WORKSPACE_OPTION) -> None:
+    def check(db: str = DB_OPTION, workspace: Path = WORKSPACE_OPTION, as_json: bool = JSON_OPTION) -> None:
         """Check the database file's integrity, the audit hash chain and the stored sample chunks."""
         url, _ = resolve_database(db, workspace_arg(workspace))
         report = check_database(url)
-        for line in report.lines():
-            typer.echo(line)
+        if as_json:  # printed before the exit status says whether it passed
+            typer.echo(json.dumps({"database": report.database, "ok": report.ok,
+                                   "checks": [{"check": n, "passed": ok, "detail": d} for n, ok, d in report.checks]}))
+        else:
+            for line in report.lines():
+                typer.echo(line)
         report.raise_for_problems()
 
     app.add_typer(db_app, name="db")

@@ -52,9 +52,22 @@ def register(app: typer.Typer) -> None:
                    f" sha256 {protocol.sha256[:12]})")
 
     @group.command("show")
-    def show(file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol.")) -> None:
+    def show(
+        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol."),
+        as_json: bool = typer.Option(False, "--json", help="Print the validated protocol (every field, defaults "
+                                     "filled in) and its counterbalancing sequences as one JSON object."),
+    ) -> None:
         """Print a readable summary of a protocol: conditions, order, trial template, scene, questionnaires."""
-        typer.echo(describe_protocol(_load(file)))
+        protocol = _load(file)
+        if as_json:
+            from studyctl.protocol.schedule import Planner
+
+            sequences = Planner(protocol).sequences
+            typer.echo(json.dumps({"study": protocol.study.id, "sha256": protocol.sha256,
+                                   "sequences": None if sequences is None else [list(s) for s in sequences],
+                                   "protocol": protocol.model_dump(mode="json")}))
+            return
+        typer.echo(describe_protocol(protocol))
 
     @group.command("schedule")
     def schedule(
@@ -64,8 +77,11 @@ def register(app: typer.Typer) -> None:
         seed: int | None = typer.Option(None, "--seed", "-s", min=0,
                                         help="Schedule seed (default: the protocol's study.seed)."),
         fmt: Format = typer.Option(Format.table, "--format", "-f", help="table, csv or json."),
+        as_json: bool = typer.Option(False, "--json", help="The same as --format json."),
     ) -> None:
         """Preview the schedules of N participants, with position and carry-over balance diagnostics."""
+        if as_json:
+            fmt = Format.json
         protocol = _load(file)
         if seed is None:
             seed = protocol.study.seed

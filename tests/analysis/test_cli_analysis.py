@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -35,6 +36,12 @@ def test_report_csv_plan(capsys, tmp_path):
     assert code == 0, err
     assert f"Report: {tmp_path / 'r' / 'report.html'}" in out
     assert (tmp_path / "r" / "figures" / "fig5b_sensitivity.png").is_file()
+    code, out, err = run(capsys, "report", "pseudo_haptic_palpation_published", "--out", str(tmp_path / "j"),
+                         "--figure-format", "svg", "--json")
+    assert code == 0, err
+    files = json.loads(out)  # stdout is the one object: the progress spinner goes to stderr
+    assert files["html"] == str(tmp_path / "j" / "report.html") and files["partial"] is False
+    assert any(f.endswith(".svg") for f in files["figures"]) and all(Path(f).is_file() for f in files["figures"])
 
 
 @pytest.mark.parametrize(
