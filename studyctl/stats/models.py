@@ -37,6 +37,7 @@ from scipy import stats as _st
 
 from studyctl.errors import StatsInputError
 
+from .model_intervals import partial_eta_squared_ci
 from .summary import TestSummary
 
 NAN = math.nan
@@ -57,6 +58,9 @@ class ModelTerm:
     method: str = ""
     status: str = "ok"
     reason: str = ""
+    # 95 % interval of the effect size where one is known (ART's F rows: noncentral F inversion)
+    effect_ci_low: float = NAN
+    effect_ci_high: float = NAN
 
     def summary(self) -> TestSummary:
         return TestSummary(self.statistic_name, self.statistic, p=self.p, df=self.df, df2=self.df2,
@@ -76,7 +80,7 @@ class ModelResult:
 
     def to_frame(self) -> pd.DataFrame:
         cols = ["term", "statistic_name", "statistic", "df", "df2", "p", "effect_size_name", "effect_size",
-                "method", "status", "reason"]
+                "effect_ci_low", "effect_ci_high", "method", "status", "reason"]
         return pd.DataFrame([[getattr(t, c) for c in cols] for t in self.terms], columns=cols)
 
     def term(self, name: str) -> ModelTerm:
@@ -158,6 +162,13 @@ def _problem(frame: pd.DataFrame, names: Sequence[str], levels: dict[str, list])
     return ""
 
 
+def _no_variation(values: np.ndarray, what: str = "every value") -> str:
+    """Why a response that does not vary cannot be tested ('' when it varies)."""
+    if len(values) and np.all(values == values[0]):
+        return f"{what} is the same ({values[0]:g}): the response does not vary, nothing to test"
+    return ""
+
+
 def _repeated(frame: pd.DataFrame) -> bool:
     return bool(frame["_subject"].duplicated().any())
 
@@ -176,9 +187,11 @@ def _ols_f(y: np.ndarray, x: np.ndarray, assign: list[int], t: int) -> tuple[flo
     keep = [j for j, a in enumerate(assign) if a != t]
     rss_r, rank_r = rss(x[:, keep])
     df1, df2 = rank_f - rank_r, len(y) - rank_f
-    ss = rss_r - rss_f
-    f = (ss / df1) / (rss_f / df2) if rss_f > 0 else math.inf
-    p = float(_st.f.sf(f, df1, df2)) if math.isfinite(f) else 0.0
+    ss = max(rss_r - rss_f, 0.0)  # rounding can leave a tiny negative difference
+    if rss_f <= 1e-12 * float(((y - y.mean()) ** 2).sum()):
+        raise np.linalg.LinAlgError("no residual variance: the model fits every observation exactly")
+    f = (ss / df1) / (rss_f / df2)
+    p = float(_st.f.sf(f, df1, df2))
     return f, float(df1), float(df2), p, ss / (ss + rss_f) if ss + rss_f > 0 else NAN
 
 
@@ -287,7 +300,7 @@ def mixed_model(y: Sequence[float], factors: dict[str, Sequence], subject: Seque
     frame = _clean(y, factors, subject)
     names = list(factors)
     lv = _levels(frame, names, levels)
-    why = _problem(frame, names, lv)
+    why = _problem(frame, names, lv) or _no_variation(frame["y"].to_numpy())
     if not why and not _repeated(frame):
         why = "every participant has one value: no random intercept to estimate (use a between-subject test)"
     if why:
@@ -302,6 +315,10 @@ def mixed_model(y: Sequence[float], factors: dict[str, Sequence], subject: Seque
             chi2, df, p, llf = _mixed_lr(yv, x, assign, t, groups, llf)
         except np.linalg.LinAlgError as exc:
             out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=str(exc)))
+            continue
+        if not math.isfinite(chi2):
+            out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed",
+                                 reason="the likelihood could not be evaluated at the fitted values"))
             continue
         out.append(ModelTerm(_term_name(term), "chi2 (LR)", chi2, df, NAN, p, method=method))
     return ModelResult("mixed_model", tuple(out), len(frame), int(frame["_subject"].nunique()))
@@ -330,7 +347,7 @@ def art_anova(y: Sequence[float], factors: dict[str, Sequence], subject: Sequenc
     if len(names) < 2:
         raise StatsInputError("the aligned rank transform needs at least two factors (use a rank test for one)")
     lv = _levels(frame, names, levels)
-    why = _problem(frame, names, lv)
+    why = _problem(frame, names, lv) or _no_variation(frame["y"].to_numpy())
     if why:
         return _not_computed("art_anova", names, frame, why)
     x, assign = design(frame, names, lv)
@@ -339,6 +356,10 @@ def art_anova(y: Sequence[float], factors: dict[str, Sequence], subject: Sequenc
     out = []
     for t, term in enumerate(_terms(names)):
         ranks = _st.rankdata(aligned_responses(frame, names, term))
+        flat = _no_variation(ranks, "every aligned rank")
+        if flat:  # the term's aligned responses are all tied: a fit would report rounding noise as an effect
+            out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=flat))
+            continue
         try:
             if repeated:
                 chi2, df, p, _ = _mixed_lr(ranks, x, assign, t, groups)
@@ -347,8 +368,10 @@ def art_anova(y: Sequence[float], factors: dict[str, Sequence], subject: Sequenc
                     "participant, likelihood-ratio χ² of ML fits")))
             else:
                 f, df1, df2, p, pes = _ols_f(ranks, x, assign, t)
+                lo, hi = partial_eta_squared_ci(f, df1, df2)
                 out.append(ModelTerm(_term_name(term), "F", f, df1, df2, p, "partial_eta_squared", pes, method=(
-                    "aligned rank transform (Wobbrock et al. 2011); type III F on the aligned ranks")))
+                    "aligned rank transform (Wobbrock et al. 2011); type III F on the aligned ranks; 95% interval "
+                    "of partial η² by noncentral F inversion"), effect_ci_low=lo, effect_ci_high=hi))
         except np.linalg.LinAlgError as exc:
             out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=str(exc)))
     return ModelResult("art_anova", tuple(out), len(frame), int(frame["_subject"].nunique()))

@@ -77,11 +77,35 @@ def test_model_rows_one_per_term(plan):
     assert ordinal.effect_size_name.eq("nagelkerke_r2").all()
 
 
-def test_a_design_it_cannot_fit_is_a_flagged_row(plan):
-    frame = run_plan(plan, MetricTable(frame=_table(np.random.default_rng(3), drop_expert_c=True),
-                                       source="toy")).to_frame()
-    art = frame[frame.test_id == "art"]
-    assert set(art.status) == {"not_computed"} and art.warnings.str.contains("singular").all()
+def _one_group(t: pd.DataFrame) -> pd.DataFrame:
+    return t[t.group == "novice"]
+
+
+def _one_person_per_group(t: pd.DataFrame) -> pd.DataFrame:
+    return t[t.participant.isin(["P00", "P08"])]
+
+
+def _constant_force(t: pd.DataFrame) -> pd.DataFrame:
+    return t.assign(value=np.where(t.metric == "mean_contact_force", 2.5, t.value))
+
+
+@pytest.mark.parametrize(
+    ("change", "reason"),
+    [
+        (None, "singular"),                       # no expert in condition C: an empty cell
+        (_one_group, "factor group has one level"),
+        (_one_person_per_group, "no replication"),
+        (_constant_force, "does not vary"),
+    ],
+)
+def test_a_design_it_cannot_fit_is_a_flagged_row(plan, change, reason):
+    table = _table(np.random.default_rng(3), drop_expert_c=change is None)
+    frame = run_plan(plan, MetricTable(frame=change(table) if change else table, source="toy")).to_frame()
+    for test_id in ("art", "lmm"):
+        rows = frame[frame.test_id == test_id]
+        assert len(rows) == 3 and set(rows.status) == {"not_computed"}, (test_id, rows.status.tolist())
+        assert rows.warnings.str.contains(reason).all(), rows.warnings.tolist()
+        assert rows.p.isna().all() and rows.significant.isna().all()
 
 
 @pytest.mark.parametrize(

@@ -174,3 +174,69 @@ def test_mixed_model_on_a_balanced_design_gives_the_exact_likelihood_ratio():
     for t, term in enumerate(res.terms):
         reduced = _dense_ml_llf(y, x[:, [j for j, a in enumerate(assign) if a != t]], subject)
         assert term.status == "ok" and abs(term.statistic - 2 * (full - reduced)) < 1e-6
+
+
+# ------------------------------------------------------------------------------------------ intervals
+
+
+def test_mixed_model_coefficient_intervals_match_lme4_wald():
+    from studyctl.stats.model_intervals import mixed_coefficients
+
+    d = pd.read_csv(REF / "mixed_unbalanced.csv")  # unbalanced: 7 vs 5 per group, 3 missing within-cells
+    table = mixed_coefficients(d["y"], {"group": d["group"], "condition": d["condition"]}, d["subject"],
+                               levels=LEVELS)
+    r = R["mixed_coefficients"]
+    frame = table.to_frame()
+    assert table.status == "ok" and [n.replace("[", "").replace("]", "") for n in frame["name"]] == r["names"]
+    for col, key in (("estimate", "estimate"), ("se", "se"), ("ci_low", "low"), ("ci_high", "high")):
+        got, want = frame[col].to_numpy(), np.asarray(r[key])
+        # relative to the interval's half-width: bounds near zero make a plain relative difference meaningless
+        assert np.max(np.abs(got - want) / np.asarray(r["se"])) < 1e-4, (col, got - want)
+
+
+def test_ordinal_coefficient_intervals_match_clm_wald():
+    from studyctl.stats.model_intervals import ordinal_coefficients
+
+    d = pd.read_csv(REF / "likert.csv")
+    table = ordinal_coefficients(d["y"], d["condition"], levels=["RT", "ES", "EG", "ESG"])
+    frame = table.to_frame()
+    assert list(frame["name"]) == ["factor[ES]", "factor[EG]", "factor[ESG]"]
+    assert np.allclose(frame["ci_low"], R["ordinal_wald"]["low"], rtol=1e-4)
+    assert np.allclose(frame["ci_high"], R["ordinal_wald"]["high"], rtol=1e-4)
+    assert np.allclose(frame["estimate"], R["ordinal_model"]["coef"], rtol=1e-4)
+
+
+def test_art_partial_eta_squared_interval_matches_noncentral_f_inversion_in_r():
+    from studyctl.stats.model_intervals import partial_eta_squared_ci
+
+    d = pd.read_csv(REF / "art_between.csv")
+    res = art_anova(d["y"], {"a": d["a"], "b": d["b"]})
+    for t in res.terms:
+        lo, hi = R["art_between_pes_ci"][t.term]
+        assert (t.effect_ci_low, t.effect_ci_high) == partial_eta_squared_ci(t.statistic, t.df, t.df2)
+        assert abs(t.effect_ci_low - lo) < 1e-6 and abs(t.effect_ci_high - hi) < 1e-6 * max(hi, 1)
+        assert t.effect_ci_low <= t.effect_size <= t.effect_ci_high
+
+
+def test_intervals_of_designs_that_cannot_be_fitted_are_flagged():
+    from studyctl.stats.model_intervals import mixed_coefficients, ordinal_coefficients, partial_eta_squared_ci
+
+    table = mixed_coefficients([1.0, 2.0, 1.5, 2.5], {"condition": ["A", "A", "A", "A"]}, ["P0", "P0", "P1", "P1"])
+    assert table.status == "not_computed" and "one level" in table.reason and table.to_frame().empty
+    table = ordinal_coefficients([1, 2.5, 3, 4], ["A", "A", "B", "B"])
+    assert table.status == "not_computed" and "whole numbers" in table.reason
+    assert all(np.isnan(partial_eta_squared_ci(float("nan"), 1, 10)))
+    with pytest.raises(ValueError, match="confidence"):
+        partial_eta_squared_ci(3.0, 1, 10, confidence=1.5)
+
+
+@pytest.mark.parametrize("repeated", [True, False])
+def test_a_response_that_does_not_vary_is_flagged_not_a_number(repeated):
+    # (was: ART χ² = 13.2, p = 0.0003 for the group term of a constant response; F = −0.6 between subjects)
+    subject = [f"P{i}" for i in range(8) for _ in range(3)] if repeated else None
+    factors = {"group": ["n" if i < 12 else "e" for i in range(24)], "condition": ["A", "B", "C"] * 8}
+    fns = (art_anova, mixed_model) if repeated else (art_anova,)
+    for fn in fns:
+        res = fn([5.0] * 24, factors, subject)
+        assert {t.status for t in res.terms} == {"not_computed"}, fn.__name__
+        assert all("does not vary" in t.reason and np.isnan(t.p) for t in res.terms)

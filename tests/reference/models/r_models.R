@@ -92,4 +92,25 @@ out$ordinal_model <- list(coef = unname(coef(fit)[grep("^condition", names(coef(
                     llf0 = as.numeric(logLik(null)),
                     chi2 = as.numeric(2 * (logLik(fit) - logLik(null))), df = 3,
                     p = pchisq(as.numeric(2 * (logLik(fit) - logLik(null))), 3, lower.tail = FALSE))
+# Intervals (studyctl.stats.model_intervals).
+# Mixed model: REML fit in treatment coding, Wald intervals of the fixed effects.
+fit_reml <- lme4::lmer(y ~ group * condition + (1 | subject), data = m, REML = TRUE,
+                       control = lmerControl(optimizer = "bobyqa"))
+ci <- confint(fit_reml, method = "Wald", parm = "beta_")
+out$mixed_coefficients <- list(names = rownames(ci), estimate = unname(fixef(fit_reml)),
+                               se = unname(sqrt(diag(as.matrix(vcov(fit_reml))))),
+                               low = unname(ci[, 1]), high = unname(ci[, 2]))
+# Ordinal model: Wald intervals of the condition log odds ratios (confint.default; confint(clm) would profile).
+ci <- confint.default(fit)[grep("^condition", names(coef(fit))), ]
+out$ordinal_wald <- list(low = unname(ci[, 1]), high = unname(ci[, 2]))
+# ART between subjects: 95 % interval of partial eta squared by inverting the noncentral F in its
+# noncentrality (Steiger 2004), eta2p = ncp / (ncp + df1 + df2 + 1).
+ncp_at <- function(F, df1, df2, target) {
+  if (pf(F, df1, df2) <= target) return(0)
+  uniroot(function(l) pf(F, df1, df2, ncp = l) - target, c(0, 1000), tol = 1e-12)$root
+}
+out$art_between_pes_ci <- lapply(out$art_between, function(r) {
+  lo <- ncp_at(r$F, r$df1, r$df2, 0.975); hi <- ncp_at(r$F, r$df1, r$df2, 0.025)
+  c(lo / (lo + r$df1 + r$df2 + 1), hi / (hi + r$df1 + r$df2 + 1))
+})
 writeLines(toJSON(out, auto_unbox = TRUE, digits = NA, pretty = TRUE), "r_models.json")
