@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from studyctl.devices.vendor import ForceAdapter, use_emulated_sdk
+from studyctl.devices.vendor import ForceAdapter, import_sdk
 from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
@@ -23,14 +23,8 @@ EXTRA_HINT = "pip install 'studyctl[haply]'"
 
 
 def load_sdk(emulator: str = "") -> Any:
-    if emulator:
-        use_emulated_sdk("HaplyHardwareAPI", "STUDYCTL_HAPLY_EMULATOR", emulator)
-    try:
-        import HaplyHardwareAPI  # noqa: N813, PLC0415 - optional dependency, the vendor's name
-    except ImportError as exc:
-        raise DeviceError(f"device inverse3 needs Haply's Python API (HaplyHardwareAPI): {EXTRA_HINT} "
-                          f"({exc})") from None
-    return HaplyHardwareAPI
+    return import_sdk("HaplyHardwareAPI", "STUDYCTL_HAPLY_EMULATOR", emulator,
+                      missing=f"device inverse3 needs Haply's Python API (HaplyHardwareAPI): {EXTRA_HINT}")
 
 
 class Inverse3Device(ForceAdapter):

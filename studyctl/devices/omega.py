@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from studyctl.devices.vendor import ForceAdapter, use_emulated_sdk
+from studyctl.devices.vendor import ForceAdapter, import_sdk
 from studyctl.errors import DeviceError, ModelParameterError
 from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
@@ -31,21 +31,13 @@ def load_sdk(emulator: str = "") -> Any:
 
     ``emulator``: the name of a running device emulator (:mod:`studyctl.devices.emulators.shm_device`); the SDK is
     then studyctl's stand-in with the same API, driving that emulator."""
-    if emulator:
-        use_emulated_sdk("forcedimension_core", "STUDYCTL_FD_EMULATOR", emulator)
-    try:
-        from forcedimension_core import dhd  # noqa: PLC0415 - optional dependency, imported on open
-    except ImportError as exc:
-        raise DeviceError(
-            f"device omega6 needs the Force Dimension bindings (forcedimension-core): {EXTRA_HINT} "
-            f"and install the Force Dimension SDK ({exc})"
-        ) from None
-    except OSError as exc:  # the bindings are there but the vendor library (libdhd) is not
-        raise DeviceError(
-            f"device omega6: the Force Dimension SDK library could not be loaded ({exc}); install the SDK "
-            f"from Force Dimension and the bindings with {EXTRA_HINT}"
-        ) from None
-    return dhd
+    return import_sdk(
+        "forcedimension_core.dhd", "STUDYCTL_FD_EMULATOR", emulator,
+        missing=f"device omega6 needs the Force Dimension bindings (forcedimension-core): {EXTRA_HINT} and install "
+                "the Force Dimension SDK",
+        no_library="device omega6: the Force Dimension SDK library could not be loaded ({exc}); install the SDK "
+                   f"from Force Dimension and the bindings with {EXTRA_HINT}",
+    )
 
 
 class Omega6Device(ForceAdapter):

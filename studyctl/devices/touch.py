@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from studyctl.devices.vendor import ForceAdapter, use_emulated_sdk
+from studyctl.devices.vendor import ForceAdapter, import_sdk
 from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
@@ -29,17 +29,12 @@ EXTRA_HINT = "pip install 'studyctl[openhaptics]'"
 
 def load_sdk(emulator: str = "") -> Any:
     """The ``pyOpenHaptics`` modules (hd, hd_callback, hd_device), or a DeviceError naming the extra."""
-    if emulator:
-        use_emulated_sdk("pyOpenHaptics", "STUDYCTL_HD_EMULATOR", emulator)
-    try:
-        from pyOpenHaptics import hd, hd_callback, hd_device  # noqa: PLC0415 - optional dependency
-    except ImportError as exc:
-        raise DeviceError(f"device touch needs the OpenHaptics wrapper (pyopenhaptics): {EXTRA_HINT} and install "
-                          f"the OpenHaptics SDK ({exc})") from None
-    except OSError as exc:  # the wrapper loads libHD at import
-        raise DeviceError(f"device touch: the OpenHaptics library (libHD) could not be loaded ({exc}); install the "
-                          f"OpenHaptics SDK and {EXTRA_HINT}") from None
-    return hd, hd_callback, hd_device
+    how = {"missing": f"device touch needs the OpenHaptics wrapper (pyopenhaptics): {EXTRA_HINT} and install the "
+                      "OpenHaptics SDK",
+           "no_library": "device touch: the OpenHaptics library (libHD) could not be loaded ({exc}); install the "
+                         f"OpenHaptics SDK and {EXTRA_HINT}"}  # the wrapper loads libHD at import
+    return tuple(import_sdk(f"pyOpenHaptics.{name}", "STUDYCTL_HD_EMULATOR", emulator, **how)
+                 for name in ("hd", "hd_callback", "hd_device"))
 
 
 class TouchDevice(ForceAdapter):

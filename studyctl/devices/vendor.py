@@ -7,7 +7,9 @@ The adapters differ in how they talk to their SDK (open, read, close); what is h
 from __future__ import annotations
 
 import contextlib
+import importlib
 from collections.abc import Iterator, Mapping, Sequence
+from types import ModuleType
 from typing import Any, ClassVar
 
 from studyctl.devices.base import ParamDevice
@@ -30,6 +32,27 @@ def use_emulated_sdk(package: str, env: str, emulator: str) -> None:
     os.environ[env] = emulator
     if SDK_DIR not in sys.path:
         sys.path.insert(0, SDK_DIR)
+
+
+def import_sdk(
+    module: str, env: str, emulator: str, *, missing: str, no_library: str | None = None
+) -> ModuleType:
+    """Import a vendor SDK module when a device opens (never at studyctl's import), or studyctl's stand-in driving
+    ``emulator`` (the running emulator's name, found through the environment variable ``env``).
+
+    ``missing``: the error when the package is not installed (the install hint; the import error is appended);
+    ``no_library``: when given, the error when the package is there but its native library is not (``{exc}`` is
+    the loader's message)."""
+    if emulator:
+        use_emulated_sdk(module.split(".")[0], env, emulator)
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise DeviceError(f"{missing} ({exc})") from None
+    except OSError as exc:  # bindings whose vendor library (libHD, libdhd) is absent fail at import
+        if no_library is None:
+            raise
+        raise DeviceError(no_library.format(exc=exc)) from None
 
 
 @contextlib.contextmanager
