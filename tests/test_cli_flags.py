@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import typer.main
 
 from studyctl.cli.app import app
@@ -94,3 +95,57 @@ def test_json_output_is_one_parseable_object(tmp_path, capsys):
 
 def checked_conditions(shown):
     return [c for c in ("BL", "RT", "ES", "EG", "ESG") if c in {x["id"] for x in shown["protocol"]["conditions"]}]
+
+
+def test_help_shows_no_type_after_a_flag(capsys):
+    from studyctl.cli.app import main
+
+    assert main(["withdraw", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "--keep-data" in out and "--json" in out and "<bool>" not in out
+    assert "<str>" in out  # value options keep their type
+
+
+@pytest.mark.slow  # two fresh processes (~8 s on the loaded machine)
+def test_shell_completion_by_typers_mechanism(tmp_path):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    exe = str(Path(sys.executable).parent / "studyctl")  # the installed console script (its name keys completion)
+    env = {**os.environ, "_STUDYCTL_COMPLETE": "complete_bash", "COMP_WORDS": "studyctl sta", "COMP_CWORD": "1"}
+    run = subprocess.run([exe], env=env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stdout.split() == ["status"], (run.stdout, run.stderr)
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("_STUDYCTL", "COMP_"))}
+    env |= {"HOME": str(tmp_path), "SHELL": "/bin/bash"}
+    run = subprocess.run([exe, "--install-completion", "bash"], env=env,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    script = tmp_path / ".bash_completions" / "studyctl.sh"
+    assert "_STUDYCTL_COMPLETE=complete_bash" in script.read_text()
+    assert str(script) in (tmp_path / ".bashrc").read_text()
+
+
+def test_status_watch_refreshes_until_ctrl_c(tmp_path, capsys, monkeypatch):
+    import time
+
+    from studyctl.cli.app import main
+
+    assert main(["init", str(tmp_path / "ws"), "--protocol", "needle_insertion"]) == 0
+    assert main(["enroll", "-w", str(tmp_path / "ws"), "--code", "NDL-AAAAA"]) == 0
+    capsys.readouterr()
+    naps = []
+
+    def sleep(seconds):
+        naps.append(seconds)
+        if len(naps) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(time, "sleep", sleep)
+    assert main(["status", "--watch", "--interval", "0.5", "-w", str(tmp_path / "ws")]) == 0
+    out = capsys.readouterr().out
+    assert naps == [0.5, 0.5, 0.5] and "study:    needle_insertion" in out and "NDL-AAAAA" in out
+    assert "every 0.5 s; Ctrl-C to stop" in out
+    assert main(["status", "--watch", "--json", "-w", str(tmp_path / "ws")]) != 0
+    assert capsys.readouterr().err.startswith("Error: --watch shows a live view")

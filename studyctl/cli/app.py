@@ -9,6 +9,7 @@ import importlib
 import sys
 
 import typer
+import typer.core
 
 from studyctl import __version__
 from studyctl.errors import StudyctlError
@@ -29,11 +30,28 @@ COMMAND_MODULES = (
     "studyctl.cli.device",
 )
 
+def _flags_without_type(core) -> None:  # noqa: ANN001 - typer.core
+    """Help shows no ``<bool>`` placeholder after a flag (``--json``, ``--keep-data/--delete-data``): a flag takes
+    no value. Typer (0.2x) prints every option's type in the help; the value options keep theirs (``<str>``)."""
+    option = getattr(core, "TyperOption", None)
+    shown = getattr(option, "display_type_rich", None)
+    if shown is None or getattr(shown, "_studyctl", False):
+        return
+
+    def display_type_rich(self, ctx):  # noqa: ANN001, ANN202
+        return None if getattr(self, "is_flag", False) else shown(self, ctx)
+
+    display_type_rich._studyctl = True
+    option.display_type_rich = display_type_rich
+
+
+_flags_without_type(typer.core)
+
 app = typer.Typer(
     name="studyctl",
     help="Run human-subject studies of haptic feedback, from the protocol to the published statistics.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
 )
 

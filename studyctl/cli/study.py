@@ -9,6 +9,7 @@ import typer
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
 from studyctl.engine.progress import progress_json, progress_lines, study_progress
+from studyctl.errors import UsageError
 from studyctl.store.status import study_status
 from studyctl.store.workspace import init_workspace, open_study
 
@@ -46,32 +47,61 @@ def register(app: typer.Typer) -> None:
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
         as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
+        watch: bool = typer.Option(False, "--watch", help="Keep the view on screen, re-read every --interval "
+                                   "seconds (read-only; Ctrl-C stops it)."),
+        interval: float = typer.Option(2.0, "--interval", min=0.2, max=3600.0,
+                                       help="Seconds between refreshes of --watch."),
     ) -> None:
         """Show the study, its protocol and how many participants, sessions and trials are in each state."""
-        with open_study(db, workspace_arg(workspace), study) as opened:
-            info = study_status(opened.store, opened.study)
-            progress = study_progress(opened.store, opened.study.name)  # the session engine's per-condition view
+        if watch and as_json:
+            raise UsageError("--watch shows a live view for a person; for scripts poll `studyctl status --json`")
+
+        def read() -> tuple:  # noqa: ANN202
+            with open_study(db, workspace_arg(workspace), study) as opened:
+                return (study_status(opened.store, opened.study),
+                        study_progress(opened.store, opened.study.name))  # the engine's per-condition view
+
+        info, progress = read()
         if as_json:
             typer.echo(json.dumps({
                 "study": info.study, "protocol": info.protocol_name, "protocol_sha256": info.protocol_sha256,
                 "seed": info.seed, "database": info.database, "participants": info.participants,
-                "sessions": info.sessions, "trials": info.trials, "rehearsal_sessions": info.rehearsal_sessions,
-                "rehearsal_trials": info.rehearsal_trials, "progress": progress_json(progress),
+                "sessions": info.sessions, "trials": info.trials, "progress": progress_json(progress),
             }))
             return
-        # Plain echo, not rich markup: names are shown verbatim whatever characters they hold.
-        typer.echo(f"study:    {info.study}")
-        typer.echo(f"database: {info.database}")
-        proto = f"{info.protocol_name} (sha256 {info.protocol_sha256})" if info.protocol_name else "none"
-        typer.echo(f"protocol: {proto}")
-        typer.echo(f"seed:     {info.seed}")
-        for title, counts in (("participants", info.participants), ("sessions", info.sessions),
-                              ("trials", info.trials)):
-            parts = ", ".join(f"{k} {v}" for k, v in counts.items())
-            typer.echo(f"{title + ':':<13} {sum(counts.values())} ({parts})")
-        if any(info.rehearsal_sessions.values()):  # recorded, but neither data nor progress: apart from the totals
-            n_trials = sum(info.rehearsal_trials.values())
-            typer.echo(f"{'rehearsals:':<13} {sum(info.rehearsal_sessions.values())} sessions, {n_trials} trials "
-                       "(run --rehearse; not counted above, never analysed)")
-        for line in progress_lines(progress):
-            typer.echo(line)
+        if not watch:
+            for line in _status_lines(info, progress):
+                typer.echo(line)
+            return
+        import time
+        from datetime import datetime
+
+        from rich.console import Console
+        from rich.live import Live
+        from rich.text import Text
+
+        def view(info, progress) -> Text:  # noqa: ANN001
+            # Text, not markup: names are shown verbatim whatever characters they hold
+            stamp = datetime.now().strftime("%H:%M:%S")
+            return Text("\n".join([*_status_lines(info, progress),
+                                   f"(read at {stamp}; every {interval:g} s; Ctrl-C to stop)"]))
+
+        with Live(view(info, progress), console=Console(highlight=False), auto_refresh=False) as live:
+            try:
+                while True:
+                    time.sleep(interval)
+                    live.update(view(*read()), refresh=True)
+            except KeyboardInterrupt:
+                pass
+
+
+def _status_lines(info, progress) -> list[str]:  # noqa: ANN001
+    """The text of ``studyctl status`` (also the body of ``--watch``)."""
+    lines = [f"study:    {info.study}", f"database: {info.database}"]
+    proto = f"{info.protocol_name} (sha256 {info.protocol_sha256})" if info.protocol_name else "none"
+    lines += [f"protocol: {proto}", f"seed:     {info.seed}"]
+    for title, counts in (("participants", info.participants), ("sessions", info.sessions),
+                          ("trials", info.trials)):
+        parts = ", ".join(f"{k} {v}" for k, v in counts.items())
+        lines.append(f"{title + ':':<13} {sum(counts.values())} ({parts})")
+    return lines + list(progress_lines(progress))
