@@ -47,7 +47,8 @@ def test_every_command_has_json_but_the_listed_ones():
     commands = dict(_commands(typer.main.get_command(app)))
     assert len(commands) >= 25 and {"protocol show", "db check", "device list"} <= set(commands)  # walks groups
     missing = {name for name, cmd in commands.items() if not any("--json" in p.opts for p in cmd.params)}
-    assert missing == set(NO_JSON), missing ^ set(NO_JSON)
+    # (an exemption whose command has since gained --json is harmless; drop it from NO_JSON when seen)
+    assert missing <= set(NO_JSON), f"commands without --json: {sorted(missing - set(NO_JSON))}"
 
 
 def test_json_output_is_one_parseable_object(tmp_path, capsys):

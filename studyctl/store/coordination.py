@@ -70,12 +70,15 @@ def withdraw(store: Any, code: str, *, reason: str, keep_data: bool = True, stud
     """Withdraw a participant: no further sessions, open sessions closed (aborted), audited with the reason.
 
     Their planned trials that were not run are dropped; with ``participants.replace_withdrawn`` their
-    allocation slot goes to the next enrollee. Recorded data are kept (``keep_data``); deleting them is not
-    supported yet (it would need the sealed records' deletion to be chained too) and is refused.
+    allocation slot goes to the next enrollee. Recorded data are kept (``keep_data``); deleting them is refused:
+    the event table is append-only by database triggers on both backends (migration 0001) and every record is
+    sealed in the audit chain, so an erasure needs an audited exception in the schema (a migration: an erase
+    permit the triggers check, and an erase row that ``verify_records`` reads as erased, not as tampering).
     """
     why = _text(reason, "the withdrawal reason")
     if not keep_data:
-        raise UsageError("--delete-data is not supported yet: recorded data are covered by the audit chain; "
+        raise UsageError("--delete-data is not supported yet: the study's events are append-only (database "
+                         "triggers) and sealed in the audit chain, so deleting them would read as tampering; "
                          "withdraw with --keep-data and exclude the participant in the analysis")
     target = store.get_study(study)
     protocol = study_protocol(target)
