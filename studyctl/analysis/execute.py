@@ -70,11 +70,25 @@ def _join(*parts: Sequence[str]) -> str:
     return "; ".join(w for part in parts for w in part)
 
 
+#: Where a test's units come from: ``(metric, kind, keep, aggregate, data) → unit rows``, equal to
+#: :func:`~studyctl.analysis.shape.unit_values` of ``data`` (a power analysis drawing people from a pool passes
+#: one that looks up each person's units, computed once per person).
+UnitSource = Callable[[str, str, list[str], str, pd.DataFrame], pd.DataFrame]
+
+
+def is_hypothesis_entry(entry: PlanTest) -> bool:
+    """Does this plan entry test a hypothesis (not a table of descriptives, not intervals of each level)?"""
+    spec = catalog.TESTS[catalog.ALIASES.get(entry.test, entry.test)]
+    return spec.design != catalog.DESCRIPTIVE and not (spec.design == catalog.PROPORTION and spec.each == EACH_LEVEL)
+
+
 class _EntryRunner:
     """Runs one plan entry (one test family) for each of its metrics and split cells."""
 
-    def __init__(self, plan: AnalysisPlan, prep: Prepared, entry: PlanTest, tables: dict[str, list]) -> None:
+    def __init__(self, plan: AnalysisPlan, prep: Prepared, entry: PlanTest, tables: dict[str, list],
+                 units: UnitSource | None = None) -> None:
         self.plan = plan
+        self.units = units
         self.prep = prep
         self.entry = entry
         self.spec = catalog.TESTS[catalog.ALIASES.get(entry.test, entry.test)]
@@ -187,7 +201,8 @@ class _EntryRunner:
         if design == catalog.PROPORTION:
             units = _pooled_counts(data, keep)
         else:
-            units = unit_values(data, kind=kind, keep=keep, aggregate=self.plan.aggregate)
+            units = (unit_values(data, kind=kind, keep=keep, aggregate=self.plan.aggregate) if self.units is None
+                     else self.units(metric, kind, keep, self.plan.aggregate, data))
         rows: list[TestRow] = []
         split_levels = [self.levels_for(b, units[factor_column(b)]) for b in self.entry.by]
         for combo in itertools.product(*split_levels) if self.entry.by else [()]:
@@ -425,6 +440,19 @@ def _mark_undefined(row: TestRow) -> TestRow:
     return row.with_(
         status="not_computed", significant=None, warnings="; ".join(filter(None, [row.warnings, f"the test is {why}"]))
     )
+
+
+def hypothesis_rows(plan: AnalysisPlan, prep: Prepared, *, units: UnitSource | None = None) -> tuple[TestRow, ...]:
+    """The rows of the plan's hypothesis-test entries (:func:`is_hypothesis_entry`) on prepared data, and nothing
+    else: no descriptive or interval entries, no result tables. What a power analysis counts; each row is the
+    row :func:`run_plan` gives for that entry (the same runner), ``units`` only says where unit values come from.
+    """
+    tables: dict[str, list] = {"percent_change": [], "descriptives": [], "likert": []}
+    rows: list[TestRow] = []
+    for entry in plan.tests:
+        if is_hypothesis_entry(entry):
+            rows.extend(_EntryRunner(plan, prep, entry, tables, units).run())
+    return tuple(rows)
 
 
 def run_plan(plan: AnalysisPlan, table: MetricTable, *, on_step: Callable[[str], None] | None = None) -> AnalysisResult:

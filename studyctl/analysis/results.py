@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
@@ -142,7 +142,12 @@ class AnalysisResult:
 
     def to_frame(self) -> pd.DataFrame:
         """The tests table, columns :data:`ROW_COLUMNS`, in plan order."""
-        return pd.DataFrame([asdict(r) for r in self.rows], columns=list(ROW_COLUMNS))
+        return rows_frame(self.rows)
 
     def rows_for(self, test_id: str) -> list[TestRow]:
         return [r for r in self.rows if r.test_id == test_id]
+
+
+def rows_frame(rows: Sequence[TestRow]) -> pd.DataFrame:
+    """Test rows as a table with columns :data:`ROW_COLUMNS` (as :meth:`AnalysisResult.to_frame`)."""
+    return pd.DataFrame([asdict(r) for r in rows], columns=list(ROW_COLUMNS))

@@ -83,7 +83,8 @@ def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCO
     from studyctl.power.executor import SerialBackend
     from studyctl.power.pool import MIN_POOL_FACTOR, build_pool
     from studyctl.power.summary import summarise
-    from studyctl.power.twostage import compare, draw_replicate
+    from studyctl.power.twostage import compare, draw_replicate, member_frames
+    from studyctl.power.units import PoolUnits
     from studyctl.protocol import load_protocol_text
 
     stage2_reps, exact_reps = (20, 2) if quick else (400, 20)
@@ -93,9 +94,11 @@ def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCO
         pool = build_pool(spec, folder, MIN_POOL_FACTOR * n)
         build_s, build_cpu = time.perf_counter() - t0, time.process_time() - c0
     proto = load_protocol_text(spec.protocol_text, spec.protocol_name)
-    by_member = dict(tuple(pool.metrics.groupby("participant", sort=False)))
     t0, c0 = time.perf_counter(), time.process_time()
-    drawn = [draw_replicate(spec, pool, n, r, protocol=proto, by_member=by_member) for r in range(stage2_reps)]
+    # the pool's per-person frames and units are prepared once per run (counted in the stage-2 time)
+    by_member, units = member_frames(pool), PoolUnits(spec.plan, pool.metrics, spec.study_id)
+    drawn = [draw_replicate(spec, pool, n, r, protocol=proto, by_member=by_member, pool_units=units)
+             for r in range(stage2_reps)]
     s2_s, s2_cpu = time.perf_counter() - t0, time.process_time() - c0
     exact, _, done = _timed(SerialBackend(None), spec, [(n, r) for r in range(exact_reps)])
     frame = lambda results: pd.concat([r.to_frame() for r in results], ignore_index=True)  # noqa: E731

@@ -17,7 +17,10 @@ from typing import Any
 
 import pandas as pd
 
-from studyctl.analysis import compute_metrics, run_plan
+from studyctl.analysis import compute_metrics
+from studyctl.analysis.execute import hypothesis_rows
+from studyctl.analysis.results import rows_frame
+from studyctl.analysis.shape import prepare
 from studyctl.engine.api import run_session
 from studyctl.engine.factory import EntryPointFactory
 from studyctl.engine.seeding import population_rng
@@ -218,7 +221,8 @@ def simulate_replicate(
     study = simulate_study(spec, participants, seeds, f"{spec.study_id}-power-n{participants}-r{replicate}", where)
     if on_metrics is not None:
         on_metrics(study.table)
-    frame = run_plan(spec.plan, study.table).to_frame()
+    # the plan's hypothesis tests only (what power counts; descriptive tables and intervals are not run)
+    frame = rows_frame(hypothesis_rows(spec.plan, prepare(spec.plan, study.table)))
     trials, completed, clipped, peak = study.trials, study.completed, study.clipped, study.peak_rss_mb
     return ReplicateResult(
         participants=int(participants),

@@ -4,7 +4,9 @@ A replicate at size n takes the composition a full-engine replicate of that size
 :func:`studyctl.protocol.allocate_strata` and, per allocation slot, the counterbalancing sequence the protocol's
 planner gives it — and fills every (stratum, sequence) cell with people drawn without replacement from the pool's
 people of that cell (``draw_rng(seed, n, replicate)``). Their metric rows go through the same analysis plan as a
-full-engine replicate; nothing is re-simulated, so a replicate costs one run of the plan.
+full-engine replicate (its hypothesis tests, :func:`studyctl.analysis.execute.hypothesis_rows`, as a full-engine
+replicate runs them); nothing is re-simulated, and each person's analysis units are computed once for the
+whole pool (:mod:`studyctl.power.units`), so a replicate costs the tests themselves.
 
 :func:`compare` states the design's error: per test row, the difference between two-stage and full-engine power
 at the checked sizes, with the Monte-Carlo standard error of each (binomial, over its replicate count).
@@ -21,13 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from studyctl.analysis import run_plan
-from studyctl.analysis.table import MetricTable
+from studyctl.analysis.results import rows_frame
 from studyctl.errors import UsageError
 from studyctl.power.pool import Pool
 from studyctl.power.replicate import ReplicateResult, _rows
 from studyctl.power.seeds import draw_rng, replicate_seeds
 from studyctl.power.spec import PowerSpec
+from studyctl.power.units import PoolUnits, replicate_rows
 from studyctl.protocol import Planner, allocate_strata, load_protocol_text
 
 
@@ -60,17 +62,23 @@ def draw_members(pool: Pool, cells: dict[tuple[str, int | None], int], rng: np.r
     return chosen
 
 
+def member_frames(pool: Pool) -> dict[str, pd.DataFrame]:
+    """Each pool person's metric rows (the table of a replicate is its people's rows, in draw order)."""
+    return dict(tuple(pool.metrics.groupby("participant", sort=False)))
+
+
 def draw_replicate(spec: PowerSpec, pool: Pool, participants: int, replicate: int,
-                   protocol=None, by_member=None) -> ReplicateResult:  # noqa: ANN001
-    """Stage-2 replicate ``replicate`` at size ``participants``: draw people from ``pool``, run the plan."""
+                   protocol=None, by_member=None, pool_units: PoolUnits | None = None) -> ReplicateResult:  # noqa: ANN001
+    """Stage-2 replicate ``replicate`` at size ``participants``: draw people from ``pool``, run the plan's
+    hypothesis tests on their metric rows (``by_member``/``pool_units``: the pool's, prepared once by the caller
+    for a run of many replicates; built here when not given)."""
     t0, c0 = time.perf_counter(), time.process_time()
     protocol = protocol or load_protocol_text(spec.protocol_text, spec.protocol_name)
     cells = composition(protocol, spec.seed, participants, replicate)
     chosen = draw_members(pool, cells, draw_rng(spec.seed, participants, replicate))
-    groups = by_member if by_member is not None else dict(tuple(pool.metrics.groupby("participant", sort=False)))
-    frame = pd.concat([groups[m] for m in chosen if m in groups], ignore_index=True)
-    table = MetricTable(frame=frame, source="two-stage pool", study=spec.study_id)
-    result = run_plan(spec.plan, table).to_frame()
+    groups = by_member if by_member is not None else member_frames(pool)
+    units = pool_units if pool_units is not None else PoolUnits(spec.plan, pool.metrics, spec.study_id)
+    result = rows_frame(replicate_rows(units, chosen, groups))
     return ReplicateResult(
         participants=int(participants), replicate=int(replicate), rows=_rows(result), sessions_completed=0,
         trials_completed=0, trials_not_completed=0, clipped=0, seconds=time.perf_counter() - t0,

@@ -17,7 +17,8 @@ from studyctl.power.results import ResultsFile
 from studyctl.power.spec import PowerSpec
 from studyctl.power.summary import summarise
 from studyctl.power.target import smallest_sizes
-from studyctl.power.twostage import PowerError, compare, draw_replicate
+from studyctl.power.twostage import PowerError, compare, draw_replicate, member_frames
+from studyctl.power.units import PoolUnits
 from studyctl.protocol import load_protocol_text
 from studyctl.workflows.power import PowerRun, _atomic, _write, run_power
 
@@ -74,7 +75,8 @@ def run_two_stage(
     finally:
         backend.close()
     protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
-    by_member = dict(tuple(built.metrics.groupby("participant", sort=False)))
+    by_member = member_frames(built)
+    pool_units = PoolUnits(spec.plan, built.metrics, spec.study_id)
     fp = {**spec.fingerprint(), "design": "two-stage", "pool": built.path.name, "pool_people": built.size}
     tasks = spec.tasks()
     s0, c0 = time.perf_counter(), time.process_time()
@@ -82,7 +84,8 @@ def run_two_stage(
         done = results.done()
         todo = [t for t in tasks if t not in done]
         for i, (n, r) in enumerate(todo):
-            results.add(draw_replicate(spec, built, n, r, protocol=protocol, by_member=by_member))
+            results.add(draw_replicate(spec, built, n, r, protocol=protocol, by_member=by_member,
+                                       pool_units=pool_units))
             if on_stage is not None:
                 on_stage("stage 2", len(tasks) - len(todo) + i + 1, len(tasks))
         rows, reps = results.rows(tasks), results.replicates(tasks)
