@@ -70,6 +70,8 @@ def _timed(backend: Any, spec: Any, tasks: list[tuple[int, int]]) -> tuple[float
 #: The two-stage part runs at n = 4 (one person per Williams sequence): a 20 × 4 = 80-person pool is what this
 #: loaded 2-core machine can simulate inside a bench; larger n need proportionally larger pools.
 TWO_STAGE_N = 4
+#: Replicate studies of the issue's power curve (5 sample sizes × 1,000 replicates).
+CURVE_REPLICATES = 5 * 1000
 
 
 def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCOL, n: int = TWO_STAGE_N,
@@ -112,6 +114,11 @@ def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCO
         f"two_stage_replicates_per_s_stage2_{n}": stage2_reps / s2_s,
         f"two_stage_cpu_s_per_replicate_stage2_{n}": s2_cpu / stage2_reps,
         f"two_stage_exact_replicates_per_s_{n}": exact_reps / exact,
+        f"two_stage_exact_cpu_s_per_replicate_{n}": sum(r.cpu_seconds for r in done) / exact_reps,
+        # the curve (5 sizes × 1,000 replicates) at this run's stage-2 rate: a projection from the rate
+        # measured at this n (larger n cost somewhat more per replicate), not a timed curve
+        f"curve_s_projected_5x1000_at_{n}": CURVE_REPLICATES / (stage2_reps / s2_s),
+        f"curve_cpu_s_projected_5x1000_at_{n}": CURVE_REPLICATES * s2_cpu / stage2_reps,
         "power_error_pp": err["power_error_pp"],
         "power_error_mc_se_exact_pp_max": err["mc_se_exact_pp_max"],
         "power_error_mc_se_two_stage_pp_max": err["mc_se_two_stage_pp_max"],
