@@ -19,6 +19,7 @@ import os
 import socket
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -86,6 +87,49 @@ def draw_replicate(spec: PowerSpec, pool: Pool, participants: int, replicate: in
     )
 
 
+#: The pool a worker process last loaded for :func:`draw_batch` (one at a time: a run uses one pool).
+_LOADED: dict[tuple, tuple] = {}
+
+
+def _worker_pool(spec: PowerSpec, path: str, chunks: int, size: int) -> tuple:
+    """(pool, per-person frames, units, protocol) of the pool file at ``path``, loaded once per worker process."""
+    import sqlite3
+
+    from studyctl.power.pool import PoolFile
+
+    key = (path, chunks, size, spec.plan_sha256)
+    if key not in _LOADED:
+        _LOADED.clear()
+        pf = PoolFile(Path(path), sqlite3.connect(path))
+        try:
+            pool = pf.load(chunks, size, 0)
+        finally:
+            pf.close()
+        _LOADED[key] = (pool, member_frames(pool), PoolUnits(spec.plan, pool.metrics, spec.study_id),
+                        load_protocol_text(spec.protocol_text, spec.protocol_name))
+    return _LOADED[key]
+
+
+def draw_batch(spec: PowerSpec, path: str, chunks: int, size: int, participants: int, start: int,
+               stop: int) -> list[ReplicateResult]:
+    """Stage-2 replicates ``start`` … ``stop - 1`` at ``participants`` from the pool file at ``path`` (its first
+    ``chunks`` chunks of ``size`` people): a Dask task, coarse enough that scheduling is a small part of it."""
+    pool, by_member, units, protocol = _worker_pool(spec, path, chunks, size)
+    return [draw_replicate(spec, pool, participants, r, protocol=protocol, by_member=by_member, pool_units=units)
+            for r in range(start, stop)]
+
+
+def batches(todo: list[tuple[int, int]], per_task: int) -> list[tuple[int, int, int]]:
+    """Runs of consecutive replicates of one size, at most ``per_task`` long: (n, start, stop)."""
+    out: list[tuple[int, int, int]] = []
+    for n, r in todo:
+        if out and out[-1][0] == n and out[-1][2] == r and out[-1][2] - out[-1][1] < per_task:
+            out[-1] = (n, out[-1][1], r + 1)
+        else:
+            out.append((n, r, r + 1))
+    return out
+
+
 @dataclass(frozen=True)
 class PowerError:
     """Two-stage vs full-engine power at the checked sizes (``to_frame()``: one row per test row and size)."""
@@ -122,7 +166,8 @@ class PowerError:
 def compare(two_stage: pd.DataFrame, exact: pd.DataFrame, sizes: tuple[int, ...]) -> PowerError:
     """Per non-post-hoc test row at ``sizes``: two-stage minus full-engine power in percentage points, with the
     binomial Monte-Carlo standard error of each (sqrt(p(1-p)/R) × 100)."""
-    keys = ["participants", "test_id", "metric", "split", "kind"]
+    # groups too: a model's terms (group, condition, their interaction) are rows of one test, metric and split
+    keys = ["participants", "test_id", "metric", "split", "kind", "groups"]
     a = two_stage[(two_stage["kind"] != "posthoc") & two_stage["participants"].isin(sizes)]
     b = exact[(exact["kind"] != "posthoc") & exact["participants"].isin(sizes)]
     m = a.merge(b, on=keys, suffixes=("_two_stage", "_exact"))

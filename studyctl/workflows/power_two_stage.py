@@ -5,24 +5,28 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 from studyctl.errors import UsageError
-from studyctl.power.executor import open_backend
+from studyctl.power.executor import SerialBackend, open_backend
 from studyctl.power.pool import build_pool, check_pool_size
 from studyctl.power.population import population_model
+from studyctl.power.replicate import ReplicateResult
 from studyctl.power.results import ResultsFile
 from studyctl.power.spec import PowerSpec
 from studyctl.power.summary import summarise
 from studyctl.power.target import smallest_sizes
-from studyctl.power.twostage import PowerError, compare, draw_replicate, member_frames
+from studyctl.power.twostage import PowerError, batches, compare, draw_batch, draw_replicate, member_frames
 from studyctl.power.units import PoolUnits
 from studyctl.protocol import load_protocol_text
 from studyctl.workflows.power import PowerRun, _atomic, _write, run_power
 
 ERROR_FILE = "power_error.csv"
+#: Stage-2 replicates per Dask task at most (a replicate takes ~0.1–1 s: tens per task keep scheduling small).
+STAGE2_BATCH = 50
 STAGE2_DIR = "two_stage"
 EXACT_DIR = "exact_check"
 
@@ -65,6 +69,7 @@ def run_two_stage(
     checks = tuple(check_sizes or ())
     if check_replicates < 0:
         raise UsageError(f"--check-replicates must be 0 or more, got {check_replicates}")
+    protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
     backend = open_backend(scheduler, workers, spec.memory_limit)
     try:
         backend_desc = backend.info.describe()
@@ -72,24 +77,38 @@ def run_two_stage(
         built = build_pool(spec, pool_dir, people, backend,
                            on_chunk=None if on_stage is None else lambda d, t: on_stage("pool", d, t))
         pool_wall = time.perf_counter() - p0
+        fp = {**spec.fingerprint(), "design": "two-stage", "pool": built.path.name, "pool_people": built.size}
+        tasks = spec.tasks()
+        s0 = time.perf_counter()
+        stage2_cpu = 0.0
+        with ResultsFile.open(out / STAGE2_DIR, fp) as results:
+            done = results.done()
+            todo = [t for t in tasks if t not in done]
+            count = [len(tasks) - len(todo)]
+
+            def keep(result: ReplicateResult | list[ReplicateResult]) -> None:
+                nonlocal stage2_cpu
+                for one in result if isinstance(result, list) else [result]:
+                    results.add(one)
+                    stage2_cpu += one.cpu_seconds
+                    count[0] += 1
+                    if on_stage is not None:
+                        on_stage("stage 2", count[0], len(tasks))
+
+            if isinstance(backend, SerialBackend):
+                by_member, pool_units = member_frames(built), PoolUnits(spec.plan, built.metrics, spec.study_id)
+                for n, r in todo:
+                    keep(draw_replicate(spec, built, n, r, protocol=protocol, by_member=by_member,
+                                        pool_units=pool_units))
+            else:  # batches of replicates on the workers, each loading the pool file once
+                per_task = max(1, min(STAGE2_BATCH, math.ceil(len(todo) / (4 * max(backend.info.workers, 1)))))
+                backend.map(draw_batch, spec, [(str(built.path), math.ceil(built.size / built.chunk_size),
+                                                built.chunk_size, n, a, b) for n, a, b in batches(todo, per_task)],
+                            keep, tag="stage2")
+            rows, reps = results.rows(tasks), results.replicates(tasks)
+        stage2_wall = time.perf_counter() - s0
     finally:
         backend.close()
-    protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
-    by_member = member_frames(built)
-    pool_units = PoolUnits(spec.plan, built.metrics, spec.study_id)
-    fp = {**spec.fingerprint(), "design": "two-stage", "pool": built.path.name, "pool_people": built.size}
-    tasks = spec.tasks()
-    s0, c0 = time.perf_counter(), time.process_time()
-    with ResultsFile.open(out / STAGE2_DIR, fp) as results:
-        done = results.done()
-        todo = [t for t in tasks if t not in done]
-        for i, (n, r) in enumerate(todo):
-            results.add(draw_replicate(spec, built, n, r, protocol=protocol, by_member=by_member,
-                                       pool_units=pool_units))
-            if on_stage is not None:
-                on_stage("stage 2", len(tasks) - len(todo) + i + 1, len(tasks))
-        rows, reps = results.rows(tasks), results.replicates(tasks)
-    stage2_wall, stage2_cpu = time.perf_counter() - s0, time.process_time() - c0
     per_size = {n: int((reps["participants"] == n).sum()) for n in spec.sizes}
     table = summarise(rows, spec.sizes, per_size)
     error = None
@@ -102,7 +121,7 @@ def run_two_stage(
     target = None if spec.target is None else smallest_sizes(table.frame, spec.target)
     population = population_model(spec.population, protocol).to_frame()
     note = _note(error, built.size)
-    files = _write(out, spec, table, population, reps, f"two-stage: pool on {backend_desc}; stage 2 in this process",
+    files = _write(out, spec, table, population, reps, f"two-stage: pool and stage 2 on {backend_desc}",
                    figure, target, note=note)
     if error is not None:
         files["error"] = out / ERROR_FILE
@@ -118,7 +137,7 @@ def run_two_stage(
         {"pool": pool_info, "error": None if error is None else error.summary()}, indent=2, default=str),
         encoding="utf-8"))
     return PowerRun(table=table, out_dir=out, files=files, ran=len(todo), reused=len(tasks) - len(todo),
-                    seconds=time.perf_counter() - t0, backend=f"two-stage (pool: {backend_desc})",
+                    seconds=time.perf_counter() - t0, backend=f"two-stage (pool and stage 2: {backend_desc})",
                     population=population, replicates=reps, target=target, error=error, pool=pool_info)
 
 

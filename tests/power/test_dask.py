@@ -122,3 +122,27 @@ def test_pool_chunks_on_a_scheduler_equal_the_serial_pool(scheduler_address, tmp
     key = ["participant", "condition", "trial", "metric", "level"]
     pd.testing.assert_frame_equal(remote.metrics.sort_values(key).reset_index(drop=True),
                                   serial.metrics.sort_values(key).reset_index(drop=True))
+
+
+def test_stage2_batches_on_a_scheduler_equal_serial_draws(scheduler_address, tmp_path):
+    """Stage 2 on Dask: batches of replicates drawn in worker processes (each loading the pool file) give the
+    rows of the same replicates drawn here."""
+    from studyctl.power import prepare_power
+    from studyctl.power.executor import open_backend
+    from studyctl.power.pool import build_pool
+    from studyctl.power.twostage import batches, draw_batch, draw_replicate
+
+    spec = prepare_power(PROTOCOL, PLAN, sizes="4", replicates=6, seed=SEED)
+    pool = build_pool(spec, tmp_path / "pool", 12)
+    here = {(r.participants, r.replicate): r.rows for r in (draw_replicate(spec, pool, 4, i) for i in range(6))}
+    got: dict = {}
+    backend = open_backend(scheduler_address, 2, None)
+    try:
+        backend.map(draw_batch, spec, [(str(pool.path), 1, pool.chunk_size, n, a, b)
+                                       for n, a, b in batches(spec.tasks(), 4)],
+                    lambda rs: got.update({(r.participants, r.replicate): (r.rows, r.worker) for r in rs}),
+                    tag="stage2")
+    finally:
+        backend.close()
+    assert {k: v[0] for k, v in got.items()} == here
+    assert not any(w.endswith(f":{os.getpid()}") for _, w in got.values())

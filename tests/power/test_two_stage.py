@@ -85,11 +85,15 @@ def test_draws_respect_strata_and_sequences(spec12, one_chunk_pool):
 
 
 def test_compare_states_difference_and_mc_error():
-    base = {"test_id": "t", "metric": "m", "split": "", "kind": "omnibus", "participants": 8}
-    two = pd.DataFrame([{**base, "power": 0.80, "replicates": 400, "power_ci_low": 0.76, "power_ci_high": 0.84}])
-    ex = pd.DataFrame([{**base, "power": 0.75, "replicates": 100, "power_ci_low": 0.66, "power_ci_high": 0.82}])
+    base = {"test_id": "t", "metric": "m", "split": "", "kind": "omnibus", "participants": 8, "groups": "condition"}
+    term = {**base, "groups": "group"}  # another term of the same model: compared with its own counterpart only
+    two = pd.DataFrame([{**base, "power": 0.80, "replicates": 400, "power_ci_low": 0.76, "power_ci_high": 0.84},
+                        {**term, "power": 0.10, "replicates": 400, "power_ci_low": 0.07, "power_ci_high": 0.13}])
+    ex = pd.DataFrame([{**base, "power": 0.75, "replicates": 100, "power_ci_low": 0.66, "power_ci_high": 0.82},
+                       {**term, "power": 0.12, "replicates": 100, "power_ci_low": 0.07, "power_ci_high": 0.2}])
     err = compare(two, ex, (8,))
-    row = err.to_frame().iloc[0]
+    assert len(err.to_frame()) == 2
+    row = err.to_frame().set_index("groups").loc["condition"]
     assert row["diff_pp"] == pytest.approx(5.0)
     assert row["mc_se_exact_pp"] == pytest.approx(100 * (0.75 * 0.25 / 100) ** 0.5)
     assert row["mc_se_two_stage_pp"] == pytest.approx(2.0)
@@ -108,3 +112,23 @@ def test_cli_two_stage_json(tmp_path, capsys):
     assert doc["power_error"]["checked_sizes"] == [4] and doc["power_error"]["exact_replicates"] == 2
     assert doc["power_error"]["two_stage_replicates"] == 10
     assert (tmp_path / "out" / "power_error.csv").is_file()
+
+
+def test_batches_are_runs_of_one_size():
+    from studyctl.power.twostage import batches
+
+    todo = [(4, 0), (4, 1), (4, 2), (4, 5), (8, 0), (8, 1)]
+    assert batches(todo, 2) == [(4, 0, 2), (4, 2, 3), (4, 5, 6), (8, 0, 2)]
+    assert sum(b - a for _, a, b in batches(todo, 50)) == len(todo)
+
+
+@pytest.mark.slow
+def test_a_batch_loads_the_pool_file_and_draws_the_same_replicates(spec12, one_chunk_pool):
+    from studyctl.power.twostage import draw_batch
+
+    _, pool = one_chunk_pool
+    got = draw_batch(spec12, str(pool.path), 1, pool.chunk_size, 4, 2, 5)
+    assert [r.replicate for r in got] == [2, 3, 4]
+    for r in got:
+        pd.testing.assert_frame_equal(pd.DataFrame(r.rows), pd.DataFrame(draw_replicate(spec12, pool, 4,
+                                                                                         r.replicate).rows))
