@@ -29,10 +29,14 @@ from studyctl.plugins.params import Param
 
 ACTUATORS = ("balloon", "vibration")
 
-# Weber fractions chosen so that the perceived-intensity range 0-10 of Fig. 3 spans each actuator's
-# range from its discernible threshold C0 to the cap 99: (99 / C0) ** (1 / 10) - 1.
-W_BALLOON = (99.0 / 36.0) ** 0.1 - 1.0
+# Eq. 6 of the vibration motor: magnitudes rising with the logarithm of the control amount (Fig. 3a: "changed
+# approximately logarithmically with control"), 0 where the motor starts (24) to 10 at the cap 99, are fitted
+# exactly by C0 = 24 and w = (99/24)^(1/10) − 1.
 W_VIBRATION = (99.0 / 24.0) ** 0.1 - 1.0
+# Eqs. 3 and 6 of the balloon by the paper's procedure on our CAPR and balloon models, with magnitudes linear in
+# pressure (Fig. 3b), C0 at the balloon's discernible threshold: studyctl.models.bhf_constants.balloon_constants()
+# gives K_pf 1.2350 and w 0.11405 (tested).
+K_PF, C0_BALLOON, W_BALLOON = 1.235, 36.0, 0.114
 
 
 class BioInspiredController(PalpationController):
@@ -40,15 +44,19 @@ class BioInspiredController(PalpationController):
 
     name = "bio_inspired"
     PARAMS = PalpationController.PARAMS + (
-        Param("k_pf", 1.0, 0.01, 100.0, source="CHOSEN: K_pf is fitted in the BHF code but its value "
-              "(data/act_Kps.npy) is not public; 1 keeps I_pf = f̄_SA1/10 within 0-10 up to ~2 N"),
-        Param("k_pv", 1.0, 0.01, 100.0, source="CHOSEN: as k_pf (value not public)"),
-        Param("c0_balloon", 36.0, 0.1, 99.0, source="BHF code C_p0 = 36 (eq. 5), where the balloon starts to act"),
-        Param("c0_vibration", 24.0, 0.1, 99.0, source="CHOSEN: BHF code vibration c_min = 24 (value of C0_v not "
+        Param("k_pf", K_PF, 0.01, 100.0, source="CHOSEN: the paper's procedure (K = mean psychophysical / mean "
+              "model intensity over the balloon's own stimuli) on our CAPR and balloon, with Fig. 3b's magnitudes "
+              "linear in pressure 0-10 (studyctl.models.bhf_constants; the BHF value, data/act_Kps.npy, is not "
               "public)"),
-        Param("w_balloon", round(W_BALLOON, 6), 0.001, 5.0, source="CHOSEN: (99/C0)^(1/10) − 1, maps I = 0..10 "
-              "onto C0..99 (value not public)"),
-        Param("w_vibration", round(W_VIBRATION, 6), 0.001, 5.0, source="CHOSEN: as w_balloon"),
+        Param("k_pv", 1.0, 0.01, 100.0, source="CHOSEN: the same procedure on the motor's stimuli (sines of "
+              "acc·1 g at f(C) on a 6 mm disc, our motor model) with magnitudes logarithmic in control gives 1.00"),
+        Param("c0_balloon", C0_BALLOON, 0.1, 99.0, source="BHF code C_p0 = 36 (eq. 5: the minimal control amount "
+              "at which the balloon pressure can be discerned; eq. 6 defines C0 the same way)"),
+        Param("c0_vibration", 24.0, 0.1, 99.0, source="CHOSEN: eq. 6 fitted to magnitudes logarithmic in control "
+              "from the motor's start (BHF vibration c_min = 24) to 99 (value not public)"),
+        Param("w_balloon", W_BALLOON, 0.001, 5.0, source="CHOSEN: eq. 6 fitted to the (magnitude, control) pairs "
+              "of the k_pf procedure with C0 = 36, as the BHF code fits it (value not public)"),
+        Param("w_vibration", round(W_VIBRATION, 6), 0.001, 5.0, source="CHOSEN: as c0_vibration: (99/24)^(1/10) − 1"),
         Param("c_max", 99.0, 1.0, 100.0, source="BHF code caps both control amounts at 99"),
         Param("weights", VIBRATION_WEIGHTS, kind=tuple, source="paper eq. 4: C_sa, C_ra, C_pc = 0.29, 0.36, 0.46"),
         Param("window_s", 0.2, 0.02, 2.0, unit="s", source="BHF code simT = 0.2 s"),

@@ -213,3 +213,39 @@ def test_parameters_out_of_range(cls, params, message):
         cls(params)
     assert message in str(err.value)
     assert str(err.value).startswith(f"{cls.name} controller")
+
+
+@pytest.mark.slow
+def test_balloon_constants_are_the_papers_procedure_on_our_models():
+    """k_pf and w_balloon are what the paper's normalisation and eq. 6 fit give on our CAPR and balloon."""
+    from studyctl.models.bhf_constants import balloon_constants
+
+    c = balloon_constants()
+    p = BioInspiredController({}).params
+    assert c.c0 == p["c0_balloon"] == 36.0
+    assert c.k == pytest.approx(p["k_pf"], abs=5e-4)
+    assert c.w == pytest.approx(p["w_balloon"], abs=1e-4)
+    frame = c.to_frame()
+    assert list(frame.columns) == ["control", "model_rate_hz", "magnitude", "model_intensity"]
+    # the normalisation: model intensities and magnitudes have the same mean; the SA1 rate grows with pressure
+    assert frame["model_intensity"].mean() == pytest.approx(frame["magnitude"].mean())
+    assert frame["model_rate_hz"].iloc[0] < frame["model_rate_hz"].iloc[5] < frame["model_rate_hz"].iloc[-1] + 1
+
+
+def test_bio_balloon_saturates_before_the_skin_is_pressed_past_the_stimulus_height():
+    """Held forces: the balloon command rises with force and reaches the cap near 1.2 N, well below the force
+    (2.1 N) at which the CAPR skin is pressed deeper than the 5 mm stimulus height of the BHF code and every
+    SA1 unit is recruited (the activated mean then dips: a property of the public model, not of our port)."""
+    def held(f):
+        ctrl = BioInspiredController({})
+        ctrl.reset()
+        out = [ctrl.step(Observation(i / 50, {"force_n": f})) for i in range(50)]
+        return out[-1]["balloon_pct"], ctrl.last_rates["SA1"]
+
+    b02, _ = held(0.2)
+    b05, _ = held(0.5)
+    b10, _ = held(1.0)
+    b15, r15 = held(1.5)
+    _, r22 = held(2.2)
+    assert 36.0 < b02 < b05 < b10 < 99.0 == b15
+    assert r22 < 0.8 * r15  # recruitment past 2.1 N: newly activated outer units pull the mean down
