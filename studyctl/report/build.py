@@ -9,6 +9,7 @@ Layout of ``out_dir``::
     proportions.csv      pooled proportions with Wilson intervals (proportion metrics)
     percent_change.csv, likert.csv, descriptives.csv   when the plan asks for them
     effect_sizes.csv     bootstrap intervals of the effect sizes (when the caller computed them)
+    model_coefficients.csv   mixed-model and ordinal coefficients with Wald intervals (likewise)
     missing.csv          every value that is missing, and why
     figures/<id>.png     one per plan figure, 300 dpi (and <id>.svg, <id>.pdf: ``figure_formats``)
     report.html          everything above in one file (figures embedded as base64 PNG)
@@ -159,7 +160,7 @@ def write_report(
         on_step("tables")
     table("tests", result.to_frame())
     for name in ("cells", "units", "proportions", "percent_change", "likert", "descriptives", "agreement",
-                 "effect_sizes"):
+                 "effect_sizes", "model_coefficients"):
         frame = result.tables.get(name)
         if frame is not None and not frame.empty:
             table(name, frame)

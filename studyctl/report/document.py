@@ -196,6 +196,19 @@ def _descriptive_table(frame: pd.DataFrame, result: AnalysisResult, level_name: 
     return tidy(head, body, keep=("metric",))
 
 
+def _coefficient_table(coef: pd.DataFrame, result: AnalysisResult) -> tuple[list[str], list, str]:
+    head = ["metric", "split", "coefficient", "estimate", "SE", "95% CI"]
+    body = []
+    for r in coef.itertuples(index=False):
+        if r.status != "ok":
+            body.append([result.plan.metric_label(r.metric), r.split, "–", "", "", f"not computed: {r.reason}"])
+            continue
+        body.append([result.plan.metric_label(r.metric), r.split, r.coefficient, fmt_num(r.estimate), fmt_num(r.se),
+                     f"[{fmt_num(r.ci_low)}, {fmt_num(r.ci_high)}]"])
+    head, body, caption = tidy(head, body, keep=("metric",))
+    return head, body, "; ".join(x for x in (caption, str(coef["method"].iloc[0])) if x)
+
+
 # ------------------------------------------------------------------------------------------- sections
 
 
@@ -271,6 +284,13 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
         if not post.empty:
             blocks.append(("p", f"Post-hoc pairs ({posthoc_text(entry)}):"))
             blocks.append(("table", *_test_rows_table(entry, post, result)))
+        coef = result.tables.get("model_coefficients")
+        coef = coef[coef["test_id"] == entry.id] if coef is not None and not coef.empty else None
+        if coef is not None and not coef.empty:
+            blocks.append(("p", "Coefficients in treatment coding (the first level is the reference; "
+                                + ("log odds ratios" if name == "ordinal" else "in the metric's unit")
+                                + f"), Wald {float(coef['ci_level'].iloc[0]):.0%} intervals:"))
+            blocks.append(("table", *_coefficient_table(coef, result)))
     if entry.published:
         text = ", ".join(f"{k} = {v}" for k, v in entry.published.items())
         blocks.append(("p", f"Published values (the paper): {text}."))

@@ -177,8 +177,11 @@ def ordinal_coefficients(y: Sequence[float], factor: Sequence, *, levels: Sequen
         warnings.simplefilter("ignore")
         res = OrderedModel(yc, x, distr="logit").fit(method="bfgs", disp=False, maxiter=5000, gtol=1e-10)
     k = x.shape[1]
-    cov = np.asarray(res.cov_params())[:k, :k]
-    if not np.all(np.isfinite(cov)):
+    try:
+        cov = np.asarray(res.cov_params())[:k, :k]
+    except (ValueError, np.linalg.LinAlgError):  # statsmodels: no covariance when the Hessian cannot be inverted
+        cov = np.full((k, k), NAN)
+    if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) < 0):
         return CoefficientTable("ordinal", (), level, method, "not_computed",
                                 "the Hessian is singular (a level where every answer is at one end of the scale?)")
     return CoefficientTable("ordinal", _wald(list(x.columns), np.asarray(res.params)[:k], cov, level), level,

@@ -40,7 +40,8 @@ def build_report(
     the study opened once, by :func:`studyctl.analysis.analyze`, for the tests and the figures' data. A simulated
     study's report gets a "simulated vs published" section and ``agreement.csv`` (``targets``: a targets file;
     default: the protocol's shipped one). ``effect_size_ci``: bootstrap intervals of the effect sizes
-    (:mod:`studyctl.analysis.effect_ci`, ``effect_sizes.csv``).
+    (:mod:`studyctl.analysis.effect_ci`, ``effect_sizes.csv``) and the model tests' coefficients with Wald
+    intervals (:mod:`studyctl.analysis.model_ci`, ``model_coefficients.csv``).
     """
     ensure_writable(out_dir)
     check_figure_formats(figure_formats)
@@ -64,7 +65,10 @@ def build_report(
 
         if on_step:
             on_step("effect-size intervals")
-        result = replace(result, tables={**result.tables, "effect_sizes": effect_size_intervals(result)})
+        from studyctl.analysis.model_ci import model_coefficient_intervals
+
+        result = replace(result, tables={**result.tables, "effect_sizes": effect_size_intervals(result),
+                                         "model_coefficients": model_coefficient_intervals(result)})
     t2 = time.perf_counter()
     files = write_report(result, out_dir, on_step=on_step, figure_formats=figure_formats)
     t3 = time.perf_counter()

@@ -126,3 +126,35 @@ def test_plan_mistakes_name_file_and_line(tmp_path, old, new, message):
     with pytest.raises(StudyctlError) as err:
         load_plan(path)
     assert message in str(err.value), str(err.value)
+
+
+def test_model_coefficients_with_intervals_for_the_report(plan):
+    from studyctl.analysis.model_ci import model_coefficient_intervals
+    from studyctl.report.document import markdown
+    from studyctl.stats.model_intervals import mixed_coefficients
+
+    result = run_plan(plan, MetricTable(frame=_table(np.random.default_rng(3)), source="toy"))
+    coef = model_coefficient_intervals(result)
+    lmm = coef[coef.test_id == "lmm"]
+    # intercept, group[expert], condition[B], condition[C], and the two interaction columns
+    assert list(lmm.coefficient) == ["(Intercept)", "group[expert]", "condition[B]", "condition[C]",
+                                     "group[expert]:condition[B]", "group[expert]:condition[C]"]
+    units = result.tables["units"]
+    force = units[units.metric == "force"]  # the plan's metric id
+    direct = mixed_coefficients(force["value"], {"group": force["group"], "condition": force["condition"]},
+                                force["participant"], levels={"group": ["novice", "expert"],
+                                                              "condition": ["A", "B", "C"]}).to_frame()
+    assert np.allclose(lmm[["estimate", "ci_low", "ci_high"]].to_numpy(dtype=float),
+                       direct[["estimate", "ci_low", "ci_high"]].to_numpy(dtype=float))
+    assert (lmm.ci_low < lmm.estimate).all() and (lmm.estimate < lmm.ci_high).all()
+    # the made-up data's condition effect (+0.5 per step) is inside its interval, and B > A is clear
+    b = lmm[lmm.coefficient == "condition[B]"].iloc[0]
+    assert b.ci_low < 0.5 < b.ci_high and b.ci_low > 0
+    ordinal = coef[coef.test_id == "ord"]
+    assert set(ordinal.split) == {"item=easy", "item=confident"}
+    assert set(ordinal[ordinal.status == "ok"].coefficient) <= {"condition[B]", "condition[C]"}
+    assert coef[coef.test_id == "art"].empty  # ART's LR rows have no coefficients to show
+    from dataclasses import replace
+
+    text = markdown(replace(result, tables={**result.tables, "model_coefficients": coef}), [], [])
+    assert "Coefficients in treatment coding" in text and "group[expert]:condition[C]" in text
