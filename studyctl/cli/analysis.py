@@ -8,11 +8,18 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
-from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.cli.common import (
+    DB_OPTION,
+    PIPED_WIDTH,
+    STUDY_OPTION,
+    WORKSPACE_OPTION,
+    output_console,
+    workspace_arg,
+)
 
 
 def _console(err: bool = False) -> Console:
-    return Console(stderr=err, highlight=False)
+    return output_console(stderr=err)
 
 
 def register(app: typer.Typer) -> None:
@@ -43,7 +50,8 @@ def register(app: typer.Typer) -> None:
             from studyctl.report.terminal import analysis_tables
 
             console = _console()
-            for table in analysis_tables(result):
+            piped = console.width == PIPED_WIDTH  # a pipe or file: whole notes, not cut at 40 characters
+            for table in analysis_tables(result, notes_width=None if piped else 40):
                 console.print(table)
                 console.print()
         if result.partial:

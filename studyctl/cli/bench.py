@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from studyctl import bench as bench_lib
+from studyctl.cli.common import output_console
 
 
 def register(app: typer.Typer) -> None:
@@ -23,7 +23,7 @@ def register(app: typer.Typer) -> None:
         if as_json:
             typer.echo(json.dumps(result.to_json(), default=float))
             return
-        console = Console()
+        console = output_console()
         table = Table(title=f"studyctl bench {result.name}")
         table.add_column("figure")
         table.add_column("value", justify="right")

@@ -25,3 +25,21 @@ STUDY_OPTION = typer.Option(None, "--study", help="Study name, when the database
 
 def workspace_arg(value: Path | None) -> str | None:
     return None if value is None else str(value)
+
+
+# Width of rich output that goes to a file or pipe: wide enough that no table cell or title is cropped
+# (rich assumes 80 columns when it cannot ask a terminal, and cuts what does not fit).
+PIPED_WIDTH = 400
+
+
+def output_console(*, stderr: bool = False):  # noqa: ANN201 - rich.console.Console (imported lazily)
+    """A rich console for results: the terminal's width, or :data:`PIPED_WIDTH` when the stream is not a terminal
+    (and COLUMNS does not say otherwise), so a piped or redirected table is whole."""
+    import os
+    import sys
+
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    piped = not (hasattr(stream, "isatty") and stream.isatty()) and "COLUMNS" not in os.environ
+    return Console(stderr=stderr, highlight=False, width=PIPED_WIDTH if piped else None)

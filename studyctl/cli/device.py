@@ -7,10 +7,9 @@ from pathlib import Path
 
 import typer
 import yaml
-from rich.console import Console
 from rich.table import Table
 
-from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, output_console, workspace_arg
 from studyctl.errors import UsageError
 
 
@@ -42,7 +41,7 @@ def register(app: typer.Typer) -> None:
             table.add_column(col, overflow="fold")
         for row in frame.itertuples(index=False):
             table.add_row(*(str(v) for v in row))
-        Console().print(table)
+        output_console().print(table)
 
     @device_app.command("check")
     def check_command(
@@ -61,7 +60,7 @@ def register(app: typer.Typer) -> None:
         if as_json:
             typer.echo(json.dumps(result.to_json(), default=str))
         else:
-            console = Console()
+            console = output_console()
             console.print(f"device {result.device}{' (emulated)' if result.emulated else ''}: "
                           f"{', '.join(f'{k}={v}' for k, v in result.identity.items()) or 'no identity reported'}")
             console.print(f"limits: {result.limits}")

@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
+from studyctl.cli.common import output_console
 from studyctl.errors import PluginError
 from studyctl.plugins.registry import list_plugins
 
@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
         if as_json:
             typer.echo(json.dumps(frame.to_dict(orient="records")))
         else:
-            console = Console()
+            console = output_console()
             # A narrow terminal cannot fit the description beside five columns: the failures' reasons
             # then follow the table, where they stay readable.
             wide = console.width >= 120

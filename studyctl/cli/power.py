@@ -7,6 +7,8 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from studyctl.cli.common import output_console
+
 _POP_HELP = ("A population file (format: studyctl-population/1) the virtual people are drawn from (default: the "
              "protocol's shipped population), or a YAML file with a population: section (baseline, "
              "condition_effects, group_effects, between_sd): additive shifts on top that state the simulated effect.")
@@ -116,7 +118,7 @@ def register(app: typer.Typer) -> None:
         from studyctl.workflows.power import run_power
 
         err = Console(stderr=True, highlight=False)
-        console = err if as_json else Console(highlight=False)
+        console = err if as_json else output_console()
         from studyctl.populations import describe_choice
 
         trait_file = _is_trait_file(population)

@@ -27,8 +27,10 @@ def _row_result(r: Any) -> str:  # a row of AnalysisResult.to_frame()
     return f"{r.statistic_name} = {fmt_num(r.statistic)}{df}"
 
 
-def analysis_tables(result: Any) -> list[Table]:
-    """One table per test of the plan that produced rows (an :class:`~studyctl.analysis.AnalysisResult`)."""
+def analysis_tables(result: Any, *, notes_width: int | None = 40) -> list[Table]:
+    """One table per test of the plan that produced rows (an :class:`~studyctl.analysis.AnalysisResult`).
+
+    ``notes_width``: notes longer than this end in '…' (a terminal); None keeps them whole (a pipe or file)."""
     frame = result.to_frame()
     tables = []
     for entry in result.plan.tests:
@@ -44,7 +46,7 @@ def analysis_tables(result: Any) -> list[Table]:
         table.add_column("result", overflow="fold", min_width=30)
         table.add_column("p (adj.)", no_wrap=True)
         table.add_column("sig.", no_wrap=True)
-        table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=40)
+        table.add_column("notes", overflow="ellipsis", no_wrap=True, max_width=notes_width)
         for r in rows.itertuples(index=False):
             what = " ".join(x for x in (r.metric, r.groups) if x)
             if r.kind == "posthoc":

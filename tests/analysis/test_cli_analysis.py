@@ -102,3 +102,13 @@ def test_plan_for_another_protocol_is_refused(tmp_path):
         " ran protocol 'bio_inspired_palpation'",
     ):
         analyze("needle_insertion", workspace=tmp_path / "ws")
+
+
+def test_piped_tables_are_whole(capsys, monkeypatch):
+    # stdout is not a terminal here: rich would assume 80 columns and cut notes and wrap comparisons
+    monkeypatch.delenv("COLUMNS", raising=False)
+    code, out, err = run(capsys, "analyze", "pseudo_haptic_palpation_published")
+    assert code == 0, err
+    assert "equal proportions: no margin towards zero (the paper prints NULL)" in out
+    assert any(line.startswith("sensitivity manual vs PHF_FF ") for line in out.splitlines())
+    assert "…" not in out
