@@ -22,6 +22,7 @@ from typing import Any
 import pandas as pd
 from sqlalchemy import select
 
+from studyctl.closing import Closeable
 from studyctl.errors import UnknownKeyError
 from studyctl.store.models import (
     Event,
@@ -146,7 +147,7 @@ class StudySnapshot:
     session_by_id: Mapping[int, SessionRow] = field(repr=False)
 
 
-class StudyReader:
+class StudyReader(Closeable):
     """Read one study of an open :class:`StudyStore`; open with :meth:`open` or wrap a store you own.
 
     Parameters
@@ -190,12 +191,6 @@ class StudyReader:
     def close(self) -> None:
         if self._owns_store:
             self.store.close()
-
-    def __enter__(self) -> StudyReader:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     @property
     def source(self) -> str:
