@@ -20,294 +20,29 @@ Nothing here fits an outcome: the free parameters are perception/behaviour trait
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
-from studyctl.calibration import agreement, distance, simulated_values
-from studyctl.calibration.simulated import SimulatedStats, SimulatedValue, stats_from_frame
-from studyctl.errors import PopulationError, SessionInterrupted, UsageError
+from studyctl.calibration import agreement, distance
+from studyctl.calibration.simulated import stats_from_frame
+from studyctl.workflows.calibration_runs import FAILED_DISTANCE, Evaluation, close_pools, dask_client, evaluate
+from studyctl.workflows.calibration_spec import SIGMA0, CalibrationSpec, prepare_calibration
+
+__all__ = [
+    "CalibrationResult", "CalibrationSpec", "ParamEstimate", "evaluate", "fitted_population", "prepare_calibration",
+    "run_calibration",
+]
 
 PROFILE_STEP = 0.15  # ±h as a fraction of each free parameter's search range
-SIGMA0 = 0.25  # CMA-ES initial step, as a fraction of each free parameter's search range
-SAMPLER = f"cmaes(x0=population, sigma0={SIGMA0})"  # part of the journal's fingerprint
-DEFAULT_EVALUATIONS = 24
-DEFAULT_FIT_PARTICIPANTS = 4  # people per simulated study of an evaluation
-DEFAULT_REPLICATES = 2  # simulated studies per evaluation (run in parallel on the local workers)
-DEFAULT_SIM_RATE_HZ = 250.0  # as `studyctl demo`: the 1 kHz tissue controllers' loops at 250 Hz
 ProgressFn = Callable[[int, int, str], None]
-
-
-@dataclass(frozen=True)
-class CalibrationSpec:
-    """Everything a calibration needs, checked before any simulation (see :func:`prepare_calibration`)."""
-
-    protocol_id: str
-    protocol_text: str
-    plan: Any
-    population: Any  # TraitPopulation (the starting values)
-    targets: Any  # TargetSet
-    free: tuple[Any, ...]  # FreeParam
-    seed: int
-    participants: int
-    paper_participants: int
-    replicates: int
-    evaluations: int
-    out: Path
-    scheduler: str | None = None
-    workers: int = 1  # local worker processes for the replicate studies of an evaluation (no scheduler)
-    sim_rate_hz: float | None = None  # loop-rate cap of rate-adjustable controllers (as the demo's)
-
-    @property
-    def fit_targets(self) -> tuple[Any, ...]:
-        return self.targets.by_role("fit")
-
-    def fingerprint(self) -> str:
-        """What the journal's evaluations depend on (another setting starts a new journal study)."""
-        from studyctl import __version__
-
-        data = {
-            "studyctl": __version__, "protocol": hashlib.sha256(self.protocol_text.encode()).hexdigest(),
-            "population": self.population.sha256, "targets": self.targets.sha256,
-            "free": [(f.name, f.low, f.high) for f in self.free], "seed": self.seed,
-            "participants": self.participants, "replicates": self.replicates, "sim_rate_hz": self.sim_rate_hz,
-            "sampler": SAMPLER,
-        }
-        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
-
-    @property
-    def journal(self) -> Path:
-        return self.out.with_name(self.out.name + ".journal")
-
-
-def prepare_calibration(
-    protocol: str | Path,
-    targets: str | Path | None,
-    *,
-    population: str | Path | None = None,
-    free: Sequence[str] | str | None = None,
-    seed: int = 1,
-    participants: int | None = None,
-    replicates: int = DEFAULT_REPLICATES,
-    evaluations: int = DEFAULT_EVALUATIONS,
-    out: str | Path | None = None,
-    scheduler: str | None = None,
-    pilot_db: str | None = None,
-    workers: int | None = None,
-    sim_rate_hz: float | None = DEFAULT_SIM_RATE_HZ,
-) -> CalibrationSpec:
-    """Check every input (protocol, plan, population, targets, free parameters, sizes) before any work.
-
-    Raises
-    ------
-    PopulationError, UsageError, NotFoundError
-        One line naming what is wrong and how to fix it.
-    """
-    from studyctl.analysis import load_plan
-    from studyctl.populations import free_params, population_for
-    from studyctl.populations.loader import participant_params
-    from studyctl.populations.targets import load_targets_file
-    from studyctl.power.seeds import check_master_seed
-    from studyctl.protocol import load_protocol, resolve_protocol
-
-    path = resolve_protocol(protocol)
-    proto = load_protocol(path)
-    pid = proto.study.id
-    pop = population_for(proto, population if population is not None else "shipped")
-    if pop is None:
-        raise PopulationError(f"protocol {pid!r} has no shipped population to start from; give one with "
-                              "--population FILE (format: studyctl-population/1)")
-    if targets is None and pilot_db is None:
-        from studyctl.populations.targets import shipped_targets_path
-
-        targets = shipped_targets_path(pid)
-        if targets is None:
-            raise UsageError(f"no targets: give --targets FILE (or --pilot-db DB); protocol {pid!r} ships none")
-    plan = load_plan(_plan_ref(targets, pid))
-    if pilot_db is not None:
-        from studyctl.calibration.pilot import pilot_targets
-
-        tset = pilot_targets(pilot_db, plan, proto, template=targets)
-    else:
-        tset = load_targets_file(targets, plan=plan, protocol=proto)
-    if tset.protocol != pid:
-        raise PopulationError(f"targets {tset.path} are for protocol {tset.protocol!r}, not {pid!r}")
-    if not tset.by_role("fit"):
-        raise PopulationError(f"targets {tset.path} have no role: fit target; calibrate fits only on fit targets")
-    names = free if free is not None else list(pop.calibration.get("free") or [])
-    if isinstance(names, str):
-        names = [n for n in names.split(",") if n.strip()]
-    from studyctl.plugins.registry import load_plugin
-
-    declared = participant_params(load_plugin("participant", pop.participant))
-    fps = free_params(pop, list(names), declared=declared, strata=list(proto.stratum_ids))
-    if participants is None:
-        participants = DEFAULT_FIT_PARTICIPANTS
-    strata = max(len(proto.stratum_ids), 1)
-    if isinstance(participants, bool) or not isinstance(participants, int) or participants < max(2, strata):
-        raise UsageError(f"--participants must be a whole number ≥ {max(2, strata)} (people per simulated study "
-                         f"in each evaluation), got {participants!r}")
-    if not isinstance(replicates, int) or not 1 <= replicates <= 100:
-        raise UsageError(f"--replicates must be 1..100, got {replicates!r}")
-    if not isinstance(evaluations, int) or not len(fps) + 1 <= evaluations <= 10000:
-        raise UsageError(f"--evaluations must be at least {len(fps) + 1} (the free parameters + 1), "
-                         f"got {evaluations!r}")
-    if sim_rate_hz is not None:
-        from studyctl.engine.api import check_sim_rate
-
-        check_sim_rate(sim_rate_hz)
-    if workers is None:
-        workers = min(replicates, os.cpu_count() or 1)
-    if not isinstance(workers, int) or workers < 1:
-        raise UsageError(f"--workers must be a whole number ≥ 1, got {workers!r}")
-    paper = int(proto.participants.target_n or participants)
-    out_path = Path(out) if out is not None else Path(f"{pid}.calibrated.yaml")
-    if out_path.suffix not in (".yaml", ".yml"):
-        raise UsageError(f"--out {out_path}: the population file ends in .yaml")
-    if out_path.exists() and out_path.is_dir():
-        raise UsageError(f"--out {out_path} is a folder; give the population file to write (e.g. {pid}.yaml)")
-    return CalibrationSpec(
-        protocol_id=pid, protocol_text=proto.source_text, plan=plan, population=pop, targets=tset, free=fps,
-        seed=check_master_seed(seed), participants=participants, paper_participants=paper, replicates=replicates,
-        evaluations=evaluations, out=out_path, scheduler=scheduler, workers=workers, sim_rate_hz=sim_rate_hz,
-    )
-
-
-def _plan_ref(targets: str | Path | None, pid: str) -> str:
-    """The analysis plan: the targets file's ``plan:`` (relative to that file), else the protocol's shipped one."""
-    if targets is None or not Path(targets).is_file():
-        return pid
-    import yaml
-
-    try:
-        data = yaml.safe_load(Path(targets).read_text(encoding="utf-8"))
-    except yaml.YAMLError:
-        return pid  # the targets loader reports the syntax error with its position
-    ref = data.get("plan") if isinstance(data, dict) else None
-    if not isinstance(ref, str) or not ref:
-        return pid
-    near = Path(targets).parent / ref
-    return str(near) if near.is_file() else ref
-
-
-# ------------------------------------------------------------------------------------------ one evaluation
-
-
-@dataclass(frozen=True)
-class Evaluation:
-    """One candidate population run as the calibration's simulated studies."""
-
-    values: dict[str, float]
-    distance: float
-    z: dict[str, float]
-    stats: pd.DataFrame  # SimulatedStats.to_frame()
-    seconds: float
-    cpu_seconds: float
-    participants: int
-
-
-def _replicate_task(power_spec: Any, participants: int, replicate: int) -> tuple[pd.DataFrame, pd.DataFrame, float]:
-    """One simulated study (a Dask task): its metric frame, test rows and CPU seconds."""
-    from studyctl.power.replicate import simulate_replicate
-
-    tables: list[Any] = []
-    res = simulate_replicate(power_spec, participants, replicate, on_metrics=tables.append)
-    frame = tables[0].frame.copy()
-    frame["participant"] = f"r{replicate}:" + frame["participant"].astype(str)
-    return frame, res.to_frame(), res.cpu_seconds
-
-
-def _power_spec(spec: CalibrationSpec, pop: Any) -> Any:
-    from studyctl.power.population import Population
-    from studyctl.power.spec import PowerSpec
-
-    return PowerSpec(
-        protocol_name=spec.protocol_id, protocol_text=spec.protocol_text,
-        protocol_sha256=hashlib.sha256(spec.protocol_text.encode()).hexdigest(), study_id=spec.protocol_id,
-        plan=spec.plan, plan_sha256="", population=Population(), seed=spec.seed, sizes=(spec.participants,),
-        replicates=spec.replicates, sequences=None, traits=pop, sim_rate_hz=spec.sim_rate_hz,
-    )
-
-
-FAILED_DISTANCE = 1e6  # a candidate whose simulated studies fail (a participant refuses its values …)
-
-
-def evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: int | None = None,
-             targets: Sequence[Any] | None = None, sim_se: dict[str, float] | None = None,
-             client: Any | None = None) -> Evaluation:
-    """Run the candidate ``values`` as the calibration's simulated studies (the same seeds every time).
-
-    A candidate whose simulation fails with a studyctl error (e.g. the participant refuses a value) gets the
-    distance :data:`FAILED_DISTANCE` and the error as a note, so the search goes on elsewhere."""
-    from studyctl.errors import StudyctlError
-
-    try:
-        return _evaluate(spec, values, participants=participants, targets=targets, sim_se=sim_se, client=client)
-    except SessionInterrupted:
-        raise
-    except StudyctlError as exc:
-        targets = list(targets if targets is not None else spec.targets.targets)
-        stats = SimulatedStats(tuple(SimulatedValue(t.id, t.statistic, math.nan, note=f"simulation failed: {exc}")
-                                     for t in targets))
-        return Evaluation(dict(values), FAILED_DISTANCE, {t.id: math.nan for t in targets}, stats.to_frame(),
-                          0.0, 0.0, participants or spec.participants)
-
-
-def _evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: int | None,
-              targets: Sequence[Any] | None, sim_se: dict[str, float] | None, client: Any | None) -> Evaluation:
-    from studyctl.populations.free import apply_values
-
-    t0 = time.perf_counter()
-    n = participants or spec.participants
-    pop = apply_values(spec.population, values, spec.free)
-    pspec = _power_spec(spec, pop)
-    if client is not None:
-        futures = [client.submit(_replicate_task, pspec, n, r, pure=False) for r in range(spec.replicates)]
-        parts = client.gather(futures)
-    elif spec.workers > 1 and spec.replicates > 1:
-        from concurrent.futures.process import BrokenProcessPool
-
-        try:
-            parts = list(_pool(spec.workers).map(_replicate_task, [pspec] * spec.replicates,
-                                                 [n] * spec.replicates, range(spec.replicates)))
-        except BrokenProcessPool:
-            raise SessionInterrupted("a calibration worker process ended (interrupted or killed); the journal keeps "
-                                     "every finished evaluation: run the same command again to continue") from None
-    else:
-        parts = [_replicate_task(pspec, n, r) for r in range(spec.replicates)]
-    metrics = pd.concat([p[0] for p in parts], ignore_index=True)
-    targets = list(targets if targets is not None else spec.targets.targets)
-    descriptive = [t for t in targets if not t.is_test]
-    tests = [t for t in targets if t.is_test]
-    rng = np.random.default_rng(spec.seed)
-    stats = simulated_values(descriptive, metrics, parts[0][1], alpha=spec.targets.alpha, rng=rng)
-    values_all = list(stats.values)
-    for t in tests:  # per replicate: the median p, the majority verdict
-        per = [simulated_values([t], p[0], p[1], alpha=spec.targets.alpha, rng=rng).values[0] for p in parts]
-        ok = [v for v in per if not (isinstance(v.value, float) and math.isnan(v.value))]
-        if not ok:
-            values_all.append(per[0])
-        elif t.statistic == "verdict":
-            share = sum(bool(v.value) for v in ok) / len(ok)
-            values_all.append(replace(ok[0], value=share >= 0.5,
-                                      note=f"significant in {share:.0%} of {len(ok)} simulated studies; {ok[0].note}"))
-        else:
-            values_all.append(replace(ok[0], value=float(np.median([float(v.value) for v in ok]))))
-    order = {t.id: i for i, t in enumerate(targets)}
-    sim = SimulatedStats(tuple(sorted(values_all, key=lambda v: order[v.target])))
-    fit = [t for t in targets if t.role == "fit"]
-    dist, z = distance(fit, sim, spec.targets.alpha, sim_se)
-    return Evaluation(dict(values), dist, z, sim.to_frame(), time.perf_counter() - t0,
-                      float(sum(p[2] for p in parts)), n)
 
 
 # ------------------------------------------------------------------------------------------ the fit
@@ -370,13 +105,13 @@ def _from_trial(spec: CalibrationSpec, params: dict[str, float]) -> dict[str, fl
 def run_calibration(spec: CalibrationSpec, *, on_progress: ProgressFn | None = None) -> CalibrationResult:
     """Fit, profile, run the fitted population at paper size, and write the files (see the module docs)."""
 
-    client = _client(spec.scheduler)
+    client = dask_client(spec.scheduler)
     try:
         return _run(spec, client, on_progress)
     finally:
         if client is not None:
             client.close()
-        _close_pools()
+        close_pools()
 
 
 def _run(spec: CalibrationSpec, client: Any, on_progress: ProgressFn | None) -> CalibrationResult:
@@ -556,39 +291,6 @@ def _final_run(spec: CalibrationSpec, values: dict[str, float], client: Any) -> 
                                     "stats": json.loads(ev.stats.to_json(orient="records")),
                                     "seconds": ev.seconds, "cpu_seconds": ev.cpu_seconds}))
     return ev
-
-
-_POOLS: dict[int, Any] = {}
-
-
-def _pool(workers: int) -> Any:
-    """A process pool for the replicate studies of an evaluation (spawned once, reused by every evaluation)."""
-    if workers not in _POOLS:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        _POOLS[workers] = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
-    return _POOLS[workers]
-
-
-def _close_pools() -> None:
-    for pool in _POOLS.values():
-        pool.shutdown(cancel_futures=True)
-    _POOLS.clear()
-
-
-def _client(scheduler: str | None) -> Any:
-    if scheduler is None:
-        return None
-    try:
-        from distributed import Client
-    except ImportError:
-        raise UsageError("--scheduler needs Dask: pip install 'studyctl[power]'") from None
-    try:
-        return Client(scheduler, timeout="10s")
-    except (OSError, TimeoutError) as exc:
-        raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc}); start one with `dask scheduler` "
-                         "and workers with `dask worker ADDRESS`") from None
 
 
 def _atomic_text(path: Path, text: str) -> None:
