@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 from needle_helpers import condition_params
 
 from studyctl.controllers.needle import NeedleHybridController
@@ -55,6 +56,7 @@ def test_population_people_differ_and_stay_in_the_declared_ranges():
         assert all(declared[name].low <= v <= declared[name].high for v in values)
 
 
+@pytest.mark.slow  # 24 whole needle trials: ~45 s in the loaded fast run
 def test_esg_with_bl_physics_loses_its_advantage():
     """The same people told 'ESG' but given BL physics (a broken controller) need more time and scans."""
     people = _people(4, 11)

@@ -152,6 +152,7 @@ def test_replicates_run_on_a_dask_scheduler(tmp_path, protocol):
 
 def test_a_failed_simulation_costs_a_large_distance_and_is_not_cached(tmp_path, protocol, monkeypatch):
     import studyctl.workflows.calibrate as cal
+    import studyctl.workflows.calibration_runs as runs
     from studyctl.errors import SessionError
 
     spec = cal.prepare_calibration(protocol, TARGETS, population=POPULATION, free="report_z", participants=2,
@@ -160,7 +161,7 @@ def test_a_failed_simulation_costs_a_large_distance_and_is_not_cached(tmp_path, 
     def broken(*args, **kwargs):
         raise SessionError("device fault in the test")
 
-    monkeypatch.setattr(cal, "_evaluate", broken)
+    monkeypatch.setattr(runs, "_evaluate", broken)  # what evaluate() runs
     ev = cal.evaluate(spec, {"report_z": 3.0})
     assert ev.distance == cal.FAILED_DISTANCE
     assert all("simulation failed: device fault in the test" in n for n in ev.stats["note"])

@@ -78,6 +78,7 @@ def test_first_tukey_call_in_a_fresh_process_reads_the_shipped_table():
     assert out.split() == ["BSpline", "True"]
 
 
+@pytest.mark.slow  # fresh interpreters: ~23 s in the loaded fast run
 def test_quantile_is_bit_identical_across_processes():
     # scipy's BarycentricInterpolator permutes nodes at random: the polish must not depend on process state
     code = "from studyctl.stats import studentized_range_ppf as f; print(repr(f(0.95, 4, 96)), repr(f(0.99, 7, 33)))"
