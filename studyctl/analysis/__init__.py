@@ -11,11 +11,35 @@ Public API:
 * :class:`AnalysisResult` (``to_frame()`` with :data:`ROW_COLUMNS`), :class:`TestRow`, :class:`MetricTable`.
 """
 
-from studyctl.analysis.execute import run_plan
-from studyctl.analysis.plan import AnalysisPlan, check_plan, load_plan
-from studyctl.analysis.results import ROW_COLUMNS, AnalysisResult, TestRow
-from studyctl.analysis.run import analyze, load_data
-from studyctl.analysis.table import MetricTable, read_summary_csv
+from __future__ import annotations
+
+import importlib
+
+# Imported on first use (PEP 562): reading and checking a plan (`studyctl analyze PLAN --check`, a hostile plan
+# file) must not first import the statistics stack (scipy, statsmodels, pandas and pyarrow: ~100 MB and seconds
+# on a loaded machine) only to refuse the file.
+_LAZY = {
+    "run_plan": "studyctl.analysis.execute",
+    "AnalysisPlan": "studyctl.analysis.plan",
+    "check_plan": "studyctl.analysis.plan",
+    "load_plan": "studyctl.analysis.plan",
+    "ROW_COLUMNS": "studyctl.analysis.results",
+    "AnalysisResult": "studyctl.analysis.results",
+    "TestRow": "studyctl.analysis.results",
+    "analyze": "studyctl.analysis.run",
+    "load_data": "studyctl.analysis.run",
+    "MetricTable": "studyctl.analysis.table",
+    "read_summary_csv": "studyctl.analysis.table",
+}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'studyctl.analysis' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
 
 
 def compute_metrics(*args, **kwargs):  # noqa: D103 - documented in studyctl.analysis.metrics

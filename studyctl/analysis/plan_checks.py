@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from studyctl.analysis import catalog
 from studyctl.analysis.metric_defs import BUILTIN, KINDS
 from studyctl.errors import ProtocolError
 from studyctl.problems import format_path
@@ -18,7 +17,6 @@ if TYPE_CHECKING:
     from studyctl.analysis.plan import AnalysisPlan
     from studyctl.protocol import Protocol
 
-FIGURE_KINDS = tuple(catalog.FIGURE_KINDS)  # listed, with where their data come from, in the catalogue
 FIXED_FACTORS = ("condition", "group")
 
 
@@ -29,6 +27,11 @@ def dotted(path: tuple) -> str:
 
 def check_names(plan: AnalysisPlan, doc: MarkedData) -> list[str]:
     """Every name and cross-reference of ``plan``, and its conditions and groups against the protocol."""
+    # The catalogue imports the tests (scipy, statsmodels): only once a plan has parsed, so a hostile plan file
+    # is refused without them (studyctl.analysis imports lazily for the same reason).
+    from studyctl.analysis import catalog  # noqa: PLC0415
+
+    figure_kinds = tuple(catalog.FIGURE_KINDS)  # listed, with where their data come from, in the catalogue
     problems: list[str] = []
 
     def bad(path: tuple, text: str) -> None:
@@ -201,11 +204,11 @@ def check_names(plan: AnalysisPlan, doc: MarkedData) -> list[str]:
                 )
 
     for i, f in enumerate(plan.figures):
-        if f.kind not in FIGURE_KINDS:
+        if f.kind not in figure_kinds:
             bad(
                 ("figures", i, "kind"),
-                f"unknown figure kind {f.kind!r}{did_you_mean(f.kind, FIGURE_KINDS)}"
-                f" (kinds: {', '.join(FIGURE_KINDS)})",
+                f"unknown figure kind {f.kind!r}{did_you_mean(f.kind, figure_kinds)}"
+                f" (kinds: {', '.join(figure_kinds)})",
             )
         for j, m in enumerate(f.metrics):
             if m not in plan.metrics:

@@ -59,7 +59,8 @@ def _new_trial(store: StudyStore, study_id: int, code: str) -> int:
 
 def _write_blocks(store: StudyStore, trial_id: int, t: np.ndarray, v: np.ndarray, durable_flush: bool = False) -> float:
     start = time.perf_counter()
-    with store.sample_writer(trial_id, CHANNELS, durable_flush=durable_flush) as writer:
+    # seal=False as in the session engine: the chunks are sealed with the trial's completion below
+    with store.sample_writer(trial_id, CHANNELS, durable_flush=durable_flush, seal=False) as writer:
         for i in range(0, len(t), BLOCK):
             writer.append_block(t[i : i + BLOCK], v[i : i + BLOCK])
     # The trial's completion is the durable (fsynced) commit that seals its chunks.
@@ -69,7 +70,7 @@ def _write_blocks(store: StudyStore, trial_id: int, t: np.ndarray, v: np.ndarray
 
 def _write_rows(store: StudyStore, trial_id: int, t: np.ndarray, v: np.ndarray) -> float:
     start = time.perf_counter()
-    with store.sample_writer(trial_id, CHANNELS) as writer:
+    with store.sample_writer(trial_id, CHANNELS, seal=False) as writer:
         append = writer.append
         for i in range(len(t)):
             append(t[i], v[i])

@@ -33,16 +33,17 @@ def register(app: typer.Typer) -> None:
         check: bool = typer.Option(False, "--check", help="Only validate the plan (every problem, file:line)."),
     ) -> None:
         """Run an analysis plan on a study database (or its summary CSV) and print the tests table."""
-        from studyctl.analysis import analyze as run_analysis
         from studyctl.analysis import load_plan
 
-        loaded = load_plan(plan)
+        loaded = load_plan(plan)  # before the statistics stack is imported: a bad plan costs little to refuse
         if check:
             typer.echo(
                 f"{loaded.source_path}: OK ({len(loaded.metrics)} metrics, {len(loaded.tests)} tests, "
                 f"{len(loaded.figures)} figures)"
             )
             return
+        from studyctl.analysis import analyze as run_analysis
+
         result = run_analysis(loaded, db=db, workspace=workspace_arg(workspace), study=study)
         if as_json:
             typer.echo(result.to_frame().to_json(orient="records"))

@@ -129,10 +129,10 @@ def register(app: typer.Typer) -> None:
                                         "session (person sessions without a terminal)."),
         speed: float = typer.Option(None, "--speed", help="Virtual/scripted sessions: at most this many times real "
                                     "time (default: as fast as possible)."),
-        take_over: bool = typer.Option(False, "--take-over", help="Take the session over from a process that "
-                                       "holds it but cannot be checked (another host) and has stopped sending "
-                                       "heartbeats; audited. A crashed process on this machine is taken over "
-                                       "without it."),
+        take_over: bool = typer.Option(False, "--take-over", help="Take the session over from the process that "
+                                       "last held it, when that process is gone (crashed or killed on this "
+                                       "machine, a closed PostgreSQL connection, or another host with no heartbeat "
+                                       "for 30 s); audited. Never from a process that still runs."),
         view: bool = VIEW_OPTION,
         view_port: int = VIEW_PORT_OPTION,
         lsl: bool = LSL_OPTION,

@@ -407,9 +407,9 @@ def resume_session(
     keeps its mode (virtual or person) and seed.
 
     The session's lease is taken first (one writer per session): while another process runs the session
-    this raises :class:`SessionError` naming its pid, host and start. A lease left by a process that is
-    provably gone is taken over and audited; ``take_over`` also takes one whose owner cannot be checked
-    (another host) once its heartbeat is stale.
+    this raises :class:`SessionError` naming its pid, host and start. A lease left behind (its process
+    provably gone, or on another host with a stale heartbeat) is taken over, and audited, only with
+    ``take_over``; without it the error says who holds it, since when, and to use ``--take-over``.
     """
     store.get_session(session_id)  # NotFoundError first
     with store.in_transaction() as tx:

@@ -55,9 +55,10 @@ class _StoreSamples:
 
     FLUSH_WALL_S = 1.0
 
-    def __init__(self, store: StudyStore, trial_id: int) -> None:
+    def __init__(self, store: StudyStore, trial_id: int, guard=None) -> None:
         self._store = store
         self._trial = trial_id
+        self._guard = guard  # the session lease's check, run inside every flush's transaction
         self._writer = None
         self._keys: tuple[str, ...] | None = None
         self._get = None
@@ -98,7 +99,9 @@ class _StoreSamples:
             return
         if self._writer is None:
             # the writer's own flushing is disabled: this class decides when to commit
-            self._writer = self._store.sample_writer(self._trial, list(self._keys), flush_interval_s=1e12)
+            # sealed with the trial's next record (the recorder seals per transaction), not per flush
+            self._writer = self._store.sample_writer(self._trial, list(self._keys), flush_interval_s=1e12,
+                                                     guard=self._guard, seal=False)
         t = np.frombuffer(self._t, dtype=float)
         if self._flat is not None:
             values = np.frombuffer(self._flat, dtype=float).reshape(len(t), len(self._keys))
@@ -416,7 +419,8 @@ class StoreRecorder:
         self._state.set_trial(trial_id, status, reason)
 
     def samples(self, trial_id: int, channels: list[str]) -> _StoreSamples:
-        return _StoreSamples(self.store, trial_id)
+        # a writer that lost the session's lease (another process took it over) stores no further samples
+        return _StoreSamples(self.store, trial_id, guard=self.lease.verify if self.lease is not None else None)
 
     def answer(self, position, instrument, version, item, code, response_time_s) -> None:
         with self._tx() as tx:

@@ -21,6 +21,7 @@ from studyctl.store.audit import append_audit
 from studyctl.store.enrollment import study_protocol
 from studyctl.store.models import AuditLog, Participant, Session, Trial
 from studyctl.store.models import utcnow as _utcnow
+from studyctl.store.records import load_mark, seal_session
 from studyctl.suggest import nearest
 
 MAX_TEXT = 4000
@@ -101,6 +102,9 @@ def withdraw(store: Any, code: str, *, reason: str, keep_data: bool = True, stud
             append_audit(tx, "session.update", entity="session", entity_id=sess.id,
                          details={"from": {"status": before}, "to": {"status": "aborted"},
                                   "reason": f"participant withdrew: {why}"})
+            # the closed session's records are kept as they stand: seal what was still pending (a trial cut
+            # short by a crash), else `audit verify` would take them for records inserted behind studyctl's back
+            seal_session(tx, sess.id, load_mark(tx, sess.id))
         old = p.status
         p.status, p.withdrawn_at, p.withdrawal_reason = "withdrawn", _utcnow(), why
         tx.flush()

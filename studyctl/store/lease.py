@@ -7,8 +7,9 @@ processes starting the same session at once exactly one gets it; the others are 
 
 * SQLite: the transaction is ``BEGIN IMMEDIATE`` (one writer at a time), the row is the lease, and a
   heartbeat thread refreshes it every :data:`HEARTBEAT_S`. A row left behind by a killed process is
-  recognised on the same host (its pid is gone) and taken over automatically; from another host only
-  once its heartbeat is older than :data:`STALE_S` and only with ``--take-over``.
+  recognised on the same host (its pid is gone), from another host once its heartbeat is older than
+  :data:`STALE_S`; either way it is taken over only with ``--take-over`` (explicit, audited): a plain resume
+  says who holds it, since when, and to use ``--take-over``.
 * PostgreSQL: additionally a session-level advisory lock held on a connection of its own for the whole
   session. The server drops it when the owner's connection dies, so "is the owner alive?" has an exact
   answer there: the lock is held or it is not.
@@ -55,6 +56,12 @@ class LeaseHolder:
     def refusal(self, extra: str = "") -> SessionError:
         return SessionError(f"{self.describe()}{extra}; if that process is gone, "
                             f"studyctl resume {self.session_id} --take-over")
+
+    def left_behind(self, why: str) -> SessionError:
+        """The refusal of a plain resume when the holder is provably gone: taking over is the coordinator's call."""
+        return SessionError(f"session {self.session_id} is still held by pid {self.pid} on {self.host} since "
+                            f"{self.since:%Y-%m-%d %H:%M:%S} UTC, which is gone ({why}); to continue the session "
+                            f"there, take it over (audited): studyctl resume {self.session_id} --take-over")
 
 
 def _holder(row: SessionLease) -> LeaseHolder:
@@ -183,8 +190,8 @@ def take_lease(db: Database, tx: OrmSession, session_id: int, *, take_over: bool
     """Take the lease of ``session_id`` inside the caller's write transaction ``tx``.
 
     Refuses with the holder's pid, host and start time while another process holds it. A lease left
-    behind by a process that is provably gone is taken over (audited); one whose owner cannot be checked
-    (another host) needs ``take_over`` and a heartbeat older than :data:`STALE_S`. The caller must call
+    behind is taken over (audited) only with ``take_over``: when its process is provably gone, or when its
+    owner cannot be checked (another host) and its heartbeat is older than :data:`STALE_S`. The caller must call
     :meth:`SessionLeaseHandle.release` when the session stops (``start_heartbeat`` once it runs).
     """
     pg_lock: _PgLock | None = None
@@ -209,13 +216,18 @@ def take_lease(db: Database, tx: OrmSession, session_id: int, *, take_over: bool
             alive = False if pg_lock is not None else owner_alive(db, holder)
             if alive is True:
                 raise holder.refusal()
-            if alive is None and not take_over:
-                raise holder.refusal(f" (no heartbeat for {(utcnow() - holder.heartbeat_at).total_seconds():.0f} s)")
+            silent = (utcnow() - holder.heartbeat_at).total_seconds()
+            if not take_over:  # a lease left behind is taken over only when the coordinator says so
+                if alive is None:
+                    raise holder.refusal(f" (no heartbeat for {silent:.0f} s)")
+                raise holder.left_behind("its PostgreSQL connection is closed" if pg_lock is not None else
+                                         f"no process {holder.pid} runs on this machine; last heartbeat "
+                                         f"{silent:.0f} s ago")
             append_audit(tx, "session.take_over", entity="session", entity_id=session_id, details={
                 "previous": {"pid": holder.pid, "host": holder.host, "since": holder.since,
                              "heartbeat_at": holder.heartbeat_at},
-                "reason": "the owner process is gone" if alive is False else "--take-over (owner not reachable, "
-                          "heartbeat stale)",
+                "reason": "--take-over: the owner process is gone" if alive is False else "--take-over (owner not "
+                          "reachable, heartbeat stale)",
                 "by": {"pid": os.getpid(), "host": socket.gethostname()},
             })
             tx.delete(row)

@@ -42,6 +42,7 @@ from studyctl.store.models import (
     Trial,
     utcnow,
 )
+from studyctl.store.records import load_mark, seal_session
 from studyctl.store.samples import DEFAULT_STREAM, SampleWriter, read_samples, sample_streams
 
 MAX_TEXT = 200
@@ -141,6 +142,21 @@ class StudyStore(Closeable):
             return
         with self.db.in_transaction(lock=lock, durable=durable) as s:
             yield s
+
+    @contextlib.contextmanager
+    def _record_tx(self, tx: OrmSession | None, session_id: Any, durable: bool = True) -> Iterator[OrmSession]:
+        """A transaction that writes a session's records. Without the caller's ``tx`` (the library used
+        directly, not the session engine) the records are sealed into the audit chain before it commits
+        (:func:`~studyctl.store.records.seal_session`), so ``audit verify`` sees them as written by studyctl,
+        not inserted behind its back; with ``tx`` the caller seals (the engine does, per transaction)."""
+        if tx is not None:
+            yield tx
+            return
+        with self.db.in_transaction(durable=durable) as s:
+            yield s
+            sid = session_id(s) if callable(session_id) else session_id
+            if sid is not None:
+                seal_session(s, int(sid), load_mark(s, int(sid)))
 
     # -- studies ----------------------------------------------------------------------------------
     def create_study(
@@ -354,7 +370,7 @@ class StudyStore(Closeable):
         _check_choice(status, TRIAL_STATUSES, "trial status")
         if time_limit_s is not None and not (time_limit_s > 0):
             raise UsageError(f"time_limit_s must be > 0, got {time_limit_s!r}")
-        with self._tx(tx) as s:
+        with self._record_tx(tx, session_id) as s:
             sess = _require(s, Session, session_id)
             if replaces_trial_id is not None and s.get(Trial, replaces_trial_id) is None:
                 raise NotFoundError(f"trial {replaces_trial_id} to replace does not exist")
@@ -380,7 +396,7 @@ class StudyStore(Closeable):
             raise UsageError(f"cannot update trial field(s) {sorted(unknown)}; allowed: {sorted(_TRIAL_FIELDS)}")
         if "status" in fields:
             _check_choice(fields["status"], TRIAL_STATUSES, "trial status")
-        with self._tx(tx) as s:
+        with self._record_tx(tx, lambda s: _require(s, Trial, trial_id).session_id) as s:
             trial = _require(s, Trial, trial_id)
             old_status = trial.status
             for k, v in fields.items():
@@ -443,7 +459,7 @@ class StudyStore(Closeable):
         if not events:
             return []
         wall = t_wall or utcnow()
-        with self._tx(tx, durable=durable) as s:
+        with self._record_tx(tx, session_id, durable=durable) as s:
             last = s.scalar(select(func.max(Event.seq)).where(Event.session_id == session_id))
             start = (last or 0) + 1
             rows = []
@@ -468,7 +484,10 @@ class StudyStore(Closeable):
 
     # -- samples ----------------------------------------------------------------------------------
     def sample_writer(self, trial_id: int, channels: Sequence[str] | None = None, **kwargs: Any) -> SampleWriter:
-        """A :class:`SampleWriter` for a trial (``stream``, ``dtype``, ``flush_interval_s`` as keywords)."""
+        """A :class:`SampleWriter` for a trial (``stream``, ``dtype``, ``flush_interval_s``, ``guard``, ``seal`` as
+        keywords). Its chunks are sealed into the audit chain as they are flushed unless ``seal=False`` (the
+        session engine, which seals them with the trial's next record)."""
+        kwargs.setdefault("seal", True)
         return SampleWriter(self.db, trial_id, channels, **kwargs)
 
     def read_samples(self, trial_id: int, stream: str = DEFAULT_STREAM) -> pd.DataFrame:
@@ -500,7 +519,7 @@ class StudyStore(Closeable):
         check_text(context, "response context", allow_none=True)
         if isinstance(code, bool) or not isinstance(code, int):
             raise UsageError(f"response code must be an integer, got {code!r}")
-        with self._tx(tx) as s:
+        with self._record_tx(tx, session_id) as s:
             r = QuestionnaireResponse(participant_id=participant_id, session_id=session_id, trial_id=trial_id,
                                       instrument=instrument, instrument_version=instrument_version, item=item,
                                       code=code, answered_at=answered_at or utcnow(), context=context)
@@ -513,7 +532,7 @@ class StudyStore(Closeable):
         tx: OrmSession | None = None,
     ) -> LocationReport:
         """Store a participant's location report (grid cell or position) at trial time ``t``."""
-        with self._tx(tx) as s:
+        with self._record_tx(tx, lambda s: _require(s, Trial, trial_id).session_id) as s:
             r = LocationReport(trial_id=trial_id, t=float(t), payload=dict(payload), correct=correct)
             s.add(r)
             s.flush()

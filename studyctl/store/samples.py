@@ -25,7 +25,7 @@ from sqlalchemy import func, insert, select
 from studyctl.errors import IntegrityError, NotFoundError, UsageError
 from studyctl.store.db import Database
 from studyctl.store.models import SampleChunk, Trial
-from studyctl.store.records import chunk_digest
+from studyctl.store.records import chunk_digest, load_mark, seal_session
 
 DEFAULT_STREAM = "samples"
 _ALLOWED_DTYPES = ("<f8", "<f4")
@@ -54,6 +54,13 @@ class SampleWriter:
     durable_flush : bool
         Fsync every flush (power-cut safe per flush, slower). By default a flush survives the process
         being killed, and the trial's completion commit (durable) makes all its chunks power-cut safe.
+    seal : bool
+        Seal each flushed chunk into the audit chain in its own transaction (the library used directly; the
+        session engine seals chunks with the trial's next record instead).
+    guard : callable, optional
+        Called with the open write transaction of every flush before the chunk is inserted; raising rolls the
+        flush back (the session engine passes its lease check, so a writer that lost the session's lease to a
+        ``--take-over`` stores no further samples).
 
     Use as a context manager or call :meth:`close`, which flushes what is left.
     """
@@ -69,6 +76,8 @@ class SampleWriter:
         flush_interval_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
         durable_flush: bool = False,
+        guard: Callable[[Any], None] | None = None,
+        seal: bool = False,
     ) -> None:
         if dtype not in _ALLOWED_DTYPES:
             raise UsageError(f"sample dtype {dtype!r} is not supported; use one of {', '.join(_ALLOWED_DTYPES)}")
@@ -83,6 +92,8 @@ class SampleWriter:
         self.flush_interval_s = float(flush_interval_s)
         self._clock = clock
         self.durable_flush = bool(durable_flush)
+        self._guard = guard
+        self._seal = bool(seal)
         self.channels: list[str] | None = None
         self._buf_t = np.empty(0)
         self._buf_v = np.empty((0, 0))
@@ -228,7 +239,12 @@ class SampleWriter:
         }
         row["digest"] = chunk_digest(row, row["t"], row["data"])
         with self.db.in_transaction(durable=self.durable_flush) as s:
+            if self._guard is not None:
+                self._guard(s)
             s.execute(insert(SampleChunk), [row])
+            if self._seal:  # written through the library, not the engine: sealed into the audit chain now
+                sid = s.scalar(select(Trial.session_id).where(Trial.id == self.trial_id))
+                seal_session(s, int(sid), load_mark(s, int(sid)))
         self._next_index += 1
         self._n = 0
         self.rows_written += n

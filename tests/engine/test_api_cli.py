@@ -211,8 +211,15 @@ def test_resume_refuses_a_session_another_live_process_runs(ws, tmp_path):
         finally:
             sleeper.kill()
             sleeper.wait()
-        # the owner is gone: the lease left behind is taken over (and audited) without --take-over
-        result = resume_session(o.store, 1, script=answers)
+        # the owner is gone: a plain resume names the lease left behind and --take-over; nothing is written
+        audited = len(o.store.audit_frame())
+        with pytest.raises(SessionError, match=rf"session 1 is still held by pid {sleeper.pid} on .* which is gone "
+                                               r"\(no process \d+ runs on this machine.*studyctl resume 1 "
+                                               r"--take-over$"):
+            resume_session(o.store, 1, script=answers)
+        assert len(o.store.audit_frame()) == audited
+        # --take-over takes it, audited
+        result = resume_session(o.store, 1, script=answers, take_over=True)
         assert result.status == "completed"
         actions = list(o.store.audit_frame()["action"])
         assert "session.take_over" in actions

@@ -194,14 +194,21 @@ def test_twenty_concurrent_resumes_after_a_kill_one_writer(backend, tmp_path, re
     if backend == "sqlite":
         assert sqlite_path(parse_url(_url(ws))).exists()
     ref = _copy(ws, tmp_path / "ref", backend, pg)
-    single = subprocess.run([sys.executable, "-m", "studyctl", "resume", "1", "--input", "answers.yaml"], cwd=ref,
-                            capture_output=True, text=True, timeout=300)
+    # the killed run's lease is left behind: a plain resume names it and the fix, writes nothing
+    plain = subprocess.run([sys.executable, "-m", "studyctl", "resume", "1", "--input", "answers.yaml"], cwd=ws,
+                           capture_output=True, text=True, timeout=300)
+    assert plain.returncode != 0 and plain.stderr.count("\n") == 1, plain.stderr
+    assert re.fullmatch(r"Error: session 1 is still held by pid \d+ on \S+ since [\d:\- ]+ UTC, which is gone "
+                        r"\(.*\); to continue the session there, take it over \(audited\): studyctl resume 1 "
+                        r"--take-over\n", plain.stderr), plain.stderr
+    single = subprocess.run([sys.executable, "-m", "studyctl", "resume", "1", "--input", "answers.yaml",
+                             "--take-over"], cwd=ref, capture_output=True, text=True, timeout=300)
     assert single.returncode == 0, single.stderr
-    results = _together(ws, ["resume", "1", "--input", "answers.yaml", "--speed", SPEED], tmp_path)
+    results = _together(ws, ["resume", "1", "--input", "answers.yaml", "--speed", SPEED, "--take-over"], tmp_path)
     _check_exactly_one(results, "Session 1 (PTY-AAAAA): completed")
     got, want = dump(ws), dump(ref)
     assert got == want
     with open_study(workspace=ws) as o:
         frame = o.store.audit_frame()
     take_overs = frame[frame.action == "session.take_over"]
-    assert len(take_overs) == 1 and "the owner process is gone" in take_overs.details.iloc[0]
+    assert len(take_overs) == 1 and "--take-over: the owner process is gone" in take_overs.details.iloc[0]

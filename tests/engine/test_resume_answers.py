@@ -78,7 +78,7 @@ def test_needle_operator_killed_in_a_questionnaire_answers_as_if_uninterrupted(n
     before = snapshot(ws)
     kept = {k: v for k, v in before["answers"].items() if k[0] == f"step:{position}"}
     assert 0 < len(kept) < 3 and len(before["trials"]) == 2  # killed after ES, before RT
-    cli(["resume", "1"], ws, env)
+    cli(["resume", "1", "--take-over"], ws, env)  # the killed process's lease is taken over explicitly
     after = snapshot(ws)
     assert after["session_status"] == "completed" and after["resumes"] == 1
     assert after["answers"] == reference["answers"]

@@ -34,9 +34,13 @@ def test_lease_of_another_host_needs_take_over_once_stale(store):
     sid = _session(store)
     _foreign_lease(store, sid, age_s=STALE_S + 60)
     if store.db.dialect == "postgresql":
-        # PostgreSQL knows: nobody holds the session's advisory lock, so the owner is gone, whatever its host
+        # PostgreSQL knows: nobody holds the session's advisory lock, so the owner is gone, whatever its host;
+        # still taken over only when asked to
+        with pytest.raises(SessionError, match=r"which is gone \(its PostgreSQL connection is closed\).*--take-over"):
+            with store.in_transaction() as tx:
+                take_lease(store.db, tx, sid)
         with store.in_transaction() as tx:
-            handle = take_lease(store.db, tx, sid)
+            handle = take_lease(store.db, tx, sid, take_over=True)
         handle.release()
         assert "session.take_over" in list(store.audit_frame()["action"])
         return
@@ -79,6 +83,27 @@ def test_a_lease_taken_over_stops_the_old_writer(store):
         assert s.get(SessionLease, sid) is not None  # release leaves the new owner's lease alone
 
 
+def test_a_writer_that_lost_its_lease_flushes_no_samples(store):
+    """Sample flushes check the lease in their own transaction: after a take-over elsewhere the old writer's
+    buffered samples are refused (SessionError), and nothing of them is stored."""
+    sid = _session(store)
+    trial = store.add_trial(sid, plan_position=1, condition="a", status="running")
+    with store.in_transaction() as tx:
+        handle = take_lease(store.db, tx, sid)
+    try:
+        writer = store.sample_writer(trial.id, ["f"], flush_interval_s=1e9, guard=handle.verify)
+        writer.append(0.0, [1.0])
+        assert writer.flush() == 1  # ours: stored
+        writer.append(0.1, [2.0])
+        with store.db.engine.begin() as conn:  # what a take-over elsewhere leaves behind
+            conn.execute(text("UPDATE session_lease SET token = :t"), {"t": "0" * 32})
+        with pytest.raises(SessionError, match="was taken over by another process"):
+            writer.flush()
+    finally:
+        handle.release()
+    assert list(store.read_samples(trial.id)["f"]) == [1.0]  # the refused flush left nothing behind
+
+
 def test_existing_database_upgrades_and_its_old_records_are_noted_not_flagged(empty_db_url):
     if empty_db_url.startswith("sqlite"):
         import sqlite3
@@ -105,3 +130,53 @@ def test_existing_database_upgrades_and_its_old_records_are_noted_not_flagged(em
                               "VALUES (2, 1, 2, 0.0, CURRENT_TIMESTAMP, 'new')"))
         report = verify_integrity(db)
         assert [p.line().split(":")[0] for p in report.records.problems] == ["event 2 inserted"]
+
+
+def test_records_written_through_the_library_are_sealed_and_raw_inserts_are_named(store):
+    """A study written with the store API directly (no session engine) is studyctl's own writing: every record is
+    sealed in the transaction that writes it, so `audit verify` passes. A row added behind studyctl's back with SQL
+    is still named as inserted."""
+    sid = _session(store)
+    trial = store.add_trial(sid, plan_position=1, condition="a", status="running")
+    store.update_trial(trial.id, status="completed", outcome={"duration_s": 3.0})
+    store.append_event(sid, "note", {"x": 1}, t_mono=0.5, trial_id=trial.id)
+    pid = store.get_session(sid).participant_id
+    store.record_response(pid, instrument="i", instrument_version="1", item="q", code=3, session_id=sid)
+    store.record_location_report(trial.id, t=1.0, payload={"cell": "A1"})
+    with store.sample_writer(trial.id, ["f"]) as writer:
+        writer.append(0.0, [1.0])
+    store.update_session(sid, status="completed")
+    report = verify_integrity(store.db)
+    assert report.ok, report.problems
+    assert report.records.checked == {"trial": 1, "event": 1, "answer": 1, "report": 1, "chunk": 1}
+    with store.db.engine.begin() as conn:
+        conn.execute(text("INSERT INTO event (session_id, seq, t_mono, t_wall, kind) "
+                          "VALUES (:s, 99, 0.0, CURRENT_TIMESTAMP, 'forged')"), {"s": sid})
+    report = verify_integrity(store.db)
+    assert [p.line().split(":")[0] for p in report.records.problems] == ["event 2 inserted"]
+
+
+def test_withdrawing_seals_the_records_of_the_session_it_closes(tmp_path):
+    """A session cut short by a crash holds records written after its last seal (pending while it could be
+    resumed). Withdrawing the participant closes it: those records are kept as they stand and sealed, not
+    reported as inserted."""
+    from studyctl.store.coordination import withdraw  # noqa: PLC0415
+    from studyctl.store.enrollment import enroll  # noqa: PLC0415
+    from studyctl.store.workspace import init_workspace, open_study  # noqa: PLC0415
+
+    init_workspace(tmp_path / "ws", protocol="bio_inspired_palpation")
+    with open_study(workspace=tmp_path / "ws") as o:
+        code = enroll(o.store, "novice", study=o.study.name).code
+        p = o.store.get_participant(o.study.id, code)
+        sid = o.store.start_session(p.id).id
+        o.store.update_session(sid, status="running")
+        tid = o.store.add_trial(sid, plan_position=1, condition="linear", status="running").id
+        with o.store.db.engine.begin() as conn:  # what the engine had not sealed yet when it was killed
+            conn.execute(text("INSERT INTO event (session_id, trial_id, seq, t_mono, t_wall, kind) "
+                              "VALUES (:s, :t, 50, 0.1, CURRENT_TIMESTAMP, 'trial_loop_start')"),
+                         {"s": sid, "t": tid})
+        report = verify_integrity(o.store.db)
+        assert report.ok and any("pending" in n for n in report.notes), (report.problems, report.notes)
+        withdraw(o.store, code, reason="left", study=o.study.name)
+        report = verify_integrity(o.store.db)
+        assert report.ok, report.problems
