@@ -26,13 +26,17 @@ def register(app: typer.Typer) -> None:
         head: str = typer.Option(None, "--head", help="A head noted earlier (ROWS:SHA256, as printed by run/resume): "
                                  "also check that the log still holds it."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON object when the log is intact."),
+        single_site: bool = typer.Option(False, "--single-site", help="PostgreSQL: every machine that writes this "
+                                         "database keeps its head in the same head file (one machine, or "
+                                         "STUDYCTL_AUDIT_HEAD_DIR on a folder they share), so audit rows after it "
+                                         "are an error, not a note (as on SQLite)."),
     ) -> None:
         """Recompute the hash chain and every sealed record (trials, outcomes, events, answers, location reports,
         sample chunks); name every edited, deleted or inserted one and a truncated tail; exit non-zero if any."""
         noted = parse_head(head) if head is not None else None
         url, _ = resolve_database(db, workspace_arg(workspace))
         with StudyStore.open(url) as store:
-            report = verify_integrity(store.db, noted)
+            report = verify_integrity(store.db, noted, single_site=single_site)
         for note in report.notes:
             typer.echo(f"note: {note}", err=True)
         if report.ok:

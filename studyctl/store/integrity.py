@@ -47,13 +47,17 @@ class IntegrityReport:
         return frame
 
 
-def verify_session(tx: OrmSession, db: Database, head: Head | None = None) -> IntegrityReport:
+def verify_session(tx: OrmSession, db: Database, head: Head | None = None, *, single_site: bool = False
+                   ) -> IntegrityReport:
+    """``single_site``: on PostgreSQL, every machine that writes the database anchors its head in the same head
+    file (one machine, or ``STUDYCTL_AUDIT_HEAD_DIR`` on a folder they all share), so audit rows after that head
+    are a problem, as on SQLite, instead of a note (rows another site may have written)."""
     audit = verify_audit(tx)
     records = verify_records(tx)
     head_problems: list[str] = []
     notes: list[str] = list(records.notes)
     path = anchor_path(db.url)
-    strict = db.dialect == "sqlite"
+    strict = db.dialect == "sqlite" or single_site
     anchored = read_anchor(path) if path is not None else None
     if anchored is not None:
         p, n = check_head(tx, anchored, f"the head file {path}", strict_tail=strict)
@@ -68,10 +72,11 @@ def verify_session(tx: OrmSession, db: Database, head: Head | None = None) -> In
     return IntegrityReport(audit=audit, records=records, head_problems=tuple(head_problems), notes=tuple(notes))
 
 
-def verify_integrity(db: Database, head: Head | None = None) -> IntegrityReport:
-    """Check the audit chain, every sealed record and the outside head of ``db`` in one read snapshot."""
+def verify_integrity(db: Database, head: Head | None = None, *, single_site: bool = False) -> IntegrityReport:
+    """Check the audit chain, every sealed record and the outside head of ``db`` in one read snapshot
+    (``single_site``: see :func:`verify_session`)."""
     with db.reading() as tx:
-        return verify_session(tx, db, head)
+        return verify_session(tx, db, head, single_site=single_site)
 
 
 __all__ = ["IntegrityReport", "verify_integrity", "verify_session"]

@@ -288,6 +288,10 @@ def test_tampering_is_detected_and_named(copy_url, case, capsys):
         # Other sites write a shared PostgreSQL database, so rows after this machine's head file are only a note
         # there; a correctly chained forged row needs the head noted in the lab notebook (--head) to be caught.
         assert "note: audit row(s)" in out and "are not in the head file" in out
+        # with one machine's head file standing for every writer (--single-site) the same forgery is an error
+        assert main(["audit", "verify", "--db", copy_url, "--single-site"]) == 1
+        captured = capsys.readouterr()
+        assert re.search(expected[0], captured.out + captured.err), captured
         return
     assert code == 1, out
     assert re.search(expected[0], out), f"{expected[0]!r} not in:\n{out}"
