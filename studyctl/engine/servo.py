@@ -448,6 +448,7 @@ class ServoResult:
     timing: ServoTiming | None
     rt: dict[str, Any] = field(default_factory=dict)
     memory: dict[str, Any] | None = None  # a virtual participant's memory at the end of the trial (child participant)
+    start_s: float = float("nan")  # wall seconds from starting the process to the trial's time 0 (spawn, imports, open)
 
 
 _TIMING_FIELDS = frozenset(ServoTiming.__dataclass_fields__)
@@ -482,6 +483,7 @@ def run_trial_in_servo_process(
     timing: ServoTiming | None = None
     rt: dict[str, Any] = {}
     memory: dict[str, Any] | None = None
+    start_s = float("nan")
     error: tuple[str, str] | None = None
     died = False
     started = time.monotonic()
@@ -518,6 +520,8 @@ def run_trial_in_servo_process(
                     on_sample(t, dict(zip(names, row, strict=True)))
             elif kind == "event":
                 _, t, ev_kind, payload = msg
+                if ev_kind == "servo_clock":
+                    start_s = time.monotonic() - started
                 if ev_kind == "servo_timing":
                     timing = ServoTiming(**{k: v for k, v in payload.items() if k in _TIMING_FIELDS})
                     rt = dict(payload.get("rt") or {})
@@ -556,4 +560,5 @@ def run_trial_in_servo_process(
         timing=timing,
         rt=rt,
         memory=memory,
+        start_s=start_s,
     )

@@ -22,6 +22,7 @@ def test_bench_servo_json_has_both_paths_and_the_realtime_report():
     for side in ("figures", "peers"):
         for key in ("period_jitter_us_p99_loaded", "late_ticks_pct_loaded", "loop_cpu_s"):
             assert math.isfinite(data[side][key]) and data[side][key] >= 0, (side, key)
+    assert 0 < data["figures"]["servo_start_s"] < 120  # measured: spawn to the trial's time 0
     rows = data["tables"]["real-time pacing with the other core busy"]
     assert [r["loop"] for r in rows] == ["servo process", "in-process (peer)"]
     assert all(r["ticks"] > 1500 for r in rows)  # 2 s at 1 kHz each
