@@ -165,8 +165,9 @@ def refuse_second_session(store: StudyStore, tx, participant: Participant) -> No
             holder = current_holder(tx, sess.id)
             if holder is not None and owner_alive(store.db, holder) is not False:
                 raise holder.refusal()
+            left = " --take-over" if holder is not None else ""  # its process is gone but still holds the lease
             raise SessionError(f"participant {participant.code} has an unfinished session {sess.id} ({sess.status}); "
-                               f"continue it with `studyctl resume {sess.id}`")
+                               f"continue it with `studyctl resume {sess.id}{left}`")
 
 
 class StoreRecorder:

@@ -218,6 +218,10 @@ def test_resume_refuses_a_session_another_live_process_runs(ws, tmp_path):
                                                r"--take-over$"):
             resume_session(o.store, 1, script=answers)
         assert len(o.store.audit_frame()) == audited
+        # a second `run` of the participant points at the same fix
+        with pytest.raises(SessionError, match=r"unfinished session 1 \(running\); continue it with `studyctl resume "
+                                               r"1 --take-over`"):
+            run_session(o.store, "PTY-AAAAA", virtual=False, script=answers)
         # --take-over takes it, audited
         result = resume_session(o.store, 1, script=answers, take_over=True)
         assert result.status == "completed"
