@@ -60,8 +60,8 @@ class LeaseHolder:
     def left_behind(self, why: str) -> SessionError:
         """The refusal of a plain resume when the holder is provably gone: taking over is the coordinator's call."""
         return SessionError(f"session {self.session_id} is still held by pid {self.pid} on {self.host} since "
-                            f"{self.since:%Y-%m-%d %H:%M:%S} UTC, which is gone ({why}); to continue the session "
-                            f"there, take it over (audited): studyctl resume {self.session_id} --take-over")
+                            f"{self.since:%Y-%m-%d %H:%M:%S} UTC, which is gone ({why}); to continue the session"
+                            f", take it over (audited): studyctl resume {self.session_id} --take-over")
 
 
 def _holder(row: SessionLease) -> LeaseHolder:

@@ -199,7 +199,7 @@ def test_twenty_concurrent_resumes_after_a_kill_one_writer(backend, tmp_path, re
                            capture_output=True, text=True, timeout=300)
     assert plain.returncode != 0 and plain.stderr.count("\n") == 1, plain.stderr
     assert re.fullmatch(r"Error: session 1 is still held by pid \d+ on \S+ since [\d:\- ]+ UTC, which is gone "
-                        r"\(.*\); to continue the session there, take it over \(audited\): studyctl resume 1 "
+                        r"\(.*\); to continue the session, take it over \(audited\): studyctl resume 1 "
                         r"--take-over\n", plain.stderr), plain.stderr
     single = subprocess.run([sys.executable, "-m", "studyctl", "resume", "1", "--input", "answers.yaml",
                              "--take-over"], cwd=ref, capture_output=True, text=True, timeout=300)
