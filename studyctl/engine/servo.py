@@ -454,6 +454,26 @@ class ServoResult:
 _TIMING_FIELDS = frozenset(ServoTiming.__dataclass_fields__)
 
 
+@contextlib.contextmanager
+def _main_not_rerun():
+    """Start a spawned child without running this process's main script again in it.
+
+    ``spawn`` re-runs the parent's ``__main__`` in the child when it is a script (the ``studyctl`` console script
+    imports the whole CLI: typer, rich, pandas, pyarrow, SQLAlchemy, the participant view; ~1 s of CPU and ~50 MB per
+    trial). The servo needs none of it: its target and spec come from importable modules. The preparation data are
+    taken while ``start()`` runs, so the main module's ``__file__`` is hidden only for that moment."""
+    main = sys.modules.get("__main__")
+    if main is None or getattr(main, "__spec__", None) is not None or not hasattr(main, "__file__"):
+        yield  # `python -m studyctl` (a module main is never re-run) or an interactive session
+        return
+    path = main.__file__
+    del main.__file__
+    try:
+        yield
+    finally:
+        main.__file__ = path
+
+
 def run_trial_in_servo_process(
     spec: ServoSpec,
     *,
@@ -478,7 +498,8 @@ def run_trial_in_servo_process(
     ctx = mp.get_context("spawn")
     inbox, outbox = ctx.Queue(), ctx.Queue()
     proc = ctx.Process(target=_servo_main, args=(spec, inbox, outbox), name="studyctl-servo", daemon=True)
-    proc.start()
+    with _main_not_rerun():
+        proc.start()
     outcome: dict[str, Any] | None = None
     timing: ServoTiming | None = None
     rt: dict[str, Any] = {}

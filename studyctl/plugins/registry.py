@@ -17,11 +17,13 @@ from __future__ import annotations
 import inspect
 from dataclasses import asdict, dataclass
 from importlib.metadata import EntryPoint, entry_points
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from studyctl.errors import PluginError
 from studyctl.plugins.interfaces import Controller, Device, Participant, Scene
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 GROUPS: dict[str, str] = {
     "controller": "studyctl.controllers",
@@ -124,6 +126,8 @@ class PluginListing:
     plugins: tuple[PluginInfo, ...]
 
     def to_frame(self) -> pd.DataFrame:
+        import pandas as pd  # noqa: PLC0415 - only here: the servo process loads plugins without pandas
+
         return pd.DataFrame([asdict(p) for p in self.plugins], columns=list(COLUMNS))
 
     @property

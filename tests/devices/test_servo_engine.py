@@ -160,3 +160,30 @@ def test_killing_either_process_leaves_a_resumable_session_and_a_safe_device(stu
         # cleanly and released it
         result = resume_session(store, sess.id, script=Script.from_mapping(SCRIPT), take_over=victim == "parent")
         assert result.status == "completed" and result.trials_completed == 4 and result.trials_aborted == 1
+
+
+MAIN_SCRIPT = textwrap.dedent('''
+    import sys
+    MARKER = {marker!r}
+    if __name__ == "__mp_main__":  # this script run again inside the servo process
+        open(MARKER, "w").close()
+    if __name__ == "__main__":
+        from studyctl.engine.servo import ServoSpec, run_trial_in_servo_process
+        from studyctl.plugins.interfaces import TrialInfo
+        spec = ServoSpec(info=TrialInfo("c", 0.2, 50.0), device="sim_palpation", realtime=False)
+        result = run_trial_in_servo_process(spec)
+        print(result.ended_by, result.ticks, round(result.start_s, 3))
+''')
+
+
+def test_the_servo_process_does_not_run_the_coordinators_main_script_again(tmp_path):
+    """``spawn`` re-runs a script ``__main__`` in the child; the ``studyctl`` console script would import the whole
+    CLI into every trial's servo process. Started from a script, the servo process runs the trial without it."""
+    marker = tmp_path / "main-ran-in-child"
+    script = tmp_path / "coordinator.py"
+    script.write_text(MAIN_SCRIPT.format(marker=str(marker)))
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr
+    ended_by, ticks, start_s = out.stdout.split()
+    assert ended_by == "time_limit" and int(ticks) >= 5 and float(start_s) > 0
+    assert not marker.exists()
