@@ -22,16 +22,13 @@ import pandas as pd
 
 from studyctl.analysis import catalog
 from studyctl.analysis.procedures import Cell
+from studyctl.analysis.results import split_levels
 from studyctl.analysis.shape import factor_column
 from studyctl.errors import StudyctlError
 
 COLUMNS = ("test_id", "metric", "split", "groups", "effect_size_name", "effect_size", "ci_low", "ci_high",
            "ci_level", "replicates", "seed", "method")
 _SKIP = {"art_anova", "mixed_model", "ordinal"}
-
-
-def _splits(split: str) -> dict[str, str]:
-    return dict(part.split("=", 1) for part in split.split(", ") if "=" in part)
 
 
 def effect_size_intervals(result, *, replicates: int = 1000, seed: int = 20, confidence: float = 0.95
@@ -55,7 +52,7 @@ def effect_size_intervals(result, *, replicates: int = 1000, seed: int = 20, con
         levels = r.groups.split(" vs ") if r.kind == "two_sample" else r.groups.split(", ")
         col = factor_column(entry.compare)
         sel = units[units["metric"] == r.metric]
-        for factor, value in _splits(r.split).items():
+        for factor, value in split_levels(r.split).items():
             sel = sel[sel[factor_column(factor)].astype(str) == value]
         keys = ["participant", col, *[factor_column(b) for b in entry.by]]
         sel = sel.groupby(keys, dropna=False)["value"].mean().reset_index()

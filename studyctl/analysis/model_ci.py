@@ -14,7 +14,7 @@ import math
 import pandas as pd
 
 from studyctl.analysis import catalog
-from studyctl.analysis.effect_ci import _splits
+from studyctl.analysis.results import split_levels
 from studyctl.analysis.shape import factor_column, ordered_levels
 from studyctl.stats.model_intervals import mixed_coefficients, ordinal_coefficients
 
@@ -50,7 +50,7 @@ def model_coefficient_intervals(result, *, confidence: float = 0.95) -> pd.DataF
             continue
         seen.add(key)
         sel = units[units["metric"] == r.metric]
-        for factor, value in _splits(r.split).items():
+        for factor, value in split_levels(r.split).items():
             sel = sel[sel[factor_column(factor)].astype(str) == value]
         col = factor_column(entry.compare)
         levels = ordered_levels(sel[col].astype(str), _preferred(result, entry.compare, entry))

@@ -148,6 +148,11 @@ class AnalysisResult:
         return [r for r in self.rows if r.test_id == test_id]
 
 
+def split_levels(split: str) -> dict[str, str]:
+    """A row's ``split`` (``"group=novice, condition=linear"``, as the runner writes it) as ``{factor: level}``."""
+    return dict(part.split("=", 1) for part in str(split or "").split(", ") if "=" in part)
+
+
 def rows_frame(rows: Sequence[TestRow]) -> pd.DataFrame:
     """Test rows as a table with columns :data:`ROW_COLUMNS` (as :meth:`AnalysisResult.to_frame`)."""
     return pd.DataFrame([asdict(r) for r in rows], columns=list(ROW_COLUMNS))

@@ -21,6 +21,7 @@ import pandas as pd
 
 from studyctl import __version__
 from studyctl.analysis import catalog
+from studyctl.analysis.results import split_levels
 from studyctl.report import apa
 from studyctl.report.compose import likert_items_table
 from studyctl.report.findings import (
@@ -28,7 +29,6 @@ from studyctl.report.findings import (
     headline_lines,
     methods_text,
     posthoc_text,
-    split_levels,
     tests_frame,
     where_text,
 )

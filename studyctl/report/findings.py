@@ -16,19 +16,12 @@ import pandas as pd
 
 from studyctl import __version__
 from studyctl.analysis import catalog
+from studyctl.analysis.results import split_levels
 from studyctl.report import apa
 
 if TYPE_CHECKING:
     from studyctl.analysis.plan import PlanTest
     from studyctl.analysis.results import AnalysisResult
-
-
-def split_levels(split: str) -> dict[str, str]:
-    out = {}
-    for part in filter(None, (s.strip() for s in str(split or "").split(", "))):
-        key, _, value = part.partition("=")
-        out[key] = value
-    return out
 
 
 def tests_frame(result: AnalysisResult) -> pd.DataFrame:
