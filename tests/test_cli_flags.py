@@ -118,6 +118,9 @@ def test_shell_completion_by_typers_mechanism(tmp_path):
     env = {**os.environ, "_STUDYCTL_COMPLETE": "complete_bash", "COMP_WORDS": "studyctl sta", "COMP_CWORD": "1"}
     run = subprocess.run([exe], env=env, capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and run.stdout.split() == ["status"], (run.stdout, run.stderr)
+    env |= {"COMP_WORDS": "studyctl protocol show ne", "COMP_CWORD": "3"}
+    run = subprocess.run([exe], env=env, capture_output=True, text=True, timeout=60)
+    assert run.stdout.split() == ["needle_insertion"], (run.stdout, run.stderr)
     env = {k: v for k, v in os.environ.items() if not k.startswith(("_STUDYCTL", "COMP_"))}
     env |= {"HOME": str(tmp_path), "SHELL": "/bin/bash"}
     run = subprocess.run([exe, "--install-completion", "bash"], env=env,
@@ -150,3 +153,11 @@ def test_status_watch_refreshes_until_ctrl_c(tmp_path, capsys, monkeypatch):
     assert "every 0.5 s; Ctrl-C to stop" in out
     assert main(["status", "--watch", "--json", "-w", str(tmp_path / "ws")]) != 0
     assert capsys.readouterr().err.startswith("Error: --watch shows a live view")
+
+
+def test_shipped_names_complete():
+    from studyctl.cli.common import complete_shipped
+
+    assert complete_shipped("protocols")("pseudo") == ["pseudo_haptic_palpation"]
+    assert complete_shipped("analysis")("pseudo") == ["pseudo_haptic_palpation", "pseudo_haptic_palpation_published"]
+    assert complete_shipped("protocols")("./my") == []  # the shell then completes file names

@@ -13,6 +13,7 @@ from studyctl.cli.common import (
     PIPED_WIDTH,
     STUDY_OPTION,
     WORKSPACE_OPTION,
+    complete_shipped,
     output_console,
     workspace_arg,
 )
@@ -25,7 +26,8 @@ def _console(err: bool = False) -> Console:
 def register(app: typer.Typer) -> None:
     @app.command("analyze")
     def analyze(
-        plan: str = typer.Argument(..., help="Analysis plan file, or a shipped plan name (e.g. needle_insertion)."),
+        plan: str = typer.Argument(..., help="Analysis plan file, or a shipped plan name (e.g. needle_insertion).",
+                                  autocompletion=complete_shipped("analysis")),
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
@@ -63,7 +65,8 @@ def register(app: typer.Typer) -> None:
 
     @app.command("report")
     def report(
-        plan: str = typer.Argument(..., help="Analysis plan file, or a shipped plan name."),
+        plan: str = typer.Argument(..., help="Analysis plan file, or a shipped plan name.",
+                                  autocompletion=complete_shipped("analysis")),
         out: Path = typer.Option(..., "--out", "-o", help="Folder for tables, figures, report.html and report.md."),
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
@@ -113,7 +116,8 @@ def register(app: typer.Typer) -> None:
 def register_sim(app: typer.Typer) -> None:
     @app.command("simulate")
     def simulate(
-        protocol: str = typer.Argument(..., help="Shipped protocol name or protocol file."),
+        protocol: str = typer.Argument(..., help="Shipped protocol name or protocol file.",
+                                      autocompletion=complete_shipped("protocols")),
         participants: int = typer.Option(..., "--participants", "-n", help="How many virtual participants."),
         seed: int = typer.Option(..., "--seed", "-s", help="Master seed of the study (same seed, same data)."),
         out: Path = typer.Option(None, "--out", "-o", help="New workspace folder (default: ./<protocol>-sim)."),

@@ -43,3 +43,15 @@ def output_console(*, stderr: bool = False):  # noqa: ANN201 - rich.console.Cons
     stream = sys.stderr if stderr else sys.stdout
     piped = not (hasattr(stream, "isatty") and stream.isatty()) and "COLUMNS" not in os.environ
     return Console(stderr=stderr, highlight=False, width=PIPED_WIDTH if piped else None)
+
+
+def complete_shipped(kind: str):  # noqa: ANN201 - a typer autocompletion callback
+    """Shell completion of a shipped protocol (``kind`` protocols) or analysis plan (analysis) name; an empty
+    answer lets the shell complete file names instead."""
+
+    def complete(incomplete: str) -> list[str]:
+        from studyctl.resources import shipped_names
+
+        return [n for n in shipped_names(kind) if n.startswith(incomplete)]
+
+    return complete

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import typer
 
+from studyctl.cli.common import complete_shipped
 from studyctl.errors import UsageError
 from studyctl.protocol import (
     expand_many,
@@ -35,7 +36,8 @@ def register(app: typer.Typer) -> None:
 
     @group.command("check")
     def check(
-        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol."),
+        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol.",
+                                autocompletion=complete_shipped("protocols")),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
     ) -> None:
         """Validate a protocol: exit 0 if valid, else list every problem (file:line:column, key path)."""
@@ -53,7 +55,8 @@ def register(app: typer.Typer) -> None:
 
     @group.command("show")
     def show(
-        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol."),
+        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol.",
+                                autocompletion=complete_shipped("protocols")),
         as_json: bool = typer.Option(False, "--json", help="Print the validated protocol (every field, defaults "
                                      "filled in) and its counterbalancing sequences as one JSON object."),
     ) -> None:
@@ -71,7 +74,8 @@ def register(app: typer.Typer) -> None:
 
     @group.command("schedule")
     def schedule(
-        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol."),
+        file: str = typer.Argument(..., help="Protocol YAML file, or the name of a shipped protocol.",
+                                autocompletion=complete_shipped("protocols")),
         participants: int = typer.Option(..., "--participants", "-n", min=1, max=1_000_000,
                                          help="How many participants to plan (spread over strata by target_n)."),
         seed: int | None = typer.Option(None, "--seed", "-s", min=0,
