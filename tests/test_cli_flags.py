@@ -161,3 +161,16 @@ def test_shipped_names_complete():
     assert complete_shipped("protocols")("pseudo") == ["pseudo_haptic_palpation"]
     assert complete_shipped("analysis")("pseudo") == ["pseudo_haptic_palpation", "pseudo_haptic_palpation_published"]
     assert complete_shipped("protocols")("./my") == []  # the shell then completes file names
+
+
+@pytest.mark.slow  # one simulated person (~5 s)
+def test_simulate_json_is_one_object(tmp_path, capsys):
+    import json
+    from pathlib import Path
+
+    from studyctl.cli.app import main
+
+    protocol = Path(__file__).parent / "power" / "data" / "mini_palpation.yaml"
+    assert main(["simulate", str(protocol), "-n", "1", "-s", "3", "-o", str(tmp_path / "w"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)  # the progress bar and population line go to stderr
+    assert out["participants"] == 1 and out["trials_completed"] == 2 and Path(out["database"]).is_file()

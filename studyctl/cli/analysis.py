@@ -169,7 +169,9 @@ def register_sim(app: typer.Typer) -> None:
                 population=pop,
             )
         if as_json:
-            typer.echo(result.to_frame().iloc[0].to_json())
+            from dataclasses import asdict
+
+            typer.echo(json.dumps(asdict(result)))
             return
         typer.echo(
             f"Simulated {result.participants} participants of {result.study!r} in {result.seconds:.1f} s: "
