@@ -149,6 +149,9 @@ PARAMS = (
     Param("stop_z", 8.0, low=1.0, high=1000.0,
           source="FITTED: how clear (SDs of the press noise) each expected spot must feel before the survey stops; "
           "very high for a systematic searcher who covers the whole surface anyway"),
+    Param("stop_min_presses", 10, low=5, high=500, kind=int,
+          source="CHOSEN: survey presses a targeted searcher makes before it may end its survey: it first learns what "
+          "the tissue around feels like (the noise its spots stand out of is estimated from these presses)"),
     Param("follow_up_z", 1.5, low=0.0, high=50.0,
           source="CHOSEN: survey presses this suspicious are re-palpated"),
     Param("follow_up_shrink", 0.5, low=0.05, high=1.0,
@@ -248,6 +251,7 @@ class VirtualTissuePalpator(Participant):
         self._spots: list[dict[str, Any]] = []
         self._follow_up: dict[str, Any] = {}
         self._direct = False
+        self._stopped_early = False
         self.perceived: dict[str, Any] = {}
         self._motor = self._trial_motor(info, rng)
 
@@ -300,7 +304,7 @@ class VirtualTissuePalpator(Participant):
         """A targeted searcher ends its survey once it has felt as many clear spots as it expects nodules (known
         from the practice run): ``expect_spots`` spots each above ``stop_z`` SDs. Checked every third press."""
         p = self.params
-        if p["expect_spots"] <= 0 or len(self._presses) < 10 or len(self._presses) % 3:
+        if p["expect_spots"] <= 0 or len(self._presses) < p["stop_min_presses"] or len(self._presses) % 3:
             return False
         ev = self._evidence()
         if ev is None:
@@ -310,8 +314,8 @@ class VirtualTissuePalpator(Participant):
 
     def _next_press(self) -> None:
         if self._stage == "survey" and self._plan and self._found_enough():
-            self.perceived["survey_stopped_early"] = len(self._plan)
             self._plan = []
+            self._stopped_early = True
         if not self._plan and self._stage == "survey":
             self._stage = "follow_up"
             self._spots = self._follow_up_spots()
@@ -536,15 +540,25 @@ class VirtualTissuePalpator(Participant):
         if p["press_precision"] <= 0:
             return shortest
         s_force, s_cursor = self._cue_sigmas()
-        info = 0.0
-        if force > 0.02:
-            info += p["force_trust"] / max(s_force, 1e-9) ** 2
-        track = press.get("track") or []
-        if track and track[-1][0] > 0.5 and self._r0() * track[-1][1] / track[-1][0] > 1.05:
-            info += p["cursor_trust"] / max(s_cursor, 1e-9) ** 2
-        if info <= 0:
+        if force <= 0.02:
+            # nothing is felt: holding still gathers no evidence (the cursor cue was read on the way down)
             return shortest
-        need = p["judge_time_s"] / (info * p["press_precision"] ** 2)
+        # The cursor cue, seen during the descent, is already in hand when the hold starts; the felt force
+        # accumulates information over the hold (1/σ² growing with time). Fused by reliability (Ernst & Banks
+        # 2002), the hold needed shrinks by what the cursor already told.
+        have = 0.0
+        track = press.get("track") or []
+        q = self._r0() * track[-1][1] / track[-1][0] if track and track[-1][0] > 0.5 else 1.0
+        if q > 1.05:
+            # The cursor cue's noise is on the slowing q = (f + 1)/R₀, the force's on f itself: as a judgement of
+            # the force (R₀·q − 1) the cursor cue's relative SD is q/(q − 1) times its own (about 3× at q = 1.5).
+            # Counting it at its own SD made a person with both cues release its presses early, and its force
+            # judgements worse than with force feedback alone.
+            have = p["cursor_trust"] / max(s_cursor * q / (q - 1.0), 1e-9) ** 2
+        rate = p["force_trust"] / max(s_force, 1e-9) ** 2 / p["judge_time_s"]  # information per second held
+        if rate <= 0:
+            return shortest
+        need = (1.0 / p["press_precision"] ** 2 - have) / rate
         return min(max(need, shortest), max(p["max_dwell_s"], shortest))
 
     def _record(self, press: dict[str, Any]) -> None:
@@ -581,8 +595,12 @@ class VirtualTissuePalpator(Participant):
             k = next((i for i in range(len(track) - 1, -1, -1) if bc - track[i][0] >= p["ratio_window_mm"]), -1)
             oc, oh = track[k] if k >= 0 else (0.0, 0.0)
             if bc - oc > 0.2:
-                # the cursor's travel is seen (visual speed) against the hand's, felt (proprioception)
-                noise = scale * math.hypot(p["visual_weber"], p["hand_weber"])
+                # The cursor's travel is seen (visual speed) against the hand's, felt (proprioception), while the
+                # cursor descends: the cue is watched for the window's descending ticks only (it is still during
+                # the hold, so holding longer does not sharpen it; a slower descent does).
+                watched = (len(track) - 1 - k if k >= 0 else len(track)) * self._dt
+                seen_scale = math.sqrt(p["judge_time_s"] / max(watched, p["judge_time_s"]))
+                noise = seen_scale * math.hypot(p["visual_weber"], p["hand_weber"])
                 row["ratio"] = (bh - oh) / (bc - oc) * (1.0 + noise * float(rng.normal()))
         self._presses.append(row)
 
@@ -609,7 +627,8 @@ class VirtualTissuePalpator(Participant):
             visual_force = self._r0() * ratio - 1.0
             if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
                 cues.append((visual_force, "cursor"))
-        self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum())}
+        self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum()),
+                          "survey_stopped_early": self._stopped_early}
         if not cues:
             return None
         d2 = ((pts[:, None, :] - pts[None, survey, :]) ** 2).sum(axis=2)
