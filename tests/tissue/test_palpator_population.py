@@ -89,3 +89,49 @@ def test_trial_tempo_varies_within_a_person_and_grows_with_practice():
     assert 0.1 < np.std(np.log(first)) < 0.35  # trial-to-trial noise of about the stated CV
     assert np.mean(later) > 1.15 * np.mean(first)  # practice: later trials quicker
     assert VirtualTissuePalpator({"tempo": 1.5})._trial_motor(info, np.random.default_rng(0))["tempo"] == 1.5
+
+
+# a sharp-eyed person of the seed 003 population (its trait locations, visual_weber at the range's low end)
+PERSON_003 = {"tempo": 3.2, "line_spacing_mm": 9.5, "press_spacing_mm": 9.5, "visual_weber": 0.02, "hand_weber": 0.0,
+              "ratio_window_mm": 1.0, "z_threshold": 3.5, "report_fraction": 0.15, "press_precision": 0.05}
+
+
+def _trial_003(params, *, seed, controller, cparams=None):
+    """One seed 003 trial (PHF or FF controller, block at 0°) through the trial loop; returns (score, person)."""
+    from studyctl.controllers.tissue import PseudoHaptic
+
+    cls = {"PHF": PseudoHaptic, "FF": StiffnessMapForceFeedback}[controller]
+    cparams = cparams or {}
+    needs = cls.needs(cparams) | {"view"}
+    scene = StiffnessTissueScene.build({"phantom": "seed003_block"}, {"orientation_deg": 0.0}, needs,
+                                       np.random.default_rng(seed))
+    device = SimulatedForceDevice({}, scene, np.random.default_rng(seed + 1))
+    device.open()
+    person = VirtualTissuePalpator(params)
+    info = TrialInfo(condition=controller, time_limit_s=900.0, rate_hz=250.0, visual="realtime",
+                     public={**scene.public(), "trial_index": 1})
+    out = run_trial(info=info, controller=cls(cparams, scene), device=device, participant=person,
+                    clock=SimulatedClock(), rng=np.random.default_rng(seed + 2), view=scene.view)
+    device.close()
+    assert out.ended_by == "finish"
+    return score_trial(out.reports, scene.truth()["nodules"], hit_radius_mm=10.0, duration_s=out.duration_s), person
+
+
+@pytest.mark.slow
+def test_pseudo_haptics_that_never_slows_the_cursor_is_noticed():
+    """PHF whose reduced ratio never applies (Δf_n must exceed 10 N): the cursor follows the hand as in the air,
+    the person sees no resistance, uses no cursor cue and finds nothing."""
+    working = [_trial_003(PERSON_003, seed=s, controller="PHF") for s in (11, 12)]
+    broken = [_trial_003(PERSON_003, seed=s, controller="PHF", cparams={"delta_threshold_n": 10.0}) for s in (11, 12)]
+    assert sum(sc.nodules_found for sc, _ in working) >= 2  # of 6
+    assert all("cursor" in person.perceived["cues"] for _, person in working)
+    assert sum(sc.nodules_found for sc, _ in broken) == 0
+    assert all(person.perceived.get("cues", []) == [] for _, person in broken)
+
+
+@pytest.mark.slow
+def test_seed_003_force_feedback_without_force_is_noticed():
+    working = _trial_003(PERSON_003, seed=11, controller="FF")[0]
+    broken = _trial_003(PERSON_003, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0]
+    assert working.nodules_found >= 2
+    assert broken.nodules_found == 0
