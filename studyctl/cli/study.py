@@ -66,7 +66,8 @@ def register(app: typer.Typer) -> None:
             typer.echo(json.dumps({
                 "study": info.study, "protocol": info.protocol_name, "protocol_sha256": info.protocol_sha256,
                 "seed": info.seed, "database": info.database, "participants": info.participants,
-                "sessions": info.sessions, "trials": info.trials, "progress": progress_json(progress),
+                "sessions": info.sessions, "trials": info.trials, "rehearsal_sessions": info.rehearsal_sessions,
+                "rehearsal_trials": info.rehearsal_trials, "progress": progress_json(progress),
             }))
             return
         if not watch:
@@ -104,4 +105,8 @@ def _status_lines(info, progress) -> list[str]:  # noqa: ANN001
                           ("trials", info.trials)):
         parts = ", ".join(f"{k} {v}" for k, v in counts.items())
         lines.append(f"{title + ':':<13} {sum(counts.values())} ({parts})")
+    if any(info.rehearsal_sessions.values()):  # recorded, but neither data nor progress: apart from the totals
+        lines.append(f"{'rehearsals:':<13} {sum(info.rehearsal_sessions.values())} sessions, "
+                     f"{sum(info.rehearsal_trials.values())} trials "
+                     "(run --rehearse; not counted above, never analysed)")
     return lines + list(progress_lines(progress))

@@ -57,7 +57,7 @@ def test_a_whole_rehearsal_session_runs_on_the_board_emulator(study):
             s.recv(2048)
 
 
-def test_rehearsals_are_left_out_of_analysis(study):
+def test_rehearsals_are_left_out_of_analysis(study, capsys):
     from studyctl.store.reader import StudyReader  # noqa: PLC0415
 
     opened, code = study("bio_inspired_palpation", "novice")
@@ -75,6 +75,13 @@ def test_rehearsals_are_left_out_of_analysis(study):
     info = study_status(opened.store, opened.study)
     assert sum(info.sessions.values()) == 0 and sum(info.trials.values()) == 0, info
     assert info.rehearsal_sessions["completed"] == 1 and info.rehearsal_trials["completed"] == 4, info
+    from studyctl.cli.app import main  # noqa: PLC0415
+
+    db = str(opened.store.db.url)
+    assert main(["status", "--db", db]) == 0
+    out = capsys.readouterr().out
+    assert "sessions:     0 (" in out and "trials:       0 (" in out
+    assert "rehearsals:   1 sessions, 4 trials (run --rehearse; not counted above, never analysed)" in out, out
     run_session(opened.store, code, virtual=True, seed=3)  # the real session (simulated): counted, not the rehearsal
     info = study_status(opened.store, opened.study)
     assert info.sessions["completed"] == 1 and info.trials["completed"] == 4
