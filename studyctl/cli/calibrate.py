@@ -38,6 +38,9 @@ def register(app: typer.Typer) -> None:
                                      "targets, values from the pilot)."),
         out: Path = typer.Option(None, "--out", "-o", help="Population file to write (default: "
                                  "./<protocol>.calibrated.yaml); the fit report and the journal go beside it."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON document on stdout "
+                                     "(estimates with SEs, every target's agreement, fit and validation "
+                                     "summaries, what was missed, time, files); the readable lines go to stderr."),
     ) -> None:
         """Fit a population's free parameters so simulated studies match published targets (resumable)."""
         from rich.console import Console
@@ -46,7 +49,7 @@ def register(app: typer.Typer) -> None:
         from studyctl.workflows.calibrate import prepare_calibration, run_calibration
 
         err = Console(stderr=True, highlight=False)
-        console = Console(highlight=False)
+        console = err if as_json else Console(highlight=False)
         spec = prepare_calibration(protocol, targets, population=population, free=free, seed=seed,
                                    participants=participants, replicates=replicates, evaluations=evaluations,
                                    out=out, scheduler=scheduler, pilot_db=pilot_db, workers=workers,
@@ -85,3 +88,12 @@ def register(app: typer.Typer) -> None:
                 console.print(f"  {m}", markup=False)
         for kind, path in result.files.items():
             console.print(f"{kind}: {path}", markup=False)
+        if as_json:
+            import json
+            import sys
+
+            from studyctl.populations import load_population_file
+            from studyctl.report.calibration import calibration_json
+
+            sha = load_population_file(result.population_file).sha256
+            sys.stdout.write(json.dumps(calibration_json(result, sha), indent=2, default=str) + "\n")

@@ -154,3 +154,41 @@ def fit_report_html(result: Any, pop: Any) -> str:
     from studyctl.report.document import render_html
 
     return render_html(f"Calibration of {pop.name}", _fit_blocks(result, pop))
+
+
+def calibration_json(result: Any, pop_sha256: str = "") -> dict[str, Any]:
+    """``studyctl calibrate --json``: settings, estimates with SEs, the agreement per target and per role (fit and
+    validation apart), what was missed, the measured time and the files (NaN → null)."""
+    from pathlib import Path
+
+    spec = result.spec
+    frame = result.agreement.to_frame()
+    rows = frame.astype(object).where(frame.notna(), None).to_dict(orient="records")
+    return {
+        "format": "studyctl-calibration/1",
+        "protocol": spec.protocol_id,
+        "started_from": spec.population.label,
+        "targets": str(spec.targets.path),
+        "targets_source": spec.targets.source,
+        "free": [f.name for f in spec.free],
+        "used_for_fit": [t.id for t in spec.targets.by_role("fit")],
+        "validation": [t.id for t in spec.targets.by_role("validation")],
+        "seed": spec.seed,
+        "participants": spec.participants,
+        "replicates": spec.replicates,
+        "paper_participants": spec.paper_participants,
+        "optimiser": result.optimiser,
+        "evaluations": result.evaluations,
+        "reused": result.reused,
+        "distance": {"start": result.start_distance, "best": result.best_distance},
+        "seconds": result.seconds,
+        "cpu_seconds": result.cpu_seconds,
+        "estimates": [e.to_dict() for e in result.estimates],
+        "converged": not any(e.profile_rise < 0 for e in result.estimates),
+        "summary": result.agreement.summary(),
+        "agreement": rows,
+        "missed": list(result.missed),
+        "population": {"file": str(result.population_file), "sha256": pop_sha256,
+                       "name": Path(result.population_file).name},
+        "files": {k: str(v) for k, v in result.files.items()},
+    }

@@ -47,5 +47,14 @@ def test_figures_from_agreement_tables(tmp_path, monkeypatch):
     assert f["bio_inspired_palpation.validation.direction"] == 1.0
     assert f["bio_inspired_palpation.validation.within"] == 0.0
     assert f["overall.fit.agree"] == 0.5 and "needle_insertion.fit.agree" not in f
+    # counts beside the rates, all targets together, and the goals per study and role
+    assert f["bio_inspired_palpation.fit.within_n"] == 1 and f["bio_inspired_palpation.fit.sd_n"] == 1
+    assert f["bio_inspired_palpation.all.targets"] == 4 and f["overall.all.direction"] == 1.0
+    assert f["overall.all.direction_n"] == 2 and f["overall.all.verdict_n"] == 1
+    assert f["overall.validation.goal_direction_met"] == 1.0 and f["overall.validation.goal_verdict_met"] == 0.0
+    assert f["overall.fit.goal_within_met"] == 1.0 and f["overall.fit.goal_sd_within_met"] == 0.0
+    goals = {(g["study"], g["role"], g["goal"]): g for g in res.tables["goals"]}
+    assert goals[("overall", "all", "within")]["value"] == 0.5 and goals[("overall", "all", "within")]["bar"] == 0.8
+    assert not goals[("overall", "all", "within")]["met"]
     assert any("needle_insertion: no agreement table (FAILED: boom" in n for n in res.notes)
     assert Path(folder / "agreement.csv").is_file()
