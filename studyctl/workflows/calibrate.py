@@ -11,7 +11,10 @@ Simulated method of moments with common random numbers:
    sampler (seeded); every evaluation is journaled next to the output (Optuna's journal file), so a rerun of
    the same command continues where the last one stopped;
 3. around the best point each free parameter is moved by ±h (15 % of its search range): the curvature gives its
-   standard error, and a profile that rises by less than 1 is reported as not identified by the targets;
+   standard error (the profile weighs the targets by the simulation's bootstrap SE at the best point, not at
+   the start), and a profile that rises by less than 1 is reported as not identified by the targets; a
+   profile point lower than the best (the search had not converged) becomes the best and is profiled again
+   (at most :data:`RECENTRE` times);
 4. the fitted population is run once at the paper's sample size (the protocol's ``target_n``) for the fit
    report: every target, fit and validation, against its simulated value with a bootstrap interval.
 
@@ -42,6 +45,7 @@ __all__ = [
 ]
 
 PROFILE_STEP = 0.15  # ±h as a fraction of each free parameter's search range
+RECENTRE = 2  # times the best may move to a lower profile point and be profiled again
 ProgressFn = Callable[[int, int, str], None]
 
 
@@ -177,44 +181,76 @@ def _run(spec: CalibrationSpec, client: Any, on_progress: ProgressFn | None) -> 
                 and t.user_attrs.get("phase") in ("start", "search")]
     best = min(searched, key=lambda t: t.value)
     best_u = dict(best.params)
+    # The profile weighs each target by the simulation's bootstrap SE at the best candidate, not at the starting
+    # values (a start far off, e.g. slow people with widely spread times, would make every profile look flat):
+    # the SE of an estimate is the spread of the statistics there. Distances are recomputed from the journaled
+    # statistics of each evaluation, so nothing is simulated again for the new weights.
+    profile_se = {r.target: (r.se if math.isfinite(r.se) else 0.0)
+                  for r in stats_from_frame(best.user_attrs["stats"]).values}
 
-    # profile: ±h along each free parameter (journaled like the search, so a rerun reuses them)
-    estimates = []
-    k = 0
-    for f in spec.free:
-        lo_u, hi_u = f.search_bounds
-        h = PROFILE_STEP * (hi_u - lo_u)
-        rises, pts = [], {}
-        for sign in (-1, 1):
-            u = dict(best_u)
-            u[f.name] = min(max(best_u[f.name] + sign * h, lo_u), hi_u)
-            k += 1
-            progress(spec.evaluations + k - 1, total, f"profile {f.name} {'-' if sign < 0 else '+'}h")
-            prior = next((t for t in study.get_trials(deepcopy=False)
-                          if t.state == optuna.trial.TrialState.COMPLETE and t.user_attrs.get("phase") == "profile"
-                          and all(abs(t.params[n] - u[n]) < 1e-12 for n in u)), None)
-            if prior is None:
-                study.enqueue_trial(u)
-                trial = study.ask(distributions)
-                ev = run_trial(trial, "profile", sim_se)
-                cpu += ev.cpu_seconds
-                value = ev.distance
-            else:
-                value = float(prior.value)
-            pts[sign] = (u[f.name] - best_u[f.name], value)
-            rises.append(value - best.value)
-        (dm, fm), (dp, fp) = pts[-1], pts[1]
-        se_u = math.inf
-        if dm < 0 < dp:
-            # second derivative of a parabola through the three points
-            curv = 2 * ((fp - best.value) / dp - (fm - best.value) / dm) / (dp - dm)
-            if curv > 0:
-                se_u = math.sqrt(2.0 / curv)
-        est = f.from_search(best_u[f.name])
-        deriv = abs(f.from_search(best_u[f.name] + 1e-6) - est) / 1e-6
-        rise = min(rises)
-        estimates.append(ParamEstimate(f.name, f.value, est, se_u * deriv, f.low, f.high, rise, rise >= 1.0,
-                                       f.scale))
+    def reweigh(trial: Any) -> float:
+        return distance(spec.fit_targets, stats_from_frame(trial.user_attrs["stats"]), spec.targets.alpha,
+                        profile_se)[0]
+
+    best_value = reweigh(best)
+
+    def point(u: dict[str, float], label: str) -> float:
+        """The distance (profile weights) at search point ``u``, from the journal when already run."""
+        nonlocal cpu
+        prior = next((t for t in study.get_trials(deepcopy=False)
+                      if t.state == optuna.trial.TrialState.COMPLETE and t.user_attrs.get("phase") == "profile"
+                      and all(abs(t.params[n] - u[n]) < 1e-12 for n in u)), None)
+        if prior is not None:
+            return reweigh(prior)
+        progress(min(done_steps[0], total - 2), total, label)
+        done_steps[0] += 1
+        study.enqueue_trial(u)
+        trial = study.ask(distributions)
+        ev = run_trial(trial, "profile", sim_se)
+        cpu += ev.cpu_seconds
+        # the statistics as journaled (JSON keeps 10 digits), so a rerun computes the very same distance
+        journaled = json.loads(ev.stats.to_json(orient="records"))
+        return distance(spec.fit_targets, stats_from_frame(journaled), spec.targets.alpha, profile_se)[0]
+
+    # profile: ±h along each free parameter (journaled like the search, so a rerun reuses them). A profile
+    # point below the best candidate means the search had not converged: the best moves there and the profile
+    # is taken again around it (at most RECENTRE times); a point still lower after that is reported.
+    done_steps = [spec.evaluations]
+    for _round in range(RECENTRE + 1):
+        estimates, lowest = [], (best_value, None)
+        for f in spec.free:
+            lo_u, hi_u = f.search_bounds
+            h = PROFILE_STEP * (hi_u - lo_u)
+            rises, pts = [], {}
+            for sign in (-1, 1):
+                u = dict(best_u)
+                u[f.name] = min(max(best_u[f.name] + sign * h, lo_u), hi_u)
+                value = point(u, f"profile {f.name} {'-' if sign < 0 else '+'}h")
+                pts[sign] = (u[f.name] - best_u[f.name], value)
+                rises.append(value - best_value)
+                if value < lowest[0]:
+                    lowest = (value, u)
+            (dm, fm), (dp, fp) = pts[-1], pts[1]
+            se_u = math.inf
+            if dm < 0 < dp:
+                # second derivative of a parabola through the three points
+                curv = 2 * ((fp - best_value) / dp - (fm - best_value) / dm) / (dp - dm)
+                if curv > 1e-9:  # below: a flat profile (rounding of the journaled statistics)
+                    se_u = math.sqrt(2.0 / curv)
+            est = f.from_search(best_u[f.name])
+            deriv = abs(f.from_search(best_u[f.name] + 1e-6) - est) / 1e-6
+            rise = min(rises)
+            estimates.append(ParamEstimate(f.name, f.value, est, se_u * deriv, f.low, f.high, rise, rise >= 1.0,
+                                           f.scale))
+        if lowest[1] is None or _round == RECENTRE:
+            break
+        best_value, best_u = lowest[0], dict(lowest[1])
+        total += 2 * len(spec.free)
+    # the objective at the fitted values, in the search's weights (comparable with the start's)
+    fitted_trial = next((t for t in study.get_trials(deepcopy=False)
+                         if t.state == optuna.trial.TrialState.COMPLETE and t.value is not None
+                         and all(abs(t.params[n] - best_u[n]) < 1e-12 for n in best_u)), best)
+    best_distance = float(fitted_trial.value)
 
     # the fitted population at the paper's sample size: every target
     progress(total - 1, total, f"fitted population at the paper's size ({spec.paper_participants} people)")
@@ -225,7 +261,7 @@ def _run(spec: CalibrationSpec, client: Any, on_progress: ProgressFn | None) -> 
     missed = _missed(agr)
     progress(total, total, "writing files")
     result = CalibrationResult(
-        spec=spec, start_distance=start_distance, best_distance=float(best.value), estimates=tuple(estimates),
+        spec=spec, start_distance=start_distance, best_distance=best_distance, estimates=tuple(estimates),
         final=final, agreement=agr, evaluations=len(searched), reused=reused, optimiser=type(study.sampler).__name__,
         seconds=time.perf_counter() - t0, cpu_seconds=cpu,
         population_file=spec.out, missed=missed,
