@@ -138,6 +138,7 @@ class TrialState:
     scans: int = 0
     stop_reason: str = ""
     felt_radial_s: float = 0.0
+    radial_onset: Vec = (0.0, 0.0, 0.0)  # felt hand position where the current lateral push was first felt
     corrections: int = 0
     guided: bool = False  # this insertion already runs at the guided speed
     cue_on_correction: bool = False  # the last cue came while correcting towards a target seen on an image
@@ -388,8 +389,9 @@ class VirtualNeedleOperator(Participant):
         if st.realtime:
             return self._judge(t, percept)
         if st.stop_reason == "cue" and st.cue_on_correction and st.sense.sig_lat <= self.p.finish_mm:
-            # it just saw the tumour close by, moved towards it and felt it: it judges from that, no new scan
-            return self._judge(t, percept, seen=False)
+            # it just saw the tumour close by, moved towards it and felt it: it judges from that, no new scan; the
+            # cue came where the image had just put the tumour, which confirms it as well as a scan would
+            return self._judge(t, percept, seen=False, learn=True)
         return self._scan_then(t, Phase.JUDGE)
 
     def _on_finish(self, t: float) -> tuple[Request, ...]:
@@ -461,15 +463,17 @@ class VirtualNeedleOperator(Participant):
         st.busy_until = t + 0.3
         return ()
 
-    def _judge(self, t: float, percept: Mapping[str, Any], *, seen: bool = True) -> tuple[Request, ...]:
-        """Is the tip in the tumour? If not, correct towards it (advancing or withdrawing slowly). Only a judgement
-        on a fresh image (``seen``) teaches it whether the cue marked the tumour."""
+    def _judge(self, t: float, percept: Mapping[str, Any], *, seen: bool = True,
+               learn: bool = False) -> tuple[Request, ...]:
+        """Is the tip in the tumour? If not, correct towards it (advancing or withdrawing slowly). A judgement on a
+        fresh image (``seen``), or of a cue felt while steering to where an image had just shown the tumour
+        (``learn``), teaches it whether the cue marked the tumour."""
         st, p = self._st, self.p
         pl = st.need_plan()
         b = self._belief(percept)
         tum = pl.tumour
         miss = math.dist(b, tum)
-        if st.stop_reason == "cue" and seen:  # a scan shows whether the felt cue was the tumour: learn from it
+        if st.stop_reason == "cue" and (seen or learn):  # was the felt cue the tumour? learn from it
             _learn(self.trust_cue, st.info.condition, p.cue_trust_rate, miss <= 2.5 * p.accept_mm)
         # after each correction it grows more lenient: a looser placement is accepted rather than a fourth try
         if miss <= p.accept_mm * (1.0 + 0.5 * st.corrections):
@@ -553,17 +557,27 @@ class VirtualNeedleOperator(Participant):
             r, (rx, ry, rz) = st.ref, felt.radial
             st.ref = (r[0] + g * rx, r[1] + g * ry, r[2] + g * rz)
             st.record["radial_felt_s"] += st.dt
+            hand = st.sense.felt(percept, st.last_cmd)
+            if st.felt_radial_s == 0.0:
+                st.radial_onset = hand  # where the lateral push was first felt
             st.felt_radial_s += st.dt
             if st.felt_radial_s > 0.2:
                 st.sense.sig_lat = min(st.sense.sig_lat, p.finish_mm)
-            abrupt = st.felt_radial_s <= p.wall_rise_s  # built up fast: a firm wall, not a soft pull
-            if felt.radial_n > p.wall_n and abrupt and st.phase is Phase.INSERT and not st.record["wall"]:
+            # how far the hand went sideways while the push grew from just felt to wall_n: a short way is a stiff
+            # wall (EG/ESG, 10x the BL spring), a long way a soft pull; stiffness is judged from force and travel
+            o, a = st.radial_onset, st.axis
+            dx, dy, dz = hand[0] - o[0], hand[1] - o[1], hand[2] - o[2]
+            along = dx * a[0] + dy * a[1] + dz * a[2]
+            travel = math.sqrt(max(0.0, dx * dx + dy * dy + dz * dz - along * along))
+            if felt.radial_n > p.wall_n and travel <= p.wall_travel_mm and st.phase is Phase.INSERT \
+                    and not st.record["wall"]:
                 # the channel, felt in tissue (once a trial): it learns to rely on it
                 st.record["wall"] = True
                 _learn(self.trust_guide, cond, p.guide_trust_rate, True)
                 if self._trusts_guide() and not st.guided and isinstance(st.move, Line) and st.stop_reason == "depth":
                     st.guided = True  # a firm channel, felt now: it need not fear lateral slips for the rest
                     st.move.v *= p.guided_speed_gain
+                    st.cue.expect_change()
         else:
             st.felt_radial_s = 0.0
         if st.button >= 0.5 and self._trusts_guide():

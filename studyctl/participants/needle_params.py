@@ -75,9 +75,11 @@ PARAMS = (
           source="CHOSEN: how readily it yields to a felt guidance force"),
     Param("wall_n", 0.3, 0.01, 5.0, unit="N",
           source="CHOSEN: a lateral force this strong feels like a firm channel wall"),
-    Param("wall_rise_s", 0.3, 0.02, 5.0, unit="s",
-          source="CHOSEN: a lateral force that builds up from just noticeable to wall_n within this time feels like "
-                 "a firm wall (stiff guidance: a small slip), a slower build-up like a soft pull (a large drift)"),
+    Param("wall_travel_mm", 0.6, 0.05, 5.0, unit="mm",
+          source="CHOSEN: a lateral force that grows from just noticeable to wall_n while the hand moves sideways "
+                 "less than this feels like a firm wall (stiff guidance), more like a soft pull: a stiffness "
+                 "criterion between the BL spring (100 N/m: ~2 mm for 0.2 N) and the EG one (1000 N/m: ~0.2 mm); "
+                 "a 10x stiffness ratio is far above the compliance JND of ~22 % (Tan et al. 1995)"),
     # ---------------------------------------------------------------- decisions and learning
     Param("entry_scan_mm", 0.9, 0.1, 10.0, unit="mm",
           source="CHOSEN: scan before entering when the lateral uncertainty exceeds this"),
@@ -134,7 +136,7 @@ class OperatorParams:
     radial_threshold_n: float
     follow_gain_mm_per_ns: float
     wall_n: float
-    wall_rise_s: float
+    wall_travel_mm: float
     entry_scan_mm: float
     recheck_mm: float
     finish_mm: float

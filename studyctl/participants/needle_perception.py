@@ -110,12 +110,19 @@ class AxialCueDetector:
     push feels stiffer (stiction), so in its first 0.3 s it expects ~30 % more.
     """
 
-    __slots__ = ("baseline", "run_s", "felt")
+    __slots__ = ("baseline", "run_s", "felt", "settle_s")
 
     def __init__(self) -> None:
         self.baseline: float | None = None
         self.run_s = 0.0
         self.felt = False
+        self.settle_s = 0.0
+
+    def expect_change(self, settle_s: float = 0.5) -> None:
+        """It has just sped up on purpose: the resistance it now feels rise is its own doing (it knows its own
+        motor command), so for ``settle_s`` the baseline follows the force instead of the rise counting as a cue."""
+        self.settle_s = settle_s
+        self.run_s = 0.0
 
     def update(
         self,
@@ -135,6 +142,11 @@ class AxialCueDetector:
                 b0 = self.baseline
                 self.baseline = f_ax if b0 is None else b0 + 0.1 * (f_ax - b0)
             self.run_s = 0.0
+            return False
+        if self.settle_s > 0.0:
+            self.settle_s -= dt
+            if f_ax > 0.0:
+                self.baseline += (dt / 0.1) * (f_ax - self.baseline)
             return False
         rise = f_ax - self.baseline
         need = max(threshold_n, weber * abs(self.baseline))
