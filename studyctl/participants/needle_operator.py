@@ -357,6 +357,10 @@ class VirtualNeedleOperator(Participant):
         if mv.ref_s >= mv.max_ref:
             return self._stop(t, percept, "blocked")
         depth = pl.depth(b)
+        if st.stop_reason == "depth" and depth >= pl.length - p.margin_mm and mv.v > st.v_ins:
+            # near where the plan puts the tumour it feels for it at its own pace: sped up (a trusted channel or
+            # cue), the tip would cross the 2.5 mm tumour faster than the cue can be felt and reacted to
+            mv.v = st.v_ins
         sig_lat = st.sense.sig_lat
         if st.scans_allowed and sig_lat > p.recheck_mm and depth < pl.length - 10.0:
             st.stop_reason = "recheck"
