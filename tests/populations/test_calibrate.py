@@ -4,6 +4,7 @@ targets cannot identify, writes every file whole, and reports a report's simulat
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -168,3 +169,75 @@ def test_a_failed_simulation_costs_a_large_distance_and_is_not_cached(tmp_path, 
     final = cal._final_run(spec, {"report_z": 3.0}, None)
     assert final.distance == cal.FAILED_DISTANCE
     assert not (tmp_path / "f.yaml.final.json").exists()  # the next run tries again
+
+
+@pytest.mark.slow
+def test_pilot_db_recovers_a_shifted_trait_within_its_standard_error(tmp_path, protocol):
+    """A pilot simulated from a population whose press speed is 4 mm/s (not the starting 8): calibrating that
+    trait to the pilot's own numbers (targets computed from its database, SEs from its participants) moves it to
+    the pilot's value within the reported SE; the targets carry the pilot's sampling uncertainty."""
+    from studyctl.populations import load_population_file
+    from studyctl.workflows.calibrate import prepare_calibration, run_calibration
+    from studyctl.workflows.simulate import simulate_study
+
+    for sub in ("pilot_pop", "start_pop"):
+        (tmp_path / sub).mkdir()
+    # a slow press is where completion time depends most on the speed (above ~10 mm/s moving dominates)
+    # (novices and experts alike: the test population's expert-only speed is dropped)
+    def variant(folder: str, speed: float) -> Path:
+        path = write_variant(tmp_path / folder, "mean: 6.0", f"mean: {speed}")
+        path.write_text(path.read_text().replace("    groups: {expert: {mean: 9.0}}\n", ""))
+        return path
+
+    pilot_pop, start_pop = variant("pilot_pop", 4.0), variant("start_pop", 8.0)
+    simulate_study(protocol, 12, 11, tmp_path / "pilot", population=pilot_pop)
+    db = tmp_path / "pilot" / "study.db"
+    # the test targets file as the template (it names the plan): its targets, values from the pilot; the
+    # no-feedback mean is the one fit target (the SD of 12 people is kept for validation)
+    template = write_variant(tmp_path, "statistic: sd\n    value: 3.0\n    uncertainty: {n: 8}\n    role: fit",
+                             "statistic: sd\n    value: 3.0\n    uncertainty: {n: 8}\n    role: validation",
+                             source=TARGETS)
+    template.write_text(template.read_text().replace("plan: ../../power/data/", f"plan: {MINI_PLAN.parent}/"))
+    spec = prepare_calibration(protocol, template, population=start_pop, free="press_speed_mm_s", pilot_db=str(db),
+                               participants=4, replicates=2, evaluations=10, out=tmp_path / "fit" / "p.yaml")
+    fit = {t.id: t for t in spec.targets.by_role("fit")}
+    assert set(fit) == {"time_nofb_mean"}
+    t = fit["time_nofb_mean"]
+    assert t.value != 20.0  # the pilot's number, not the template's
+    assert t.uncertainty["basis"] == "pilot" and t.uncertainty["n"] == 12 and t.published_se() > 0
+    assert t.band() == "±1.96 pilot bootstrap SE"
+    # the same pilot gives the same targets (the journal's fingerprint must not change between runs)
+    again = prepare_calibration(protocol, template, population=start_pop, free="press_speed_mm_s", pilot_db=str(db),
+                                participants=4, replicates=2, evaluations=10, out=tmp_path / "fit" / "p.yaml")
+    assert again.targets.sha256 == spec.targets.sha256 and again.fingerprint() == spec.fingerprint()
+    result = run_calibration(spec)
+    (est,) = result.estimates
+    assert est.start == pytest.approx(8.0)
+    assert est.identified and 0 < est.se < 2.0, est
+    assert abs(est.estimate - 4.0) <= 2 * est.se, est  # recovered: the pilot's 4 within 2 reported SEs
+    assert abs(est.estimate - 8.0) > 2 * est.se, est  # and the starting 8 is rejected
+    fitted = load_population_file(result.files["population"])
+    assert fitted.trait("press_speed_mm_s").mean == pytest.approx(est.estimate, rel=1e-5)
+    assert fitted.calibration["targets"] == "study.db"
+
+
+@pytest.mark.slow
+def test_cli_calibrate_json_is_one_document_with_estimates_and_agreement(tmp_path, protocol, capsys):
+    import json
+
+    from studyctl.cli.app import main
+
+    code = main(["calibrate", str(protocol), "--targets", str(TARGETS), "--population", str(POPULATION),
+                 "--free", "report_z", "--participants", "2", "--evaluations", "2", "--out",
+                 str(tmp_path / "j.yaml"), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    doc = json.loads(out)  # stdout holds the document only; the readable lines went to stderr
+    assert doc["format"] == "studyctl-calibration/1" and doc["free"] == ["report_z"]
+    assert doc["used_for_fit"] == ["time_nofb_mean", "time_nofb_sd"]
+    (est,) = doc["estimates"]
+    assert est["name"] == "report_z" and est["start"] == pytest.approx(3.5)
+    assert [r["target"] for r in doc["agreement"]][:2] == ["time_nofb_mean", "time_nofb_sd"]
+    assert set(doc["summary"]) == {"fit", "validation", "all"}
+    assert doc["files"]["population"] == str(tmp_path / "j.yaml") and len(doc["population"]["sha256"]) == 64
+    assert "distance over the fit targets" in err
