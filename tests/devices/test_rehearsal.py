@@ -113,10 +113,13 @@ def test_a_virtual_participant_rehearses_on_the_emulated_board(tmp_path):
         result = run_session(opened.store, code, virtual=True, rehearse=True, log=logs.append)
         assert result.status == "completed" and result.trials_completed == 4 and result.trials_aborted == 0
         assert any("virtual participant virtual_palpator acts on it" in m for m in logs), logs
+        # a person of the protocol's shipped population (as `simulate` draws them), stored with the session
+        assert any(m.startswith("population: bio_inspired_palpation") for m in logs), logs
         sid = result.session_id
         assert session_is_rehearsal(opened.store, sid)
         events = _events(opened.store, sid)
         kinds = [k for k, _ in events]
+        assert kinds.count("population") == 1
         assert kinds.count("servo_timing") == 4  # every trial ran on the emulated hardware, in the servo process
         assert [p.get("world") for k, p in events if k == "device_identity"] == ["palpation_board"] * 4
         timing = ("missed_deadline", "loop_stalled")  # a loaded machine's timing faults, not the device's
