@@ -206,6 +206,7 @@ def test_a_missing_sdk_stops_a_real_session_before_anything_is_written(study, mo
 
     # as if not installed, whatever an earlier test put on sys.path (the SDK stand-in of an emulated omega6)
     monkeypatch.setitem(sys.modules, "forcedimension_core", None)
+    monkeypatch.setitem(sys.modules, "forcedimension_core.dhd", None)  # a stand-in submodule loaded earlier, too
     opened, code = study("needle_insertion")
     with pytest.raises(DeviceError, match=r"pip install 'studyctl\[omega\]'"):
         run_session(opened.store, code, virtual=False, script=_script(1))
