@@ -208,13 +208,17 @@ class StudyReader(Closeable):
             )
             pids = [p.id for p in participants]
             sessions = (
-                list(s.scalars(select(Session).where(Session.participant_id.in_(pids)).order_by(Session.id)))
+                # by participant first: with several workers, sessions (and their trials and answers) are
+                # inserted in whichever order the workers start, and tables must not follow that race
+                list(s.scalars(select(Session).where(Session.participant_id.in_(pids))
+                               .order_by(Session.participant_id, Session.id)))
                 if pids
                 else []
             )
             sids = [x.id for x in sessions]
             trials = (
-                list(s.scalars(select(Trial).where(Trial.session_id.in_(sids)).order_by(Trial.id))) if sids else []
+                list(s.scalars(select(Trial).where(Trial.session_id.in_(sids))
+                               .order_by(Trial.participant_id, Trial.session_id, Trial.id))) if sids else []
             )
             events = (
                 s.execute(
@@ -338,7 +342,7 @@ class StudyReader(Closeable):
         stmt = (
             select(*(getattr(QuestionnaireResponse, c) for c in ANSWER_COLUMNS))
             .where(QuestionnaireResponse.participant_id.in_(pids))
-            .order_by(QuestionnaireResponse.id)
+            .order_by(QuestionnaireResponse.participant_id, QuestionnaireResponse.id)
         )
         with self.store.reading() as s:
             rows = s.execute(stmt).all()

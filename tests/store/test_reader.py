@@ -95,3 +95,21 @@ def test_open_closes_only_what_it_opened(tmp_path):
     store.close()
     with StudyReader.open(db=url) as reader:
         assert len(reader.trials) == 3
+
+
+def test_rows_follow_participants_not_the_order_workers_wrote_them(store):
+    """Two workers: the second participant's session, trials and answers reach the database first."""
+    study = store.create_study("race", protocol_name="p", seed=1)
+    a = store.add_participant(study.id, "A")
+    b = store.add_participant(study.id, "B")
+    sb = store.start_session(b.id, seed=2)
+    tb = store.add_trial(sb.id, plan_position=0, condition="x", status="completed")
+    store.record_response(b.id, instrument="q", instrument_version="1", item="i1", code=2, session_id=sb.id)
+    sa = store.start_session(a.id, seed=1)
+    ta0 = store.add_trial(sa.id, plan_position=0, condition="x", status="completed")
+    ta1 = store.add_trial(sa.id, plan_position=1, condition="y", status="completed")
+    store.record_response(a.id, instrument="q", instrument_version="1", item="i1", code=4, session_id=sa.id)
+    reader = StudyReader(store, "race")
+    assert [s.id for s in reader.sessions] == [sa.id, sb.id]
+    assert [t.id for t in reader.trials] == [ta0.id, ta1.id, tb.id]
+    assert reader.answers()["participant_id"].tolist() == [a.id, b.id]
