@@ -57,3 +57,21 @@ def test_force_split_and_axial_cue():
     assert not any(felt)  # a rise below threshold
     felt = [det.update(0.6, 30.0, 20.0, 1.0, dt, 0.1, 0.1) for _ in range(20)]
     assert felt.count(True) == 1 and det.felt  # noticed once, after the hold time
+
+
+def test_a_deliberate_speed_up_is_not_a_cue_but_the_tumour_after_it_is():
+    det = AxialCueDetector()
+    dt = 0.01
+    for k in range(100):
+        det.update(0.3, depth=k * 0.1, half_length=5.0, moving_s=1.0, dt=dt, threshold_n=0.1, weber=0.1)
+    # it speeds up on purpose: the resistance rises to 0.5 N and stays there; its own doing, so no cue
+    det.expect_change(0.5)
+    assert not any(det.update(0.5, 30.0, 5.0, 1.0, dt, 0.1, 0.1) for _ in range(100))
+    assert det.baseline == pytest.approx(0.5, abs=0.01) and not det.felt
+    # the tumour after it: a rise above the new baseline is felt
+    assert [det.update(0.9, 31.0, 5.0, 1.0, dt, 0.1, 0.1) for _ in range(20)].count(True) == 1
+    # without the expectation the same speed-up would have been taken for the tumour
+    det2 = AxialCueDetector()
+    for k in range(100):
+        det2.update(0.3, depth=k * 0.1, half_length=5.0, moving_s=1.0, dt=dt, threshold_n=0.1, weber=0.1)
+    assert any(det2.update(0.5, 30.0, 5.0, 1.0, dt, 0.1, 0.1) for _ in range(100))
