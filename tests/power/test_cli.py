@@ -44,11 +44,18 @@ def _closed_port() -> int:
         (["--population", "missing.yaml"], "population file 'missing.yaml' does not exist"),
         (["--memory-limit", "lots"], "--memory-limit 'lots'"),
         (["--scheduler", f"127.0.0.1:{_closed_port()}"], "cannot reach the Dask scheduler"),
+        (["--target", "0"], "--target 0"),
+        (["--target", "0.8", "--participants", "4,6"], "--participants 6"),
+        (["--two-stage", "--pool", "10"], "the pool must hold at least 20 × the largest sample size"),
+        (["--two-stage", "--scheduler", f"127.0.0.1:{_closed_port()}"], "cannot reach the Dask scheduler"),
     ],
 )
 def test_bad_input_is_one_error_line_and_writes_nothing(extra, message, tmp_path, capsys):
     out = tmp_path / "report"
-    args = [PROTOCOL, "--plan", PLAN, "--participants", "2,4", "--replicates", "1", "--out", out, *extra]
+    sizes = [] if "--participants" in extra else ["--participants", "2,4"]
+    args = [PROTOCOL, "--plan", PLAN, *sizes, "--replicates", "1", "--out", out, *extra]
+    if "--two-stage" in extra:
+        args += ["--pool-dir", tmp_path / "pools"]
     if "--plan" in extra:
         args = [PROTOCOL, "--participants", "4", "--out", out, *extra]
     code, stdout, stderr = _run(args, capsys)
@@ -56,7 +63,7 @@ def test_bad_input_is_one_error_line_and_writes_nothing(extra, message, tmp_path
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert lines and lines[0].startswith("Error: ") and message in stderr, stderr
     assert "Traceback" not in stderr
-    assert not out.exists()
+    assert not out.exists() and not (tmp_path / "pools").exists()
 
 
 @pytest.mark.slow
