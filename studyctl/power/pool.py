@@ -62,10 +62,31 @@ def chunk_size(protocol: Any) -> int:
     return n
 
 
+#: Parts of the package that do not shape a simulated person's metric rows (a change there keeps a pool valid).
+_NOT_SIMULATION = ("bench", "cli", "report", "view", "workflows")
+
+
+def simulation_code_digest() -> str:
+    """sha256 of the package's source files that simulate and measure people (engine, participants, scenes,
+    controllers, devices, models, protocol, analysis, populations …). The version number alone does not change
+    while the code does: a pool grown in chunks across a code change would mix two kinds of virtual people (seen
+    while measuring issue 22: chunks built before and after a devices/engine change landed)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        rel = path.relative_to(root)
+        if not path.is_file() or path.suffix not in (".py", ".yaml", ".yml", ".json", ".npz") or \
+                rel.parts[0] in _NOT_SIMULATION or "__pycache__" in rel.parts:
+            continue
+        h.update(str(rel).encode())
+        h.update(hashlib.sha256(path.read_bytes()).digest())
+    return h.hexdigest()
+
+
 def pool_key(spec: PowerSpec, size: int) -> dict[str, Any]:
-    """What the pool's people depend on (not the sample sizes or replicates of a run)."""
+    """What the pool's people depend on (not the sample sizes or replicates of a run), the simulation code too."""
     fp = spec.fingerprint()
-    return {**fp, "chunk_size": size, "kind": "studyctl-power-pool/1"}
+    return {**fp, "chunk_size": size, "code_sha256": simulation_code_digest(), "kind": "studyctl-power-pool/1"}
 
 
 def check_pool_size(pool: int | None, sizes: tuple[int, ...]) -> int:

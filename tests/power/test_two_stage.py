@@ -132,3 +132,14 @@ def test_a_batch_loads_the_pool_file_and_draws_the_same_replicates(spec12, one_c
     for r in got:
         pd.testing.assert_frame_equal(pd.DataFrame(r.rows), pd.DataFrame(draw_replicate(spec12, pool, 4,
                                                                                          r.replicate).rows))
+
+
+def test_pool_key_follows_the_simulation_code(spec12, monkeypatch):
+    """A pool is never grown across a code change: the simulation code's digest is part of its key."""
+    from studyctl.power import pool as pool_mod
+
+    digest = pool_mod.simulation_code_digest()
+    assert len(digest) == 64 and digest == pool_mod.simulation_code_digest()
+    before = pool_mod.pool_key(spec12, 12)
+    monkeypatch.setattr(pool_mod, "simulation_code_digest", lambda: "0" * 64)
+    assert pool_mod.pool_key(spec12, 12) != before
