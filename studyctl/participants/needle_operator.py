@@ -141,6 +141,7 @@ class TrialState:
     radial_onset: Vec = (0.0, 0.0, 0.0)  # felt hand position where the current lateral push was first felt
     corrections: int = 0
     guided: bool = False  # this insertion already runs at the guided speed
+    line_checked: bool = False  # the one scan before feeling for the tumour was taken
     cue_on_correction: bool = False  # the last cue came while correcting towards a target seen on an image
 
     def noise(self) -> np.ndarray:
@@ -342,10 +343,16 @@ class VirtualNeedleOperator(Participant):
         st, p = self._st, self.p
         pl = st.need_plan()
         if st.cue.felt and st.react_until and t >= st.react_until:
-            # a force cue: stop, hold, relax the push
             st.react_until = 0.0
-            st.cue_on_correction = st.stop_reason == "correct"
-            return self._stop(t, percept, "cue")
+            if abs(pl.depth(self._belief(percept)) - pl.length) > p.margin_mm + 2.0 * st.sense.sig_ax:
+                # far from where the image put the tumour: a bump of the liver or of its own stop-and-go (stick-slip
+                # near the stick band), not the tumour; it goes on and takes the new resistance as the liver's
+                st.cue.felt = False
+                st.cue.expect_change()
+            else:
+                # a force cue: stop, hold, relax the push
+                st.cue_on_correction = st.stop_reason == "correct"
+                return self._stop(t, percept, "cue")
         mv = st.move
         if not isinstance(mv, Line):
             return self._stop(t, percept, "blocked")
@@ -372,8 +379,11 @@ class VirtualNeedleOperator(Participant):
             and self._trusts_cue()
             and depth >= pl.length - p.margin_mm
             and sig_lat > p.finish_mm
+            and not st.line_checked
         ):
-            # going by feel for the depth, but the tip must be on line to meet the small tumour: check once
+            # going by feel for the depth, but the tip must be on line to meet the small tumour: check once (a
+            # drifting position sense would otherwise ask again after every mm: 21 scans in one simulated trial)
+            st.line_checked = True
             st.stop_reason = "recheck"
             self._relax(percept)
             return self._scan_then(t, Phase.INSERT)
