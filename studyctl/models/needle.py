@@ -506,19 +506,3 @@ class NeedleTissueModel:
         self._fric_state = _SLIP
         self._f_fric = f
         return f_tip + f, layer, 0
-        # slip
-        if -eps < v < eps and f_sta > 0.0:
-            # enter stick with the anchor placed so that the force does not jump
-            f = self._f_fric
-            if f > f_sta or f < -f_sta:  # slip damping can exceed the static level: hold at the limit
-                f = f_sta if f > 0.0 else -f_sta
-            self._anchor = s + f / self._stick_k_mm
-            self._fric_state = _STICK
-            self._f_fric = f
-            return f_tip + f, layer, 1
-        f = -(f_dyn + c_eff * (v if v > 0.0 else -v))
-        if v < 0.0:
-            f = -f
-        self._fric_state = _SLIP
-        self._f_fric = f
-        return f_tip + f, layer, 0
