@@ -70,6 +70,17 @@ def _summary(result, opened: OpenStudy, as_json: bool = False) -> None:
                f"{head.count}:…` checks the log still holds it)")
 
 
+def _shipped_population(opened: OpenStudy, log: Callable[[str], None]) -> Any:
+    """The protocol's shipped population (None when it has none), said on stderr as `simulate` says it."""
+    from studyctl.populations import SHIPPED, describe_choice, population_for  # noqa: PLC0415 (rehearsals only)
+    from studyctl.store.enrollment import study_protocol  # noqa: PLC0415
+
+    protocol = study_protocol(opened.study)
+    population = population_for(protocol, SHIPPED)
+    log(describe_choice(population, protocol.study.id, explicit=False))
+    return population
+
+
 @contextmanager
 def _live(db: str | None, workspace: Path | None, study: str | None, view: bool, view_port: int,
           bar_when: Callable[[OpenStudy], bool], quiet: bool = False) -> Iterator[tuple[OpenStudy, dict[str, Any]]]:
@@ -118,8 +129,11 @@ def register(app: typer.Typer) -> None:
         """Run a participant's session: instructions, practice, trials, breaks and questionnaires."""
         unattended = virtual or input_file is not None
         with _live(db, workspace, study, view, view_port, lambda _: unattended, as_json) as (opened, hooks):
+            # a virtual rehearsal rehearses with a person of the protocol's population, as `simulate` draws them
+            population = _shipped_population(opened, hooks["log"]) if rehearse and virtual else None
             result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
-                                 script=input_file, speed=speed, rehearse=rehearse, lsl=lsl, **hooks)
+                                 script=input_file, speed=speed, rehearse=rehearse, lsl=lsl, population=population,
+                                 **hooks)
             _summary(result, opened, as_json)
 
     @app.command("resume")

@@ -283,8 +283,8 @@ def run_session(
         out. The participant's status does not change and earlier rehearsals do not count as taking part.
         With ``virtual`` the virtual participant acts on the emulated hardware instead of the simulated device:
         its hand is in the emulator's world (:mod:`studyctl.devices.world`), everything else goes through the
-        real adapter, the servo process and the emulator, in real time. Its person is drawn from the protocol's
-        shipped population (as ``simulate`` draws them) unless ``population`` is given.
+        real adapter, the servo process and the emulator, in real time. Its person is drawn from ``population``
+        (the CLI passes the protocol's shipped one, as ``simulate`` does; without one, the participant's defaults).
 
     Returns
     -------
@@ -325,13 +325,6 @@ def run_session(
                                "session runs at the protocol's rates")
         plan = plan.with_condition_rates(simulation_rates(plan, factory or EntryPointFactory(), sim_rate_hz))
     seed = session_seed(int(target.seed), participant_code) if seed is None else int(seed)
-    if rehearse and virtual and population is None and participant is None:
-        # a virtual rehearsal rehearses with a person of the protocol's population, as `simulate` draws them
-        from studyctl.populations import SHIPPED, describe_choice, population_for  # noqa: PLC0415
-
-        population = population_for(protocol, SHIPPED, factory=factory)
-        if log is not None:
-            log(describe_choice(population, protocol.study.id, explicit=False))
     record = person_params = None
     if population is not None:
         if not virtual:

@@ -96,7 +96,7 @@ def test_a_virtual_participant_rehearses_on_the_emulated_board(tmp_path):
     left out of analysis."""
     from studyctl.engine.progress import study_progress  # noqa: PLC0415
     from studyctl.protocol.loader import resolve_protocol  # noqa: PLC0415
-    from studyctl.store.enrollment import enroll  # noqa: PLC0415
+    from studyctl.store.enrollment import enroll, study_protocol  # noqa: PLC0415
     from studyctl.store.reader import StudyReader  # noqa: PLC0415
     from studyctl.store.samples import read_samples  # noqa: PLC0415
     from studyctl.store.workspace import init_workspace, open_study  # noqa: PLC0415
@@ -110,16 +110,18 @@ def test_a_virtual_participant_rehearses_on_the_emulated_board(tmp_path):
     with open_study(workspace=tmp_path / "ws") as opened:
         code = enroll(opened.store, "novice", study=opened.study.name).code
         logs: list[str] = []
-        result = run_session(opened.store, code, virtual=True, rehearse=True, log=logs.append)
+        # a person of the protocol's shipped population (as `simulate` and `run --rehearse --virtual` draw them)
+        from studyctl.populations import SHIPPED, population_for  # noqa: PLC0415
+
+        population = population_for(study_protocol(opened.study), SHIPPED)
+        result = run_session(opened.store, code, virtual=True, rehearse=True, log=logs.append, population=population)
         assert result.status == "completed" and result.trials_completed == 4 and result.trials_aborted == 0
         assert any("virtual participant virtual_palpator acts on it" in m for m in logs), logs
-        # a person of the protocol's shipped population (as `simulate` draws them), stored with the session
-        assert any(m.startswith("population: bio_inspired_palpation") for m in logs), logs
         sid = result.session_id
         assert session_is_rehearsal(opened.store, sid)
         events = _events(opened.store, sid)
         kinds = [k for k, _ in events]
-        assert kinds.count("population") == 1
+        assert [p["name"] for k, p in events if k == "population"] == ["bio_inspired_palpation"]
         assert kinds.count("servo_timing") == 4  # every trial ran on the emulated hardware, in the servo process
         assert [p.get("world") for k, p in events if k == "device_identity"] == ["palpation_board"] * 4
         timing = ("missed_deadline", "loop_stalled")  # a loaded machine's timing faults, not the device's
@@ -145,6 +147,18 @@ def test_a_virtual_participant_rehearses_on_the_emulated_board(tmp_path):
         assert reader.trials == () and reader.sessions == ()
         assert all(r.session_id is None for r in study_progress(opened.store, opened.study.name).rows)
         assert opened.store.get_participant(opened.study.id, code).status == "enrolled"
+
+
+def test_the_cli_rehearses_virtually_with_the_shipped_population(study):
+    """`run --rehearse --virtual` draws its person from the protocol's shipped population and says which (the
+    engine itself takes whatever population its caller gives: it does not reach up to the populations layer)."""
+    from studyctl.cli.session import _shipped_population  # noqa: PLC0415
+
+    opened, _code = study("bio_inspired_palpation")
+    logs: list[str] = []
+    population = _shipped_population(opened, logs.append)
+    assert population.name == "bio_inspired_palpation" and population.participant == "virtual_palpator"
+    assert len(logs) == 1 and logs[0].startswith("population: bio_inspired_palpation"), logs
 
 
 def test_a_virtual_rehearsal_needs_an_emulator_with_a_world(study):

@@ -147,7 +147,11 @@ def test_device_parameter_errors():
 
 # ---------------------------------------------------------------- omega.6 adapter
 def test_missing_sdk_names_the_extra(monkeypatch):
-    monkeypatch.setitem(sys.modules, "forcedimension_core", None)  # import fails as if not installed
+    # import fails as if not installed, whatever an earlier test left loaded (an emulated stand-in's submodules
+    # stay in sys.modules and a cached `forcedimension_core.dhd` would be found without its parent)
+    for name in [m for m in sys.modules if m.startswith("forcedimension_core.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "forcedimension_core", None)
     dev = Omega6Device({})
     with pytest.raises(DeviceError, match=r"studyctl\[omega\]"):
         dev.open()
