@@ -344,12 +344,7 @@ def fitted_population(result: CalibrationResult, values: dict[str, float]) -> An
     pop = mark_fitted(pop, spec.free, f"studyctl calibrate to {Path(spec.targets.path).name}")
     calibration = {
         "targets": Path(spec.targets.path).name,
-        "free": [f.name for f in spec.free],
-        "used_for_fit": [t.id for t in spec.targets.by_role("fit")],
-        "validation": [t.id for t in spec.targets.by_role("validation")],
-        "seed": spec.seed,
-        "participants": spec.participants,
-        "replicates": spec.replicates,
+        **spec.setup(),
         "sim_rate_hz": spec.sim_rate_hz,
         "evaluations": result.evaluations,
         "objective": {"start": round(result.start_distance, 4), "best": round(result.best_distance, 4)},

@@ -45,6 +45,18 @@ class CalibrationSpec:
     def fit_targets(self) -> tuple[Any, ...]:
         return self.targets.by_role("fit")
 
+    def setup(self) -> dict[str, Any]:
+        """What was fitted, to which targets, with how many simulated people: the part of a fit that both the
+        population file's calibration block and the fit report state."""
+        return {
+            "free": [f.name for f in self.free],
+            "used_for_fit": [t.id for t in self.fit_targets],
+            "validation": [t.id for t in self.targets.by_role("validation")],
+            "seed": self.seed,
+            "participants": self.participants,
+            "replicates": self.replicates,
+        }
+
     def fingerprint(self) -> str:
         """What the journal's evaluations depend on (another setting starts a new journal study)."""
         from studyctl import __version__
