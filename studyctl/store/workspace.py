@@ -24,7 +24,7 @@ from studyctl import __version__
 from studyctl.closing import Closeable
 from studyctl.errors import ConfigError, StoreError, StudyctlError, UsageError
 from studyctl.protocol import load_protocol, resolve_protocol
-from studyctl.store.db import Database, describe_url, parse_url, require_head, sqlite_path
+from studyctl.store.db import Database, describe_url, parse_url, require_head
 from studyctl.store.models import Study
 from studyctl.store.repository import StudyStore, check_text
 
@@ -216,8 +216,10 @@ def init_workspace(
         raise ConfigError("--db is empty; give a PostgreSQL URL (postgresql://USER@HOST:PORT/DBNAME), or leave --db "
                           "out for a SQLite study.db in the workspace")
     url = parse_url(db) if db else None
-    if url is not None and sqlite_path(url) is None and url.get_backend_name() == "sqlite":
-        raise UsageError("an in-memory database cannot back a workspace; omit --db or give a file or PostgreSQL URL")
+    if url is not None and url.get_backend_name() == "sqlite":
+        # A SQLite study always lives in the workspace folder (the audit head file and the locks sit beside it).
+        raise UsageError(f"--db {db}: --db takes a PostgreSQL URL (postgresql://USER@HOST:PORT/DBNAME); a SQLite "
+                         f"study lives in the workspace as {DB_FILE}: leave --db out")
 
     created_dir = False
     temps: list[Path] = []
@@ -247,8 +249,6 @@ def init_workspace(
         else:
             # Never write the password into the workspace: libpq reads it from PGPASSWORD or ~/.pgpass.
             stored_url = url._replace(password=None).render_as_string(hide_password=False)
-            if sqlite_path(url) is not None:
-                raise UsageError("--db with init is for PostgreSQL; for SQLite the workspace creates study.db")
             temps.append(toml_tmp)
             _write_private(toml_tmp, _workspace_text(study_name, stored_url))
             with contextlib.closing(_open_or_migrate(url)) as store:

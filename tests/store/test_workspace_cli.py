@@ -259,3 +259,13 @@ def test_participant_table_has_no_identity_columns():
 def test_init_library_result(tmp_path):
     result = init_workspace(tmp_path / "lib", name="lib-study", seed=7)
     assert result.study == "lib-study" and result.seed == 7 and result.database.endswith("study.db")
+
+
+@pytest.mark.parametrize("db", ["s.db", "sqlite:///s.db", "sqlite://"])
+def test_init_refuses_a_sqlite_db_option_before_creating_anything(tmp_path, capsys, db):
+    # A SQLite study always lives in the workspace's own study.db; --db is for PostgreSQL only.
+    ws = tmp_path / "w"
+    code, _, err = run(capsys, "init", str(ws), "--db", db)
+    line = one_error_line(err)
+    assert code != 0 and f"--db {db}:" in line and "postgresql://" in line and "leave --db out" in line
+    assert not ws.exists()
