@@ -11,7 +11,7 @@ from studyctl.cli.common import DB_OPTION, WORKSPACE_OPTION, workspace_arg
 from studyctl.errors import IntegrityError
 from studyctl.store.anchor import parse_head
 from studyctl.store.integrity import verify_integrity
-from studyctl.store.records import SEAL_ACTION
+from studyctl.store.records import ERASE_ACTION, SEAL_ACTION
 from studyctl.store.repository import StudyStore
 from studyctl.store.workspace import resolve_database
 
@@ -44,10 +44,12 @@ def register(app: typer.Typer) -> None:
             rows = report.audit.rows
             if as_json:
                 typer.echo(json.dumps({"ok": True, "rows": rows, "head": f"{rows}:{report.audit.head_hash}",
-                                       "records": checked}))
+                                       "records": checked, "erased": report.records.erased}))
                 return
+            erased = report.records.summary(tuple(report.records.erased), report.records.erased)
             typer.echo(f"Audit log intact: {rows} rows, head {rows}:{report.audit.head_hash}; "
-                       f"records sealed and unchanged: {checked}")
+                       f"records sealed and unchanged: {checked}"
+                       + (f"; erased as audited: {erased}" if erased else ""))
             return
         for problem in report.problems:
             typer.echo(f"  {problem}", err=True)
@@ -61,7 +63,7 @@ def register(app: typer.Typer) -> None:
         last: int = typer.Option(20, "--last", min=1, help="How many of the newest rows to show."),
         as_json: bool = typer.Option(False, "--json", help="Print JSON lines instead of text."),
         seals: bool = typer.Option(False, "--seals", help="Also show the records.seal rows (the digests of the "
-                                   "records each transaction wrote; long)."),
+                                   "records each transaction wrote; long) and the digests an erasure lists."),
     ) -> None:
         """Print the newest audit rows (time, actor, action, entity, details)."""
         url, _ = resolve_database(db, workspace_arg(workspace))
@@ -71,12 +73,17 @@ def register(app: typer.Typer) -> None:
             frame = frame[frame.action != SEAL_ACTION]
         frame = frame.tail(last)
         for row in frame.itertuples(index=False):
+            details = json.loads(row.details)
+            if row.action == ERASE_ACTION and not seals:  # the erased records' digests: as long as a seal
+                details.pop("erased", None)
             if as_json:
                 typer.echo(json.dumps({"id": row.id, "at": row.at, "actor": row.actor, "action": row.action,
                                        "entity": row.entity, "entity_id": row.entity_id,
-                                       "details": json.loads(row.details)}, ensure_ascii=False))
+                                       "details": details}, ensure_ascii=False))
             else:
+                text = row.details if row.action != ERASE_ACTION or seals else \
+                    json.dumps(details, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
                 typer.echo(f"{row.id:>6} {row.at} {row.actor} {row.action} {row.entity or ''}:{row.entity_id or ''} "
-                           f"{row.details}")
+                           f"{text}")
 
     app.add_typer(audit_app, name="audit")

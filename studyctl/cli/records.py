@@ -20,21 +20,32 @@ def register(app: typer.Typer) -> None:
         code: str = typer.Argument(..., help="Participant code."),
         reason: str = typer.Option(..., "--reason", help="Why the participant withdrew (stored, audited)."),
         keep_data: bool = typer.Option(True, "--keep-data/--delete-data",
-                                       help="Keep what was recorded (default); deleting is not supported yet."),
+                                       help="Keep what was recorded (default), or erase it: trials, events, samples, "
+                                       "answers, reports and sessions are deleted, one audit row lists their "
+                                       "digests (audit verify reports the erasure). Also for a participant who "
+                                       "withdrew earlier with their data kept."),
         as_json: bool = JSON_OPTION,
         db: str = DB_OPTION,
         workspace: Path = WORKSPACE_OPTION,
         study: str = STUDY_OPTION,
     ) -> None:
-        """Withdraw a participant: no further sessions, open sessions closed, remaining trials dropped."""
+        """Withdraw a participant: no further sessions, open sessions closed, remaining trials dropped (and with
+        --delete-data their recorded data erased, audited)."""
         with open_study(db, workspace_arg(workspace), study) as opened:
             r = withdraw(opened.store, code, reason=reason, keep_data=keep_data, study=opened.study.name)
         if as_json:
-            typer.echo(json.dumps(r.to_frame().iloc[0].to_dict() | {"sessions_closed": list(r.sessions_closed)},
-                                  default=int))
+            typer.echo(json.dumps(r.to_frame().iloc[0].to_dict() | {"sessions_closed": list(r.sessions_closed),
+                                                                     "erased": r.erased}, default=int))
             return
-        typer.echo(f"Withdrew {r.code}: {r.trials_done} trials done kept, {r.trials_dropped} planned trials dropped"
-                   + (f", session(s) {', '.join(map(str, r.sessions_closed))} closed" if r.sessions_closed else ""))
+        if r.erased is not None:
+            what = ", ".join(f"{n} {k}{'' if n == 1 else 's'}" for k, n in r.erased.items() if n)
+            typer.echo(f"Erased the recorded data of {r.code}: {what or 'nothing recorded'} (listed by digest in the "
+                       "audit log; `studyctl audit verify` reports the erasure)")
+        if r.trials_done or r.trials_dropped or r.keep_data or r.sessions_closed:
+            done = "kept" if r.keep_data else "erased"
+            typer.echo(f"Withdrew {r.code}: {r.trials_done} trials done {done}, {r.trials_dropped} planned trials "
+                       "dropped" + (f", session(s) {', '.join(map(str, r.sessions_closed))} closed"
+                                    if r.sessions_closed else ""))
         typer.echo("  their slot goes to the next enrollee" if r.slot_freed else
                    "  their slot stays taken (the protocol does not replace withdrawn participants)")
 

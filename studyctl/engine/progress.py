@@ -70,7 +70,8 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
     """Progress of every participant of a study, by condition, with the balance so far.
 
     ``done`` counts completed trials (invalid ones separately), ``left`` the planned trials whose plan
-    position has no completed or invalid attempt yet (from the stored schedule when no session exists).
+    position has no completed or invalid attempt yet (from the stored schedule when no session exists; none
+    for a withdrawn participant, whose remaining trials were dropped).
     """
     target = store.get_study(study)
     with store.reading() as s:
@@ -107,7 +108,8 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
                 running=sum(t.status == "running" for t in c_trials),
                 aborted=sum(t.status == "aborted" for t in c_trials),
                 invalid=sum(t.status == "invalid" for t in c_trials),
-                left=max(planned_n - finished, 0),
+                # a withdrawal drops the trials not run: none are left to do
+                left=0 if p.status == "withdrawn" else max(planned_n - finished, 0),
             ))
         if schedule and p.status != "withdrawn":
             key = p.stratum or "all"
@@ -135,6 +137,8 @@ def progress_lines(progress: StudyProgress) -> list[str]:
     for code, rows in by_person.items():
         first = rows[0]
         session = "no session" if first.session_id is None else f"session {first.session_id} {first.session_status}"
+        if first.participant_status == "withdrawn":
+            session = f"withdrawn, {session}"
         conds = "  ".join(
             f"{r.condition} {r.done}/{r.planned}" + (f" (+{r.invalid} invalid)" if r.invalid else "") for r in rows
         )

@@ -19,13 +19,14 @@ from sqlalchemy import func, select
 from studyctl.errors import NotFoundError, UsageError
 from studyctl.store.audit import append_audit
 from studyctl.store.enrollment import study_protocol
+from studyctl.store.erasure import ERASE_ACTION, erase_participant_data, has_data
 from studyctl.store.models import AuditLog, Participant, Session, Trial
 from studyctl.store.models import utcnow as _utcnow
 from studyctl.store.records import load_mark, seal_session
 from studyctl.suggest import nearest
 
 MAX_TEXT = 4000
-RECORD_ACTIONS = ("participant.consent", "participant.status", "note")
+RECORD_ACTIONS = ("participant.consent", "participant.status", "note", ERASE_ACTION)
 # sessions a withdrawal ends: they cannot be resumed afterwards
 _OPEN_SESSIONS = ("running", "paused", "interrupted")
 
@@ -41,11 +42,13 @@ class Withdrawal:
     sessions_closed: tuple[int, ...]
     slot_freed: bool  # the protocol gives a withdrawn participant's slot to the next enrollee
     keep_data: bool
+    erased: dict[str, int] | None = None  # records erased per kind (trial, event, answer, report, chunk, session)
 
     def to_frame(self) -> pd.DataFrame:
         return pd.DataFrame([{"code": self.code, "reason": self.reason, "trials_done": self.trials_done,
                               "trials_dropped": self.trials_dropped, "sessions_closed": len(self.sessions_closed),
-                              "slot_freed": self.slot_freed, "keep_data": self.keep_data}])
+                              "slot_freed": self.slot_freed, "keep_data": self.keep_data,
+                              "records_erased": sum((self.erased or {}).values())}])
 
 
 def _text(value: str, what: str) -> str:
@@ -71,24 +74,29 @@ def withdraw(store: Any, code: str, *, reason: str, keep_data: bool = True, stud
     """Withdraw a participant: no further sessions, open sessions closed (aborted), audited with the reason.
 
     Their planned trials that were not run are dropped; with ``participants.replace_withdrawn`` their
-    allocation slot goes to the next enrollee. Recorded data are kept (``keep_data``); deleting them is refused:
-    the event table is append-only by database triggers on both backends (migration 0001) and every record is
-    sealed in the audit chain, so an erasure needs an audited exception in the schema (a migration: an erase
-    permit the triggers check, and an erase row that ``verify_records`` reads as erased, not as tampering).
+    allocation slot goes to the next enrollee. Recorded data are kept (``keep_data``), or erased
+    (``keep_data=False``: :mod:`studyctl.store.erasure`, one ``participant.erase`` audit row listing the digest of
+    every record removed, so ``audit verify`` still passes and reports the erasure). A participant who withdrew
+    earlier with their data kept can ask for the erasure later: ``keep_data=False`` on them erases only.
+    Everything happens in one transaction: on any error nothing is written.
     """
     why = _text(reason, "the withdrawal reason")
-    if not keep_data:
-        raise UsageError("--delete-data is not supported yet: the study's events are append-only (database "
-                         "triggers) and sealed in the audit chain, so deleting them would read as tampering; "
-                         "withdraw with --keep-data and exclude the participant in the analysis")
     target = store.get_study(study)
     protocol = study_protocol(target)
     with store.in_transaction() as tx:
         p = _participant(tx, target, code)
         if p.status == "withdrawn":
             when = p.withdrawn_at.isoformat(timespec="seconds") if p.withdrawn_at else "earlier"
-            raise UsageError(f"participant {code} already withdrew ({when}: {p.withdrawal_reason or 'no reason'}); "
-                             "nothing to do")
+            if keep_data:
+                raise UsageError(f"participant {code} already withdrew ({when}: {p.withdrawal_reason or 'no reason'})"
+                                 "; nothing to do (add --delete-data to erase what was recorded of them)")
+            if not has_data(tx, p):
+                raise UsageError(f"participant {code} already withdrew ({when}) and nothing recorded of them is "
+                                 "left to erase; nothing to do")
+            erasure = erase_participant_data(tx, store.db, p, reason=why)
+            return Withdrawal(code=code, reason=why, trials_done=0, trials_dropped=0, sessions_closed=(),
+                              slot_freed=bool(protocol.participants.replace_withdrawn), keep_data=False,
+                              erased=erasure.counts)
         planned = len((p.schedule or {}).get("entries", ())) if isinstance(p.schedule, dict) else 0
         done = tx.scalar(select(func.count()).select_from(Trial).where(Trial.participant_id == p.id,
                                                                    Trial.status == "completed")) or 0
@@ -108,14 +116,16 @@ def withdraw(store: Any, code: str, *, reason: str, keep_data: bool = True, stud
         old = p.status
         p.status, p.withdrawn_at, p.withdrawal_reason = "withdrawn", _utcnow(), why
         tx.flush()
-        result = Withdrawal(code=code, reason=why, trials_done=int(done),
-                            trials_dropped=max(0, planned - int(done)), sessions_closed=tuple(closed),
-                            slot_freed=bool(protocol.participants.replace_withdrawn), keep_data=True)
-        append_audit(tx, "participant.status", entity="participant", entity_id=p.id,
-                     details={"from": old, "to": "withdrawn", "reason": why, "code": code, "keep_data": True,
-                              "trials_done": result.trials_done, "trials_dropped": result.trials_dropped,
-                              "sessions_closed": list(closed), "slot_freed": result.slot_freed})
-    return result
+        pid = p.id
+        append_audit(tx, "participant.status", entity="participant", entity_id=pid,
+                     details={"from": old, "to": "withdrawn", "reason": why, "code": code, "keep_data": keep_data,
+                              "trials_done": int(done), "trials_dropped": max(0, planned - int(done)),
+                              "sessions_closed": list(closed),
+                              "slot_freed": bool(protocol.participants.replace_withdrawn)})
+        erased = None if keep_data else erase_participant_data(tx, store.db, p, reason=why).counts
+        return Withdrawal(code=code, reason=why, trials_done=int(done), trials_dropped=max(0, planned - int(done)),
+                          sessions_closed=tuple(closed), slot_freed=bool(protocol.participants.replace_withdrawn),
+                          keep_data=keep_data, erased=erased)
 
 
 def record_consent(store: Any, code: str, *, version: str, study: str | None = None) -> dict[str, Any]:
@@ -165,12 +175,13 @@ def add_note(store: Any, text: str, *, session: int | None = None, trial: int | 
 RECORD_COLUMNS = {
     "at": ("Wall-clock time of the record (UTC, ISO 8601)", "", "datetime"),
     "actor": ("Who recorded it (STUDYCTL_ACTOR or the OS user)", "", "string"),
-    "record": ("consent, withdrawal or note", "", "string"),
+    "record": ("consent, withdrawal, erasure (the participant's recorded data deleted at their request) or note",
+               "", "string"),
     "participant": ("Pseudonymous participant code (consent, withdrawal)", "", "string"),
     "session_id": ("Session the note is about", "", "integer"),
     "trial_id": ("Trial attempt the note is about", "", "integer"),
     "consent_version": ("Consent-form version the participant signed", "", "string"),
-    "text": ("The note, or the withdrawal reason", "", "string"),
+    "text": ("The note, or the withdrawal or erasure reason", "", "string"),
 }
 
 
@@ -191,6 +202,8 @@ def coordination_records(tx: Any, study: Any) -> list[list[Any]]:
         elif a.entity_id is not None and int(a.entity_id) in codes:
             if a.action == "participant.consent":
                 rows.append([a.at, a.actor, "consent", codes[int(a.entity_id)], None, None, d.get("version"), None])
+            elif a.action == ERASE_ACTION:
+                rows.append([a.at, a.actor, "erasure", codes[int(a.entity_id)], None, None, None, d.get("reason")])
             elif d.get("to") == "withdrawn":
                 rows.append([a.at, a.actor, "withdrawal", codes[int(a.entity_id)], None, None, None, d.get("reason")])
     return rows

@@ -321,6 +321,16 @@ class SessionLease(Base):
     heartbeat_at: Mapped[datetime] = mapped_column()
 
 
+class ErasePermit(Base):
+    """Lets the event rows of one session be deleted while it exists, naming the ``participant.erase`` audit row
+    that lists them (the delete trigger checks both); written and removed inside the erasing transaction."""
+
+    __tablename__ = "erase_permit"
+
+    session_id: Mapped[int] = mapped_column(IdType, primary_key=True, autoincrement=False)
+    audit_id: Mapped[int] = mapped_column(IdType)
+
+
 class AuditHead(Base):
     """The single row holding the audit chain's length and last hash (detects a deleted tail)."""
 
@@ -339,6 +349,7 @@ __all__ = [
     "AuditHead",
     "AuditLog",
     "Base",
+    "ErasePermit",
     "Event",
     "LocationReport",
     "Participant",

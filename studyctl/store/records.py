@@ -41,6 +41,7 @@ from studyctl.store.models import (
 
 SEAL_ACTION = "records.seal"
 COVERAGE_ACTION = "records.coverage_start"
+ERASE_ACTION = "participant.erase"  # studyctl.store.erasure: records removed at a participant's request
 UNFINISHED = ("running", "paused", "interrupted")
 # name in seals and messages → model; trials are sealed as [fields digest, outcome digest]
 KINDS = ("trial", "event", "answer", "report", "chunk")
@@ -207,29 +208,40 @@ class RecordsReport:
     checked: dict[str, int]
     problems: tuple[RecordProblem, ...]
     notes: tuple[str, ...]
+    erased: dict[str, int] = field(default_factory=dict)  # sealed records erased as their erasure row lists them
 
     @property
     def ok(self) -> bool:
         return not self.problems
 
-    def summary(self, kinds: tuple[str, ...] = KINDS) -> str:
-        """``2 trials, 42 events, 3 answers, 1 location report, 8 sample chunks`` (the records checked)."""
-        return ", ".join(f"{n} {_LABEL[k]}{'' if n == 1 else 's'}" for k, n in self.checked.items() if k in kinds)
+    def summary(self, kinds: tuple[str, ...] = KINDS, counts: dict[str, int] | None = None) -> str:
+        """``2 trials, 42 events, 3 answers, 1 location report, 8 sample chunks`` (the records checked, or
+        ``counts``)."""
+        return ", ".join(f"{n} {_LABEL[k]}{'' if n == 1 else 's'}" for k, n in (counts or self.checked).items()
+                         if k in kinds)
 
 
-def _sealed(tx: OrmSession) -> tuple[dict[str, dict[int, Any]], dict[int, dict[str, int]], dict[str, int]]:
-    """Folded seals: digest per record, sealed id range per session, and the legacy (pre-coverage) ids."""
+def _sealed(tx: OrmSession, erased: dict[str, dict[int, tuple[Any, int]]] | None = None
+            ) -> tuple[dict[str, dict[int, Any]], dict[int, dict[str, int]], dict[str, int]]:
+    """Folded seals: digest per record, sealed id range per session, and the legacy (pre-coverage) ids; the
+    records each erasure lists go into ``erased`` (kind → id → (digest, audit row))."""
     sealed: dict[str, dict[int, Any]] = {k: {} for k in KINDS}
     where: dict[str, dict[int, int]] = {k: {} for k in KINDS}
     per_session: dict[int, dict[str, int]] = {}
     legacy = {k: 0 for k in KINDS}
     rows = tx.execute(select(AuditLog.id, AuditLog.action, AuditLog.entity_id, AuditLog.details)
-                      .where(AuditLog.action.in_((SEAL_ACTION, COVERAGE_ACTION))).order_by(AuditLog.id))
+                      .where(AuditLog.action.in_((SEAL_ACTION, COVERAGE_ACTION, ERASE_ACTION))).order_by(AuditLog.id))
     for audit_id, action, entity_id, details in rows:
         try:
             body = json.loads(details)
         except ValueError:
             continue  # an edited audit row: verify_audit names it
+        if action == ERASE_ACTION:
+            if erased is not None:
+                for kind in KINDS:
+                    for key, digest in ((body.get("erased") or {}).get(kind) or {}).items():
+                        erased.setdefault(kind, {})[int(key)] = (digest, audit_id)
+            continue
         if action == COVERAGE_ACTION:
             for k in KINDS:
                 legacy[k] = max(legacy[k], int(body.get(k) or 0))
@@ -251,8 +263,10 @@ def _iter(tx: OrmSession, stmt: Any) -> Iterator[Any]:
 
 def verify_records(tx: OrmSession) -> RecordsReport:
     """Recompute every covered record's digest and compare with the sealed ones (see module docstring)."""
-    sealed, per_session, legacy = _sealed(tx)
+    erased: dict[str, dict[int, tuple[Any, int]]] = {}
+    sealed, per_session, legacy = _sealed(tx, erased)
     where = sealed.pop("_where")  # type: ignore[arg-type]
+    erased_ok = {k: 0 for k in KINDS}
     status = dict(tx.execute(select(Session.id, Session.status)).all())
     trial_session = dict(tx.execute(select(Trial.id, Trial.session_id)).all())
     problems: list[RecordProblem] = []
@@ -274,6 +288,11 @@ def verify_records(tx: OrmSession) -> RecordsReport:
 
     def compare(kind: str, rid: int, actual: Any, session_id: int | None, what: str) -> None:
         checked[kind] += 1
+        if rid in erased.get(kind, {}):
+            problems.append(RecordProblem(kind, rid, "inserted", f"{what} was erased in audit row "
+                                          f"{erased[kind][rid][1]} but is stored again"))
+            sealed[kind].pop(rid, None)
+            return
         expected = sealed[kind].pop(rid, None)
         if expected is None:
             unsealed(kind, rid, session_id, what)
@@ -307,9 +326,22 @@ def verify_records(tx: OrmSession) -> RecordsReport:
         compare("chunk", c.id, recomputed if c.digest is not None else None, trial_session.get(c.trial_id), what)
     for kind in KINDS:
         for rid in sorted(sealed[kind]):
-            problems.append(RecordProblem(kind, rid, "deleted", f"sealed in audit row {where[kind][rid]} but no "
-                                                                "longer stored"))
+            gone = erased.get(kind, {}).get(rid)
+            if gone is None:
+                problems.append(RecordProblem(kind, rid, "deleted", f"sealed in audit row {where[kind][rid]} but no "
+                                                                    "longer stored"))
+            elif _same(gone[0], sealed[kind][rid]):
+                erased_ok[kind] += 1
+            else:
+                problems.append(RecordProblem(kind, rid, "edited", f"erased in audit row {gone[1]}, but what was "
+                                              f"erased differs from what audit row {where[kind][rid]} sealed: it was "
+                                              "changed before the erasure"))
     notes = []
+    if any(erased_ok.values()):
+        rows = sorted({a for by_id in erased.values() for _, a in by_id.values()})
+        summary = ", ".join(f"{n} {_LABEL[k]}{'' if n == 1 else 's'}" for k, n in erased_ok.items() if n)
+        notes.append(f"erased at participants' request (audit row{'s' if len(rows) > 1 else ''} "
+                     f"{', '.join(map(str, rows))}): {summary}; each matches its seal")
     if pending:
         notes.append(f"{pending} record(s) of unfinished sessions written after their last seal (pending: the next "
                      "resume seals them)")
@@ -317,9 +349,15 @@ def verify_records(tx: OrmSession) -> RecordsReport:
         notes.append(f"{legacy_seen} record(s) written before this database was upgraded to sealed records "
                      "(not covered)")
     problems.sort(key=lambda p: (KINDS.index(p.kind), p.record_id))
-    return RecordsReport(checked=checked, problems=tuple(problems), notes=tuple(notes))
+    return RecordsReport(checked=checked, problems=tuple(problems), notes=tuple(notes),
+                         erased={k: n for k, n in erased_ok.items() if n})
 
 
-__all__ = ["COVERAGE_ACTION", "KINDS", "SEAL_ACTION", "RecordProblem", "RecordsReport", "SealMark",
+def _same(erased: Any, sealed: Any) -> bool:
+    # trial digests are [fields, outcome] lists in both; JSON keeps them lists
+    return list(erased) == list(sealed) if isinstance(erased, list) else erased == sealed
+
+
+__all__ = ["COVERAGE_ACTION", "ERASE_ACTION", "KINDS", "SEAL_ACTION", "RecordProblem", "RecordsReport", "SealMark",
            "answer_digest", "chunk_digest", "event_digest", "load_mark", "report_digest", "seal_session",
            "stored_chunk_digest", "trial_digest", "verify_records"]

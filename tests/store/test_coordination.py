@@ -89,7 +89,7 @@ def test_bad_input_is_one_error_line_and_writes_nothing(tmp_path, capsys):
         (("withdraw", "PTY-AAAAX", "--reason", "x"), "did you mean 'PTY-AAAAA'"),
         (("withdraw", "PTY-BBBBB", "--reason", "again"), "already withdrew"),
         (("withdraw", "PTY-AAAAA", "--reason", "  "), "reason is empty"),
-        (("withdraw", "PTY-AAAAA", "--reason", "x", "--delete-data"), "not supported yet"),
+        (("withdraw", "PTY-BBBBB", "--reason", "x", "--delete-data"), "nothing recorded of them is left to erase"),
         (("note", "hello", "--trial", "999"), "no trial 999"),
         (("note", "hello", "--session", "999"), "no session 999"),
         (("consent", "PTY-AAAAA", "--version", "2.0"), "does not match the protocol's consent_version '2.1'"),
