@@ -164,7 +164,9 @@ def rm_anova(*conditions: Any, names: Sequence[str] | None = None) -> RepeatedAn
     ss_cond = n * float(np.sum((cm - grand) ** 2))
     resid = y - sm[:, None] - cm[None, :] + grand
     ss_err = float(np.sum(resid**2))
-    if ss_err == 0.0:
+    # Identical subjects leave a residual of rounding error only (3.666… repeated gives ~1e-31, not 0):
+    # an F of 1e30 and a Greenhouse-Geisser 0/0. Below a few ulps of the total sum of squares it is zero.
+    if ss_err <= 64 * np.finfo(float).eps * float(np.sum((y - grand) ** 2)):
         f = math.inf if ss_cond > 0 else nan
         return RepeatedAnovaResult(f, df_e, df_r, 0.0 if ss_cond > 0 else nan, nan, 0.0 if ss_cond > 0 else nan,
                                    1.0 if ss_cond > 0 else nan, n, k, dropped, True,

@@ -87,3 +87,16 @@ def test_rm_anova_matches_statsmodels_anovarm():
     assert res.statistic == pytest.approx(ref["F Value"].iloc[0], rel=1e-10)
     assert res.pvalue == pytest.approx(ref["Pr > F"].iloc[0], rel=1e-9)
     assert 1 / 3 <= res.epsilon_gg <= 1 and res.pvalue_gg >= res.pvalue
+
+
+def test_rm_anova_identical_subjects_are_zero_residual_not_rounding_noise():
+    # Four virtual people with the same means (11/3 is not exact in binary): the residual is ~1e-31 of
+    # rounding; it must read as zero residual variance, not F = 1e30 with a 0/0 Greenhouse-Geisser epsilon.
+    import warnings
+
+    row = [4.0, 0.0, 3.0, 4.0, 11.0 / 3.0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = stats.rm_anova(*zip(*[row] * 4, strict=True))
+    assert res.statistic == math.inf and res.pvalue == 0.0 and res.degenerate
+    assert "zero residual variance" in res.warnings
