@@ -17,6 +17,7 @@ from studyctl.cli.common import (
     output_console,
     workspace_arg,
 )
+from studyctl.resources import shipped_names
 
 
 def _console(err: bool = False) -> Console:
@@ -179,10 +180,16 @@ def register_sim(app: typer.Typer) -> None:
         )
         typer.echo(f"  workspace: {result.workspace}")
         typer.echo(f"  database:  {result.database}")
+        # A shipped protocol has a shipped analysis plan of the same name; a protocol file of one's own does not.
+        plans = shipped_names("analysis")
+        stem = Path(protocol).stem
         typer.echo(
-            f"  next:      studyctl report {Path(protocol).stem} --workspace {result.workspace} --out "
-            f"{result.workspace}/report"
+            f"  next:      studyctl report {stem if stem in plans else 'PLAN.yaml'} --workspace {result.workspace} "
+            f"--out {result.workspace}/report"
         )
+        if stem not in plans:
+            typer.echo(f"             (no shipped analysis plan is named {stem!r}: write PLAN.yaml for this protocol, "
+                       f"starting from one of the shipped plans: {', '.join(plans)})")
 
     @app.command("demo")
     def demo(

@@ -112,3 +112,16 @@ def test_piped_tables_are_whole(capsys, monkeypatch):
     assert "equal proportions: no margin towards zero (the paper prints NULL)" in out
     assert any(line.startswith("sensitivity manual vs PHF_FF ") for line in out.splitlines())
     assert "…" not in out
+
+
+@pytest.mark.slow
+def test_simulate_of_own_protocol_file_does_not_suggest_a_plan_that_does_not_exist(tmp_path, capsys):
+    from studyctl.resources import resource_dir
+
+    own = tmp_path / "my_palpation.yaml"
+    own.write_text((resource_dir("protocols") / "data_driven_palpation.yaml").read_text())
+    code, out, err = run(capsys, "simulate", str(own), "-n", "1", "-s", "1", "-o", str(tmp_path / "ws"))
+    assert code == 0, err
+    nxt = next(line for line in out.splitlines() if "next:" in line)
+    assert "studyctl report PLAN.yaml --workspace" in nxt and "my_palpation" not in nxt
+    assert "no shipped analysis plan is named 'my_palpation'" in out and "data_driven_palpation" in out
