@@ -120,12 +120,13 @@ def demo_table(result: Any) -> Table:
         + f"{result.total_s:.1f} s)",
         title_justify="left",
     )
-    for col in ("study", "participants", "trials", "tests", "significant", "time", "status"):
+    # sessions: the study's own session run times added up; ready: when its report was written (demo clock)
+    for col in ("study", "participants", "trials", "tests", "significant", "sessions", "ready", "status"):
         table.add_column(col)
     for r in result.studies:
         status = "FAILED" if r.error else ("partial" if r.partial else "complete")
         table.add_row(
             r.study, str(r.participants), str(r.trials_completed), str(r.tests), str(r.significant),
-            f"{r.total_s:.1f} s", status,
+            f"{r.simulate_s:.1f} s", f"{r.total_s:.1f} s", status,
         )
     return table

@@ -14,7 +14,6 @@ are reported with their reasons.
 
 from __future__ import annotations
 
-import html
 import json
 import multiprocessing as mp
 import os
@@ -32,7 +31,7 @@ import pandas as pd
 from studyctl.engine.api import check_sim_rate
 from studyctl.errors import ConfigError, StudyctlError
 from studyctl.report.build import ensure_writable
-from studyctl.report.style import fmt_p
+from studyctl.report.demo_index import agreement_line, demo_index_html, headline_tests
 from studyctl.workflows.report import build_report
 from studyctl.workflows.simulate import Cohort, create_cohort, run_participant
 
@@ -74,6 +73,7 @@ class StudyRun:
     error: str = ""
     headline: tuple[str, ...] = ()
     population: str = ""  # which population the virtual people came from (describe_choice line)
+    agreement: str = ""  # the report's simulated-vs-published fractions ("" without targets)
 
     COLUMNS = (
         "study",
@@ -92,6 +92,7 @@ class StudyRun:
         "report",
         "error",
         "population",
+        "agreement",
     )
 
     @property
@@ -170,7 +171,8 @@ def _report_task(cohort: Cohort, folder: str) -> dict[str, Any]:
         "partial": files.partial,
         "report": str(files.html),
         "problems": tuple(files.problems),
-        "headline": tuple(_headline(result)),
+        "headline": tuple(headline_tests(result)),
+        "agreement": agreement_line(result),
     }
 
 
@@ -179,23 +181,6 @@ def _error_text(exc: BaseException) -> str:
         return str(exc)
     # A bug in a plugin or here: keep the traceback in the result (demo.json), not on screen.
     return f"{type(exc).__name__}: {exc}\n" + "".join(traceback.format_exception(exc, limit=6))
-
-
-def _headline(result: Any) -> list[str]:
-    """A few lines for the terminal: each paper-role omnibus/two-sample test with its p-value."""
-    out = []
-    frame = result.to_frame()
-    paper = frame[
-        (frame["role"] == "paper") & frame["kind"].isin(["omnibus", "two_sample"]) & (frame["status"] == "ok")
-    ]
-    for r in paper.itertuples():
-        if len(out) >= 4:
-            break
-        out.append(
-            f"{r.test} {r.metric}{f' [{r.split}]' if r.split else ''}: {r.statistic_name} = "
-            f"{r.statistic:.3g}, p = {fmt_p(r.p)}"
-        )
-    return out
 
 
 def run_demo(
@@ -367,35 +352,7 @@ _COST = {
 
 
 def _write_index(out: Path, runs: Sequence[StudyRun], seed: int, sim_rate_hz: float | None) -> Path:
-    e = html.escape
-    rows = []
-    for r in runs:
-        link = Path(r.report).relative_to(out).as_posix() if r.report else ""
-        status = "FAILED: " + r.error.splitlines()[0] if r.error else ("partial results" if r.partial else "complete")
-        rows.append(
-            f"<tr><td>{e(r.study)}</td><td>{r.participants}</td><td>{r.trials_completed}</td>"
-            f"<td>{r.tests}</td><td>{r.significant}</td><td>{r.total_s:.1f} s</td><td>{e(status)}</td>"
-            f"<td>{f'<a href={chr(39)}{e(link)}{chr(39)}>report</a>' if link else ''}</td></tr>"
-        )
-    text = (
-        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>studyctl demo</title>"
-        "<style>body{font-family:system-ui,sans-serif;margin:2em auto;max-width:960px}table{border-collapse:collapse}"
-        "td,th{border:1px solid #ccc;padding:4px 8px}</style></head><body>"
-        "<h1>studyctl demo: the four reference studies</h1>"
-        f"<p>Seeded virtual participants (seed {seed}) ran each protocol through the session engine; every number "
-        "in the reports was computed from the study databases in the <code>workspace/</code> folders. "
-        + (
-            f"Feedback loops of the 1 kHz tissue controllers ran at {sim_rate_hz:g} Hz (the simulated device "
-            "still at its own rate; <code>studyctl bench simrate</code> shows what that changes, "
-            "<code>studyctl demo --full-rate</code> runs the protocols' rates)."
-            if sim_rate_hz
-            else "Every feedback loop ran at its protocol's rate."
-        )
-        + "</p>"
-        "<table><tr><th>study</th><th>participants</th><th>completed trials</th><th>tests</th>"
-        "<th>significant</th><th>time</th><th>status</th><th></th></tr>" + "".join(rows) + "</table></body></html>\n"
-    )
     path = out / "index.html"
-    path.write_text(text, encoding="utf-8")
+    path.write_text(demo_index_html(runs, out, seed, sim_rate_hz), encoding="utf-8")
     (out / "demo.json").write_text(json.dumps([asdict(r) for r in runs], indent=2, default=str) + "\n")
     return path

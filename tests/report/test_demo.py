@@ -82,3 +82,16 @@ def test_a_bad_loop_rate_is_refused_before_anything_is_written(tmp_path, bad):
     with pytest.raises(UsageError, match="--sim-rate-hz .* must be a positive number"):
         run_demo(tmp_path / "reports", studies=[("bio_inspired_palpation", 1)], sim_rate_hz=bad)
     assert not (tmp_path / "reports").exists()
+
+
+@pytest.mark.slow
+def test_the_index_shows_each_studys_own_time_and_its_agreement_with_the_paper(demo):
+    result, _ = demo
+    (run,) = result.studies
+    page = result.index.read_text()
+    # The study's own session time is not the demo clock at which its report was ready.
+    assert 0 < run.simulate_s and f"{run.simulate_s:.1f} s" in page and f"{run.total_s:.1f} s" in page
+    assert "session time (sum)" in page and "ready after" in page
+    assert run.agreement.startswith(tuple(f"{k}/" for k in range(40))) and run.agreement in page.replace("&#39;", "'")
+    assert run.population and run.population.split(" (")[0] in page
+    assert json.loads((result.out_dir / "demo.json").read_text())[0]["agreement"] == run.agreement
