@@ -7,11 +7,15 @@ Agreement criteria (issue 17):
 * **within** — a mean, median, proportion, IQR, count or % change lies in the published band (the printed 95 %
   interval, ±1.96 SE, or ±1 SD for a mean with a printed SD; see :meth:`Target.interval`); an SD or CV is
   "within" when simulated/published lies in [1/1.5, 1.5];
-* **verdict** — a verdict or p-value target is significant at alpha exactly when the paper's is.
+* **verdict** — a verdict or p-value target is significant at alpha exactly when the paper's is; for a pair
+  target whose paper states a direction (``higher: A``), a significant simulated result also has to go that way
+  (a significant difference the wrong way does not reproduce a significant finding), and **direction** is then
+  whether the simulated people scored ``A`` higher (significant or not).
 
 The calibration distance is the simulated method of moments objective: Σ over fit targets of
 ((simulated − published) / σ)², σ² = published SE² + simulation SE² (a p-value on the log10 scale with σ = 0.5;
-a verdict that differs adds 4, i.e. a 2σ miss; a target the simulation cannot compute adds 25).
+a verdict that differs adds 4, i.e. a 2σ miss, and a significant result against the paper's stated direction 16;
+a target the simulation cannot compute adds 25).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from studyctl.populations.targets import SPREADS, Target
 SD_FACTOR = 1.5
 MISSING_PENALTY = 25.0
 VERDICT_PENALTY = 4.0
+WRONG_WAY_PENALTY = 16.0  # significant, but the other level is higher than the paper found
 LOG_P_SD = 0.5
 
 COLUMNS = (
@@ -113,8 +118,23 @@ def _sign(x: float) -> int:
     return 0 if x == 0 else (1 if x > 0 else -1)
 
 
-def z_score(t: Target, sim: object, sim_se: float, alpha: float) -> float:
-    """Signed distance of the simulated value from the published one in σ units (see the module docs)."""
+def wrong_way(t: Target, higher: str) -> bool:
+    """A pair target with the paper's direction whose simulated people scored the other level higher."""
+    return bool(t.higher) and higher != t.higher
+
+
+def _significant(t: Target, sim: object, alpha: float) -> bool | None:
+    if t.statistic == "verdict":
+        return sim if isinstance(sim, bool) else None
+    s = _num(sim)
+    return bool(s < alpha) if math.isfinite(s) else None
+
+
+def z_score(t: Target, sim: object, sim_se: float, alpha: float, higher: str = "") -> float:
+    """Signed distance of the simulated value from the published one in σ units (see the module docs);
+    ``higher``: the level of a pair target the simulated people scored higher on."""
+    if t.is_test and t.higher and t.value and _significant(t, sim, alpha) and wrong_way(t, higher):
+        return -math.sqrt(WRONG_WAY_PENALTY)
     if t.statistic == "verdict":
         if not isinstance(sim, bool):
             return math.nan
@@ -141,7 +161,7 @@ def distance(targets: Sequence[Target], sim: SimulatedStats, alpha: float,
     total, zs = 0.0, {}
     for t in targets:
         v = sim.get(t.id)
-        z = z_score(t, v.value, (sim_se or {}).get(t.id, v.se), alpha)
+        z = z_score(t, v.value, (sim_se or {}).get(t.id, v.se), alpha, v.higher)
         zs[t.id] = z
         total += MISSING_PENALTY if not math.isfinite(z) else z * z
     return total, zs
@@ -175,6 +195,8 @@ def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> A
             on = _num(other.value)
             if math.isfinite(sn) and math.isfinite(on):
                 direction = _sign(sn - on) == _sign(float(t.value) - float(pub[t.direction_vs].value))
+        if t.is_test and t.higher:
+            direction = not wrong_way(t, v.higher)
         if t.statistic in SPREADS and math.isfinite(sn) and float(t.value) > 0:
             ratio = sn / float(t.value)
             within = 1 / SD_FACTOR <= ratio <= SD_FACTOR
@@ -186,9 +208,12 @@ def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> A
             verdict = (s == t.value) if isinstance(s, bool) else False
         elif t.statistic == "test_p":
             verdict = (sn < alpha) == (float(t.value) < alpha) if math.isfinite(sn) else False
+        published_sig = bool(t.value) if t.statistic == "verdict" else t.is_test and float(t.value) < alpha
+        if verdict and published_sig and t.higher and wrong_way(t, v.higher):
+            verdict = False  # significant, but the other way round: not the paper's finding
         checks = [c for c in (direction, within, verdict) if c is not None]
         agrees = all(checks) if checks else None
-        z = z_score(t, s, v.se, alpha)
+        z = z_score(t, s, v.se, alpha, v.higher)
         rows.append(AgreementRow(
             target=t.id, role=t.role, metric=t.metric, where=_where(t),
             statistic=t.statistic, published=t.value, published_low=lo, published_high=hi, band=t.band(),

@@ -18,11 +18,12 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from studyctl.analysis.shape import factor_column
 from studyctl.errors import UnknownKeyError, UsageError
 from studyctl.populations.targets import Target
 
 BOOTSTRAP = 400
-COLUMNS = ("target", "statistic", "value", "low", "high", "se", "participants", "note")
+COLUMNS = ("target", "statistic", "value", "low", "high", "se", "participants", "note", "higher")
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,7 @@ class SimulatedValue:
     se: float = math.nan
     participants: int = 0
     note: str = ""
+    higher: str = ""  # a pair target with a stated direction: the level the simulated people scored higher on
 
 
 @dataclass(frozen=True)
@@ -176,7 +178,28 @@ def _verdict(row: pd.Series, alpha: float) -> bool | None:
     return None if p is None or pd.isna(p) else bool(float(p) < alpha)
 
 
-def _test(tests: pd.DataFrame, t: Target, alpha: float) -> SimulatedValue:
+def _higher(metrics: pd.DataFrame, t: Target, compare: str) -> str:
+    """Which level of ``t.pair`` the simulated people scored higher on: per person (a proportion pooled over their
+    trials, else their mean), then the sign of P(a > b) − P(a < b) over every pair of people (the direction a rank
+    test measures; for 0/1 data the larger proportion). '' when tied or without data."""
+    if metrics.empty or "metric" not in metrics:
+        return ""
+    col = factor_column(compare or "condition")
+    f = _filter(metrics, t)
+    if col not in f:
+        return ""
+    values = []
+    for level in t.pair:
+        pp = _per_person(f[f[col].astype(str) == level], "proportion")
+        values.append(pp["num"].to_numpy(float) / pp["den"].to_numpy(float))
+    a, b = values
+    if len(a) == 0 or len(b) == 0:
+        return ""
+    score = float(np.sign(a[:, None] - b[None, :]).sum())
+    return t.pair[0] if score > 0 else t.pair[1] if score < 0 else ""
+
+
+def _test(tests: pd.DataFrame, t: Target, alpha: float, metrics: pd.DataFrame | None = None) -> SimulatedValue:
     row = _test_row(tests, t)
     what = f"{t.test} on {t.metric}" + (f" ({t.pair[0]} vs {t.pair[1]})" if t.pair else "")
     if row is None or row.get("status") not in (None, "ok"):
@@ -184,10 +207,11 @@ def _test(tests: pd.DataFrame, t: Target, alpha: float) -> SimulatedValue:
         return SimulatedValue(t.id, t.statistic, math.nan, note=f"{why} for {what}")
     p = float(row["p"]) if pd.notna(row.get("p")) else math.nan
     n = int(row["n"]) if "n" in row and pd.notna(row["n"]) else 0
+    higher = _higher(metrics, t, str(row.get("compare") or "")) if t.higher and metrics is not None else ""
     if t.statistic == "test_p":
         if not math.isfinite(p):
             return SimulatedValue(t.id, t.statistic, math.nan, note=f"no p-value for {what}")
-        return SimulatedValue(t.id, t.statistic, p, participants=n, note=str(row.get("groups") or ""))
+        return SimulatedValue(t.id, t.statistic, p, participants=n, note=str(row.get("groups") or ""), higher=higher)
     verdict = _verdict(row, alpha)
     if verdict is None:
         return SimulatedValue(t.id, t.statistic, math.nan, note=f"no verdict for {what}")
@@ -197,7 +221,9 @@ def _test(tests: pd.DataFrame, t: Target, alpha: float) -> SimulatedValue:
         how = f"{row.get('statistic_name') or row.get('test')} = {float(row['statistic']):.3g}"
     else:
         how = f"{row.get('test')}: {'significant' if verdict else 'not significant'}"
-    return SimulatedValue(t.id, t.statistic, verdict, participants=n, note=how)
+    if t.higher:
+        how += f"; {higher} higher" if higher else "; no difference in direction"
+    return SimulatedValue(t.id, t.statistic, verdict, participants=n, note=how, higher=higher)
 
 
 def simulated_values(targets: Sequence[Target], metrics: pd.DataFrame, tests: pd.DataFrame, *, alpha: float,
@@ -220,7 +246,7 @@ def simulated_values(targets: Sequence[Target], metrics: pd.DataFrame, tests: pd
     out = []
     for t in targets:
         if t.is_test:
-            out.append(_test(tests, t, alpha))
+            out.append(_test(tests, t, alpha, metrics))
         elif t.statistic == "pct_change_vs_baseline":
             out.append(_pct_change(metrics, t, rng))
         else:
@@ -239,6 +265,9 @@ def stats_from_frame(frame: pd.DataFrame | list[dict]) -> SimulatedStats:
         elif not isinstance(v, bool):
             v = float(v)
         num = {k: (math.nan if r.get(k) is None else float(r[k])) for k in ("low", "high", "se")}
+        higher = r.get("higher")
         out.append(SimulatedValue(str(r["target"]), str(r["statistic"]), v, participants=int(r.get("participants")
-                                  or 0), note=str(r.get("note") or ""), **num))
+                                  or 0), note=str(r.get("note") or ""),
+                                  higher="" if higher is None or (isinstance(higher, float) and math.isnan(higher))
+                                  else str(higher), **num))
     return SimulatedStats(tuple(out))

@@ -27,7 +27,7 @@ SPREADS = ("sd", "cv")  # between-person spread: judged by the ratio simulated /
 ROLES = ("fit", "validation")
 TOP_KEYS = ("format", "protocol", "source", "plan", "alpha", "targets", "note")
 TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "uncertainty", "role", "note", "test", "pair",
-               "baseline", "direction_vs", "unit", "headline")
+               "higher", "baseline", "direction_vs", "unit", "headline")
 WHERE_KEYS = ("condition", "group", "level")
 LEVEL_ALIASES = ("nodule", "tumour", "class", "item")
 UNCERTAINTY_KEYS = ("sd", "n", "se", "interval", "basis")
@@ -55,6 +55,7 @@ class Target:
     note: str = ""
     test: str = ""
     pair: tuple[str, ...] = ()  # a test target's two compared levels (a pairwise or post-hoc row), any order
+    higher: str = ""  # the level of ``pair`` the paper found higher (its stated direction; '' = none stated)
     baseline: str = ""
     direction_vs: str = ""
     unit: str = "participant"
@@ -103,6 +104,9 @@ class Target:
         ±1.96 SE (published, recomputed from the paper, or CHOSEN), or ±1.96 SE derived from n."""
         u = self.uncertainty
         basis = u.get("basis")
+        if self.is_test and self.higher:
+            lower = self.pair[1] if self.higher == self.pair[0] else self.pair[0]
+            return f"verdict and direction ({self.higher} > {lower})"
         if "interval" in u:
             if basis == "wilson":
                 n = int(u["n"])
@@ -330,6 +334,7 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
                 raise _fail(m, label, (*p, "test"), f"test {test!r} does not test metric {t['metric']!r} (it tests "
                             f"{', '.join(tests[test].metrics)})")
         pair = _check_pair(m, label, p, t, stat, tests.get(test), conditions, groups)
+        higher = _check_higher(m, label, p, t, pair)
         baseline = str(t.get("baseline") or "")
         if stat == "pct_change_vs_baseline":
             baseline = baseline or conditions[0]
@@ -346,7 +351,8 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
         mark = m.key_mark(p)
         out.append(Target(
             id=tid, metric=str(t["metric"]), statistic=stat, value=value, role=role, where=clean_where,
-            uncertainty=dict(unc), note=str(t.get("note") or ""), test=test, pair=pair, baseline=baseline,
+            uncertainty=dict(unc), note=str(t.get("note") or ""), test=test, pair=pair, higher=higher,
+            baseline=baseline,
             direction_vs=str(t.get("direction_vs") or ""), unit=unit, headline=bool(t.get("headline", True)),
             location=f"{label}:{mark.line}",
         ))
@@ -435,6 +441,22 @@ def _check_pair(m: Any, label: str, p: tuple[Any, ...], t: Mapping[str, Any], st
         raise _fail(m, label, (*p, "pair"), f"test {entry.id!r} does not compare {raw[0]} with {raw[1]}"
                     f"{did_you_mean('-'.join(raw), names)}; its pairs: {', '.join(names)}")
     return (str(raw[0]), str(raw[1]))
+
+
+def _check_higher(m: Any, label: str, p: tuple[Any, ...], t: Mapping[str, Any], pair: tuple[str, ...]) -> str:
+    """``higher: A`` of a pair target: the paper's direction (A scored higher than the other level of ``pair``).
+    A verdict then agrees only when the simulated pair is significant (or not) as the paper's AND in this
+    direction; where the paper states no direction, leave it out."""
+    if "higher" not in t or t["higher"] is None:
+        return ""
+    raw = t["higher"]
+    if not pair:
+        raise _fail(m, label, (*p, "higher"), "higher states the direction of a pair target; give pair: [A, B] "
+                    "with it", value=False)
+    if not isinstance(raw, str) or raw not in pair:
+        raise _fail(m, label, (*p, "higher"), f"higher {raw!r} is not in the pair ({pair[0]}, {pair[1]})"
+                    f"{did_you_mean(str(raw), list(pair))}; name the level the paper found higher")
+    return raw
 
 
 def shipped_targets_path(protocol_id: str) -> Path | None:

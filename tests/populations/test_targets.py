@@ -224,3 +224,75 @@ def test_bad_pair_is_one_error_with_line_and_nearest_name(old, new, message):
         parse_targets(text, "t.yaml")
     line = int(str(info.value).split(":")[1])
     assert "pair" in text.splitlines()[line - 1] or "statistic" in text.splitlines()[line - 1]
+
+
+def _sensitivity(ff: float, phf: float, people: int = 6) -> pd.DataFrame:
+    """Per-person sensitivity rows (3 nodules each) for FF and PHF."""
+    rows = []
+    for i in range(people):
+        for cond, p in (("FF", ff), ("PHF", phf)):
+            rows.append({"participant": f"P{i}", "group": "all", "condition": cond, "trial": 1,
+                         "metric": "sensitivity", "level": None, "value": p, "denominator": 3.0})
+    return pd.DataFrame(rows)
+
+
+def test_a_significant_pair_the_wrong_way_does_not_reproduce_the_papers_verdict():
+    """Regression (issue 17): a verdict-only pair target counted a significant result in the wrong direction as
+    agreeing. With ``higher:`` (the paper's direction) it agrees only when significance and direction both match."""
+    from studyctl.calibration.agreement import distance
+    from studyctl.populations.targets import parse_targets
+
+    text = PAIR_TARGETS.replace("    pair: [PHF, FF]\n", "    pair: [PHF, FF]\n    higher: FF\n", 1)
+    ts = parse_targets(text, "t.yaml")
+    target = ts.get("se_PHF_vs_FF")
+    assert target.higher == "FF" and target.band() == "verdict and direction (FF > PHF)"
+    assert ts.get("time_PHF_FF_vs_FF").band() == ""  # no direction stated: significance only, as before
+
+    def row(metrics):
+        sim = simulated_values(ts.targets, metrics, _pair_tests(), alpha=0.05, rng=np.random.default_rng(0))
+        rows = {r.target: r for r in agreement(ts.targets, sim, 0.05).rows}
+        return sim.get("se_PHF_vs_FF"), rows["se_PHF_vs_FF"], distance([target], sim, 0.05)[0]
+
+    value, right, d_right = row(_sensitivity(ff=2 / 3, phf=1 / 3))  # FF higher, as the paper
+    assert value.value is True and value.higher == "FF" and "FF higher" in value.note
+    assert right.same_verdict is True and right.same_direction is True and right.agrees is True and d_right == 0
+    value, wrong, d_wrong = row(_sensitivity(ff=1 / 3, phf=2 / 3))  # significant, but PHF higher
+    assert value.value is True and value.higher == "PHF"
+    assert wrong.same_verdict is False and wrong.same_direction is False and wrong.agrees is False
+    assert d_wrong == pytest.approx(16.0)
+    _, tied, _ = row(_sensitivity(ff=0.5, phf=0.5))  # no difference at all: no direction to credit
+    assert tied.same_direction is False and tied.agrees is False
+    # the same pair without a stated direction keeps the old, significance-only check
+    plain = simulated_values(ts.targets, _sensitivity(ff=1 / 3, phf=2 / 3), _pair_tests(), alpha=0.05,
+                             rng=np.random.default_rng(0))
+    time_row = {r.target: r for r in agreement(ts.targets, plain, 0.05).rows}["time_PHF_FF_vs_FF"]
+    assert time_row.same_direction is None
+    # the simulated direction survives the journal's round trip
+    from studyctl.calibration.simulated import stats_from_frame
+
+    assert stats_from_frame(plain.to_frame()).get("se_PHF_vs_FF").higher == "PHF"
+
+
+@pytest.mark.parametrize(
+    ("insert", "message"),
+    [
+        ("    higher: PHX\n", r"higher 'PHX' is not in the pair \(PHF, FF\); did you mean 'PHF'"),
+        ("    higher: 3\n", r"higher 3 is not in the pair"),
+    ],
+)
+def test_bad_higher_is_one_error_with_line(insert, message):
+    from studyctl.populations.targets import parse_targets
+
+    text = PAIR_TARGETS.replace("    pair: [PHF, FF]\n", "    pair: [PHF, FF]\n" + insert, 1)
+    with pytest.raises(PopulationError, match=message) as info:
+        parse_targets(text, "t.yaml")
+    line = int(str(info.value).split(":")[1])
+    assert "higher" in text.splitlines()[line - 1]
+
+
+def test_higher_needs_a_pair():
+    from studyctl.populations.targets import parse_targets
+
+    text = PAIR_TARGETS.replace("    pair: [manual, PHF_FF]\n", "    higher: manual\n", 1)
+    with pytest.raises(PopulationError, match=r"higher states the direction of a pair target; give pair"):
+        parse_targets(text, "t.yaml")
