@@ -202,6 +202,16 @@ def _higher(metrics: pd.DataFrame, t: Target, compare: str) -> str:
 def _test(tests: pd.DataFrame, t: Target, alpha: float, metrics: pd.DataFrame | None = None) -> SimulatedValue:
     row = _test_row(tests, t)
     what = f"{t.test} on {t.metric}" + (f" ({t.pair[0]} vs {t.pair[1]})" if t.pair else "")
+    if row is None and t.pair and t.statistic == "verdict":
+        omnibus = _test_row(tests, Target(t.id, t.metric, t.statistic, t.value, t.role, t.where, test=t.test))
+        if omnibus is not None and omnibus.get("status") in (None, "ok") and omnibus.get("kind") == "omnibus" \
+                and _verdict(omnibus, alpha) is False:
+            # post-hoc pairs run only after a significant omnibus test: this pair is not significant
+            higher = _higher(metrics, t, str(omnibus.get("compare") or "")) if t.higher and metrics is not None \
+                else ""
+            return SimulatedValue(t.id, t.statistic, False, participants=int(omnibus.get("n") or 0),
+                                  note=f"no post-hoc: the omnibus {omnibus.get('test')} is not significant (p = "
+                                       f"{float(omnibus['p']):.3g})", higher=higher)
     if row is None or row.get("status") not in (None, "ok"):
         why = "no such test row" if row is None else f"test status {row.get('status')}"
         return SimulatedValue(t.id, t.statistic, math.nan, note=f"{why} for {what}")

@@ -117,7 +117,9 @@ def _evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: 
             values_all.append(per[0])
         elif t.statistic == "verdict":
             share = sum(bool(v.value) for v in ok) / len(ok)
-            values_all.append(replace(ok[0], value=share >= 0.5,
+            ways = [v.higher for v in ok if v.higher]  # a stated direction: the replicates' most common one
+            higher = max(sorted(set(ways)), key=ways.count) if ways else ""
+            values_all.append(replace(ok[0], value=share >= 0.5, higher=higher,
                                       note=f"significant in {share:.0%} of {len(ok)} simulated studies; {ok[0].note}"))
         else:
             values_all.append(replace(ok[0], value=float(np.median([float(v.value) for v in ok]))))

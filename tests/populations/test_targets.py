@@ -296,3 +296,38 @@ def test_higher_needs_a_pair():
     text = PAIR_TARGETS.replace("    pair: [manual, PHF_FF]\n", "    higher: manual\n", 1)
     with pytest.raises(PopulationError, match=r"higher states the direction of a pair target; give pair"):
         parse_targets(text, "t.yaml")
+
+
+def test_a_pair_after_a_non_significant_omnibus_is_not_significant():
+    """Post-hoc pairs run only after a significant omnibus test: without them the pair's verdict is 'not
+    significant' (not a missing value); with a significant omnibus and no pair row it stays missing."""
+    from studyctl.populations.targets import parse_targets
+
+    text = """format: studyctl-targets/1
+protocol: bio_inspired_palpation
+source: test
+targets:
+  - id: force_linear_vs_bio
+    metric: mean_force
+    statistic: verdict
+    test: control_algorithm
+    pair: [linear, bio_inspired]
+    higher: linear
+    value: true
+    role: validation
+"""
+    ts = parse_targets(text, "t.yaml")
+    omnibus = pd.DataFrame([{"test_id": "control_algorithm", "kind": "omnibus", "metric": "mean_force",
+                             "test": "kruskal_wallis", "compare": "condition", "split": "",
+                             "groups": "no_feedback, piecewise, linear, bio_inspired", "p": 0.4, "alpha": 0.05,
+                             "significant": False, "n": 100, "status": "ok"}])
+    sim = simulated_values(ts.targets, pd.DataFrame(columns=["metric"]), omnibus, alpha=0.05,
+                           rng=np.random.default_rng(0))
+    v = sim.get("force_linear_vs_bio")
+    assert v.value is False and "omnibus kruskal_wallis is not significant" in v.note
+    (row,) = agreement(ts.targets, sim, 0.05).rows
+    assert row.same_verdict is False and row.band == "verdict and direction (linear > bio_inspired)"
+    significant = omnibus.assign(p=0.001, significant=True)
+    sim = simulated_values(ts.targets, pd.DataFrame(columns=["metric"]), significant, alpha=0.05,
+                           rng=np.random.default_rng(0))
+    assert math.isnan(sim.get("force_linear_vs_bio").value)
