@@ -191,12 +191,21 @@ def coordination_records(tx: Any, study: Any) -> list[list[Any]]:
                                                    .where(Participant.study_id == study.id))}
     trials = {tid for (tid,) in tx.execute(select(Trial.id).where(Trial.participant_id.in_(list(codes))))}
     sessions = {sid for (sid,) in tx.execute(select(Session.id).where(Session.participant_id.in_(list(codes))))}
+    audit = [(a, json.loads(a.details or "{}")) for a in tx.scalars(
+        select(AuditLog).where(AuditLog.action.in_(RECORD_ACTIONS)).order_by(AuditLog.id))]
+    # SQLite gives an erased session's (trial's) id to the next new one: a note written before the erasure
+    # that listed its session is about the erased one, not about today's holder of the id
+    erased_until: dict[int, int] = {}
+    for a, d in audit:
+        if a.action == ERASE_ACTION:
+            for sid in d.get("sessions") or ():
+                erased_until[int(sid)] = a.id
     rows = []
-    for a in tx.scalars(select(AuditLog).where(AuditLog.action.in_(RECORD_ACTIONS)).order_by(AuditLog.id)):
-        d = json.loads(a.details or "{}")
+    for a, d in audit:
         if a.action == "note":
-            ok = (a.entity == "study" and str(a.entity_id) == str(study.id)) or d.get("trial_id") in trials \
-                or d.get("session_id") in sessions
+            current = d.get("session_id") is None or a.id > erased_until.get(int(d["session_id"]), 0)
+            ok = (a.entity == "study" and str(a.entity_id) == str(study.id)) or current and (
+                d.get("trial_id") in trials or d.get("session_id") in sessions)
             if ok:
                 rows.append([a.at, a.actor, "note", None, d.get("session_id"), d.get("trial_id"), None, d.get("text")])
         elif a.entity_id is not None and int(a.entity_id) in codes:

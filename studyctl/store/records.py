@@ -135,11 +135,17 @@ class SealMark:
 def load_mark(tx: OrmSession, session_id: int) -> SealMark:
     """The seal state of a session, rebuilt from its ``records.seal`` audit rows (for a resume)."""
     mark = SealMark()
-    for details in tx.scalars(select(AuditLog.details).where(AuditLog.action == SEAL_ACTION,
-                                                             AuditLog.entity == "session",
-                                                             AuditLog.entity_id == str(session_id))
-                              .order_by(AuditLog.id)):
-        mark.fold(json.loads(details))
+    seals = (AuditLog.action == SEAL_ACTION) & (AuditLog.entity == "session") & \
+        (AuditLog.entity_id == str(session_id))
+    for action, details in tx.execute(select(AuditLog.action, AuditLog.details)
+                                      .where(seals | (AuditLog.action == ERASE_ACTION)).order_by(AuditLog.id)):
+        body = json.loads(details)
+        if action == ERASE_ACTION:
+            # SQLite hands an erased session's id to the next new session: its seals start again
+            if session_id in (body.get("sessions") or ()):
+                mark = SealMark()
+            continue
+        mark.fold(body)
     return mark
 
 
@@ -221,10 +227,25 @@ class RecordsReport:
                          if k in kinds)
 
 
-def _sealed(tx: OrmSession, erased: dict[str, dict[int, tuple[Any, int]]] | None = None
+@dataclass
+class _Erasures:
+    """What the erasures in the chain did, folded in chain order with the seals (see :func:`_sealed`)."""
+
+    gone: dict[str, dict[int, int]] = field(default_factory=lambda: {k: {} for k in KINDS})  # id → erase row
+    matched: dict[str, int] = field(default_factory=lambda: {k: 0 for k in KINDS})
+    rows: list[int] = field(default_factory=list)
+    problems: list[RecordProblem] = field(default_factory=list)
+
+
+def _sealed(tx: OrmSession, erasures: _Erasures | None = None
             ) -> tuple[dict[str, dict[int, Any]], dict[int, dict[str, int]], dict[str, int]]:
-    """Folded seals: digest per record, sealed id range per session, and the legacy (pre-coverage) ids; the
-    records each erasure lists go into ``erased`` (kind → id → (digest, audit row))."""
+    """Folded seals: digest per record, sealed id range per session, and the legacy (pre-coverage) ids.
+
+    Folded in chain order with the erasures: an erasure takes each record it lists out of the sealed set
+    (checking it erased what was sealed) into ``erasures.gone``; a later seal of the same id is a new record
+    (SQLite gives the highest ids again once they were deleted), sealed afresh. An erased session's id range
+    starts again too."""
+    erasures = erasures if erasures is not None else _Erasures()
     sealed: dict[str, dict[int, Any]] = {k: {} for k in KINDS}
     where: dict[str, dict[int, int]] = {k: {} for k in KINDS}
     per_session: dict[int, dict[str, int]] = {}
@@ -237,10 +258,23 @@ def _sealed(tx: OrmSession, erased: dict[str, dict[int, tuple[Any, int]]] | None
         except ValueError:
             continue  # an edited audit row: verify_audit names it
         if action == ERASE_ACTION:
-            if erased is not None:
-                for kind in KINDS:
-                    for key, digest in ((body.get("erased") or {}).get(kind) or {}).items():
-                        erased.setdefault(kind, {})[int(key)] = (digest, audit_id)
+            erasures.rows.append(audit_id)
+            for kind in KINDS:
+                for key, digest in ((body.get("erased") or {}).get(kind) or {}).items():
+                    rid = int(key)
+                    before = sealed[kind].pop(rid, None)
+                    sealed_in = where[kind].pop(rid, None)
+                    erasures.gone[kind][rid] = audit_id
+                    if before is None:
+                        continue  # never sealed (written before sealing existed): nothing to compare
+                    if _same(digest, before):
+                        erasures.matched[kind] += 1
+                    else:
+                        erasures.problems.append(RecordProblem(
+                            kind, rid, "edited", f"erased in audit row {audit_id}, but what was erased differs "
+                            f"from what audit row {sealed_in} sealed: it was changed before the erasure"))
+            for sid in body.get("sessions") or ():
+                per_session.pop(int(sid), None)
             continue
         if action == COVERAGE_ACTION:
             for k in KINDS:
@@ -252,6 +286,7 @@ def _sealed(tx: OrmSession, erased: dict[str, dict[int, tuple[Any, int]]] | None
             for key, digest in (body.get(kind) or {}).items():
                 sealed[kind][int(key)] = digest
                 where[kind][int(key)] = audit_id
+                erasures.gone[kind].pop(int(key), None)  # a new record under an id an erasure freed
                 last[kind] = max(last[kind], int(key))
     sealed["_where"] = where  # type: ignore[assignment]
     return sealed, per_session, legacy
@@ -263,10 +298,9 @@ def _iter(tx: OrmSession, stmt: Any) -> Iterator[Any]:
 
 def verify_records(tx: OrmSession) -> RecordsReport:
     """Recompute every covered record's digest and compare with the sealed ones (see module docstring)."""
-    erased: dict[str, dict[int, tuple[Any, int]]] = {}
-    sealed, per_session, legacy = _sealed(tx, erased)
+    erasures = _Erasures()
+    sealed, per_session, legacy = _sealed(tx, erasures)
     where = sealed.pop("_where")  # type: ignore[arg-type]
-    erased_ok = {k: 0 for k in KINDS}
     status = dict(tx.execute(select(Session.id, Session.status)).all())
     trial_session = dict(tx.execute(select(Trial.id, Trial.session_id)).all())
     problems: list[RecordProblem] = []
@@ -288,10 +322,9 @@ def verify_records(tx: OrmSession) -> RecordsReport:
 
     def compare(kind: str, rid: int, actual: Any, session_id: int | None, what: str) -> None:
         checked[kind] += 1
-        if rid in erased.get(kind, {}):
+        if rid in erasures.gone[kind]:
             problems.append(RecordProblem(kind, rid, "inserted", f"{what} was erased in audit row "
-                                          f"{erased[kind][rid][1]} but is stored again"))
-            sealed[kind].pop(rid, None)
+                                          f"{erasures.gone[kind][rid]} but is stored again"))
             return
         expected = sealed[kind].pop(rid, None)
         if expected is None:
@@ -326,20 +359,13 @@ def verify_records(tx: OrmSession) -> RecordsReport:
         compare("chunk", c.id, recomputed if c.digest is not None else None, trial_session.get(c.trial_id), what)
     for kind in KINDS:
         for rid in sorted(sealed[kind]):
-            gone = erased.get(kind, {}).get(rid)
-            if gone is None:
-                problems.append(RecordProblem(kind, rid, "deleted", f"sealed in audit row {where[kind][rid]} but no "
-                                                                    "longer stored"))
-            elif _same(gone[0], sealed[kind][rid]):
-                erased_ok[kind] += 1
-            else:
-                problems.append(RecordProblem(kind, rid, "edited", f"erased in audit row {gone[1]}, but what was "
-                                              f"erased differs from what audit row {where[kind][rid]} sealed: it was "
-                                              "changed before the erasure"))
+            problems.append(RecordProblem(kind, rid, "deleted", f"sealed in audit row {where[kind][rid]} but no "
+                                                                "longer stored"))
+    problems += erasures.problems
     notes = []
-    if any(erased_ok.values()):
-        rows = sorted({a for by_id in erased.values() for _, a in by_id.values()})
-        summary = ", ".join(f"{n} {_LABEL[k]}{'' if n == 1 else 's'}" for k, n in erased_ok.items() if n)
+    if any(erasures.matched.values()):
+        rows = erasures.rows
+        summary = ", ".join(f"{n} {_LABEL[k]}{'' if n == 1 else 's'}" for k, n in erasures.matched.items() if n)
         notes.append(f"erased at participants' request (audit row{'s' if len(rows) > 1 else ''} "
                      f"{', '.join(map(str, rows))}): {summary}; each matches its seal")
     if pending:
@@ -350,7 +376,7 @@ def verify_records(tx: OrmSession) -> RecordsReport:
                      "(not covered)")
     problems.sort(key=lambda p: (KINDS.index(p.kind), p.record_id))
     return RecordsReport(checked=checked, problems=tuple(problems), notes=tuple(notes),
-                         erased={k: n for k, n in erased_ok.items() if n})
+                         erased={k: n for k, n in erasures.matched.items() if n})
 
 
 def _same(erased: Any, sealed: Any) -> bool:

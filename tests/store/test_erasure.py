@@ -84,50 +84,61 @@ def _counts(ws: Path, code: str) -> dict[str, int]:
 def test_delete_data_erases_one_participant_and_the_chain_still_verifies(backend_db, tmp_path, capsys):
     ws = _study(tmp_path, backend_db)
     w = ("-w", str(ws))
-    before_a, before_b = _counts(ws, CODES[0]), _counts(ws, CODES[1])
-    assert min(before_a[k] for k in ("session", "trial", "event", "answer", "chunk")) > 0
-    assert _cli(capsys, "note", "A sneezed", "--session", "1", *w)[0] == 0
+    gone, kept = CODES[1], CODES[0]  # the newest records go: SQLite hands their ids out again
+    before_gone, before_kept = _counts(ws, gone), _counts(ws, kept)
+    assert min(before_gone[k] for k in ("session", "trial", "event", "answer", "chunk")) > 0
+    assert _cli(capsys, "note", "B sneezed", "--session", "2", *w)[0] == 0
 
-    code, out, err = _cli(capsys, "withdraw", CODES[0], "--reason", "asked for erasure", "--delete-data",
-                          "--json", *w)
+    code, out, err = _cli(capsys, "withdraw", gone, "--reason", "asked for erasure", "--delete-data", "--json", *w)
     assert code == 0, err
     result = json.loads(out)
-    assert result["keep_data"] is False and result["erased"]["trial"] == before_a["trial"]
-    assert result["erased"]["event"] == before_a["event"] and result["erased"]["session"] == 1
+    assert result["keep_data"] is False and result["erased"]["trial"] == before_gone["trial"]
+    assert result["erased"]["event"] == before_gone["event"] and result["erased"]["session"] == 1
 
-    after_a, after_b = _counts(ws, CODES[0]), _counts(ws, CODES[1])
-    assert {k: v for k, v in after_a.items() if k != "audit"} == dict.fromkeys(after_a.keys() - {"audit"}, 0)
-    assert {k: v for k, v in after_b.items() if k != "audit"} == {k: v for k, v in before_b.items() if k != "audit"}
+    after_gone, after_kept = _counts(ws, gone), _counts(ws, kept)
+    assert {k: v for k, v in after_gone.items() if k != "audit"} == dict.fromkeys(after_gone.keys() - {"audit"}, 0)
+    assert {k: v for k, v in after_kept.items() if k != "audit"} == \
+        {k: v for k, v in before_kept.items() if k != "audit"}
     with open_study(workspace=ws) as o, o.store.reading() as tx:
         assert tx.scalar(select(func.count()).select_from(ErasePermit)) == 0  # no permit outlives its transaction
-        a = tx.scalar(select(Participant).where(Participant.code == CODES[0]))
-        assert a.status == "withdrawn" and a.sequence_slot is not None  # the allocation is kept
+        b = tx.scalar(select(Participant).where(Participant.code == gone))
+        assert b.status == "withdrawn" and b.sequence_slot is not None  # the allocation is kept
         erase = tx.scalar(select(AuditLog).where(AuditLog.action == "participant.erase"))
-        assert erase is not None and json.loads(erase.details)["code"] == CODES[0]
+        assert erase is not None and json.loads(erase.details)["code"] == gone
         erase_id = erase.id
 
     code, out, err = _cli(capsys, "audit", "verify", "--json", *w)
     assert code == 0, err
     report = json.loads(out)
-    assert report["erased"]["event"] == before_a["event"] and report["erased"]["chunk"] == before_a["chunk"]
+    assert report["erased"]["event"] == before_gone["event"] and report["erased"]["chunk"] == before_gone["chunk"]
     assert "erased at participants' request" in err and "each matches its seal" in err
     code, out, _ = _cli(capsys, "audit", "verify", *w)
     assert code == 0 and "erased as audited:" in out
 
+    # a new participant's session after the erasure (on SQLite it reuses the erased ids): still verifies, and the
+    # note on the erased session is not taken for a note on the new one
+    answers = tmp_path / "answers.yaml"
+    with open_study(workspace=ws) as o:
+        enroll(o.store, code="PTY-CCCCC")
+        new = run_session(o.store, "PTY-CCCCC", virtual=False, script=answers)
+    if backend_db is None:
+        assert new.session_id == 2  # SQLite: the erased session's id again (PostgreSQL's sequences never reuse)
+    code, out, err = _cli(capsys, "audit", "verify", *w)
+    assert code == 0, err
     out_dir = tmp_path / "export"
     assert main(["export", str(out_dir), "-w", str(ws), "--no-samples"]) == 0
     records = pd.read_csv(out_dir / "records.csv")
-    assert records.record.tolist() == ["withdrawal", "erasure"]  # the note on A's erased session left with it
+    assert records.record.tolist() == ["withdrawal", "erasure"], new.session_id  # the note left with B's session
     trials = pd.read_csv(out_dir / "trials.csv")
-    assert set(trials.participant) == {CODES[1]}
+    assert set(trials.participant) == {kept, "PTY-CCCCC"}
 
-    # the permit opens only what an erasure lists: events of B deleted under A's erasure read as deleted
+    # the permit opens only what an erasure lists: events of A deleted under B's erasure read as deleted
     with open_study(workspace=ws) as o:
         with pytest.raises(Exception, match="append-only"), o.store.db.engine.begin() as conn:
-            conn.execute(text("DELETE FROM event WHERE session_id = 2"))
+            conn.execute(text("DELETE FROM event WHERE session_id = 1"))
         with o.store.db.engine.begin() as conn:
-            conn.execute(insert(ErasePermit).values(session_id=2, audit_id=erase_id))
-            conn.execute(text("DELETE FROM event WHERE id = (SELECT MAX(id) FROM event WHERE session_id = 2)"))
+            conn.execute(insert(ErasePermit).values(session_id=1, audit_id=erase_id))
+            conn.execute(text("DELETE FROM event WHERE id = (SELECT MAX(id) FROM event WHERE session_id = 1)"))
             conn.execute(text("DELETE FROM erase_permit"))
     code, _, err = _cli(capsys, "audit", "verify", *w)
     assert code != 0 and "deleted: sealed in audit row" in err
