@@ -339,8 +339,12 @@ class SessionRunner:
                 return "abort"
             return None
 
+        watch = getattr(self.ui, "trial_event", None)  # a UI that shows the loop's events live (coordinator page)
+
         def on_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
             self.rec.event(f"practice_{kind}", payload, t=t, position=step.position, commit=kind == "device_fault")
+            if watch is not None:
+                watch(t, kind, payload)
 
         self.ui.trial_begin(practice_step, info.time_limit_s)
         t0 = clock.now()
@@ -493,9 +497,13 @@ class SessionRunner:
         # nothing to poll for a virtual participant's prompts: keep the loop lean
         should_stop = poll if getattr(self.ui, "controls", True) else None
 
+        watch = getattr(self.ui, "trial_event", None)  # a UI that shows the loop's events live (coordinator page)
+
         def on_event(t: float, kind: str, payload: Mapping[str, Any]) -> None:
             # Scans and reports are a participant's answers: committed at once. The rest rides along.
             self.rec.event(kind, payload, t=t, trial_id=tid, commit=kind in ("scan", "report"))
+            if watch is not None:
+                watch(t, kind, payload)
 
         try:
             if cond.manual and not self.virtual:

@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from studyctl.view.board import CoordinatorBoard
 from studyctl.view.frontend import ViewParticipant, ViewUI
 from studyctl.view.hub import FrameState, ViewHub
 from studyctl.view.server import ViewServer
@@ -28,7 +29,8 @@ from studyctl.view.server import ViewServer
 # GIL switch interval while a view serves (see ParticipantView.start).
 SWITCH_INTERVAL_S = 0.0005
 
-__all__ = ["FrameState", "ParticipantView", "ViewHub", "ViewParticipant", "ViewServer", "ViewUI", "open_view"]
+__all__ = ["CoordinatorBoard", "FrameState", "ParticipantView", "ViewHub", "ViewParticipant", "ViewServer", "ViewUI",
+           "open_view"]
 
 
 class ParticipantView:
@@ -42,7 +44,8 @@ class ParticipantView:
 
     def __init__(self, *, host: str = "127.0.0.1", port: int = 0, token: str | None = None) -> None:
         self.hub = ViewHub()
-        self.server = ViewServer(self.hub, host=host, port=port, token=token)
+        self.board = CoordinatorBoard(self.hub, clock=self.hub.clock)
+        self.server = ViewServer(self.hub, host=host, port=port, token=token, board=self.board)
         self.ui: ViewUI | None = None
         self.participant: ViewParticipant | None = None
         self._switch: float | None = None
@@ -51,6 +54,11 @@ class ParticipantView:
     def url(self) -> str:
         """The address to open on the participant's screen (contains the session's token)."""
         return self.server.url
+
+    @property
+    def coordinator_url(self) -> str:
+        """The coordinator's read-only page (a token of its own; never shown to the participant's screen)."""
+        return str(self.server.coordinator_url)
 
     def start(self) -> ParticipantView:
         # The 1 kHz loop spin-waits its last half-millisecond for precise pacing and holds the GIL while it
@@ -64,7 +72,7 @@ class ParticipantView:
     def attach(self, participant: Any, ui: Any, recorder: Any = None) -> tuple[ViewParticipant, ViewUI]:
         """The engine's ``frontend`` hook: wrap the session's participant and UI (see :func:`run_session`)."""
         self.participant = ViewParticipant(participant, self.hub)
-        self.ui = ViewUI(ui, self.hub, recorder)
+        self.ui = ViewUI(ui, self.hub, recorder, self.board)
         return self.participant, self.ui
 
     def close(self) -> None:
@@ -101,4 +109,7 @@ def open_view(
         announce(f"Participant view: {view.url}")
         announce("  open it on the participant's screen, full screen (e.g. `chromium --kiosk URL`); "
                  "only this machine can reach it")
+        announce(f"Coordinator page: {view.coordinator_url}")
+        announce("  read-only, for the coordinator's screen: progress, condition, timers, loop and device status, "
+                 "lease, notes")
         yield view

@@ -27,6 +27,7 @@ from studyctl.engine.person import report_spec
 from studyctl.engine.plan import Instrument, Item, ReportSpec, Step
 from studyctl.engine.ui import Control, ManualOutcome, SessionUI, TimerResult
 from studyctl.plugins.interfaces import Action, Participant, TrialInfo
+from studyctl.view.board import CoordinatorBoard
 from studyctl.view.hub import FrameState, TrialView, ViewHub
 
 _perf = time.perf_counter
@@ -138,10 +139,15 @@ class ViewUI:
         loop ticks or after a trial, never from a server thread.
     """
 
-    def __init__(self, inner: SessionUI, hub: ViewHub, recorder: Any = None) -> None:
+    def __init__(self, inner: SessionUI, hub: ViewHub, recorder: Any = None,
+                 board: CoordinatorBoard | None = None) -> None:
         self.inner = inner
         self.hub = hub
         self.rec = recorder
+        self.board = board  # the coordinator's page (condition codes allowed there), told of every step
+        if board is not None and recorder is not None:
+            board.bind(recorder)
+        self._ticks = 0
         self.interactive = bool(getattr(inner, "interactive", False))
         self.controls = True  # the view's countdown needs trial_tick every tick
         self._hub = hub
@@ -169,6 +175,17 @@ class ViewUI:
             self.rec.event(kind, payload, t=t, trial_id=tid, commit=i == len(rows) - 1)
         return len(rows)
 
+    def _publish(self, step: Step | None, phase: str, **detail: Any) -> None:
+        """Tell the coordinator's page where the session is (engine thread, between loop ticks); ``step`` None:
+        the first step not done yet (breaks and questionnaires reach the UI without their step)."""
+        if self.board is not None and self.rec is not None:
+            self.board.publish(self.rec.state(), step, phase, **detail)
+
+    def trial_event(self, t: float, kind: str, payload: Mapping[str, Any]) -> None:
+        """A trial-loop event (faults, recoveries, safety limits): shown live on the coordinator's page."""
+        if self.board is not None:
+            self.board.trial_event(t, kind, payload)
+
     def _trial_id(self, step: Step) -> int | None:
         if self.rec is None:
             return None
@@ -184,10 +201,12 @@ class ViewUI:
         self.flush()
         self._step = step
         if step.kind == "end":
+            self._publish(step, "done")
             self.hub.show("done", text=text)
             self.inner.instructions(step, text)
             return
         title = self._practice_title() if step.kind == "familiarisation" else "Instructions"
+        self._publish(step, "instructions")
         self.hub.show("instructions", prompt="ready", text=text, title=title, condition=step.condition)
         try:
             self.inner.instructions(step, text)
@@ -198,6 +217,7 @@ class ViewUI:
         self.flush()
         # The engine's title names the condition ("Familiarisation: <label>"); the page gets a neutral one.
         page_title = "Break" if purpose == "break" else self._practice_title()
+        self._publish(None, "timer", title=title, purpose=purpose, duration_s=float(duration_s))
         self.hub.show(
             "timer",
             title=page_title,
@@ -215,6 +235,8 @@ class ViewUI:
         self, instrument: Instrument, item: Item, number: int, context: Mapping[str, Any]
     ) -> tuple[int, float]:
         self.flush()
+        self._publish(None, "item", instrument=instrument.id, item=item.id, number=number,
+                      total=len(instrument.items))
         self.hub.show(
             "item",
             prompt="likert",
@@ -251,6 +273,8 @@ class ViewUI:
 
     def manual_outcome(self, step: Step, report: ReportSpec, clock: Clock) -> ManualOutcome:
         self.flush()
+        self._step = step
+        self._publish(step, "manual")
         self.hub.show("hands_on", trial=step.trial_index, label=self._page_label(step), condition=step.condition)
         try:
             return self.inner.manual_outcome(step, report, clock)
@@ -268,16 +292,20 @@ class ViewUI:
             # The protocol's limit, not the engine's unattended cap: no limit, no countdown.
             "time_limit_s": _finite(step.duration_s) if step.duration_s and not practice else None,
         }
+        self._step = step
+        self._publish(step, "trial_ready")
         self.hub.show("trial_ready", prompt="start", **self._trial_label)
         try:
             self.inner.trial_begin(step, time_limit_s)
         finally:
             self._done_prompt("start", step)
+        self._publish(step, "practice" if practice else "trial")
         self.hub.show("trial", **self._trial_label)
 
     def trial_tick(self, t: float) -> None:
         self._inner_tick(t)
-        self._hub.tick = (t, _perf())
+        self._ticks += 1  # the coordinator's page measures the loop rate from this count
+        self._hub.tick = (t, _perf(), self._ticks)
 
     def trial_end(self, step: Step, summary: Mapping[str, Any]) -> None:
         trial = self.hub.end_trial()
@@ -291,6 +319,7 @@ class ViewUI:
             reports=summary.get("reports"),
         )
         practice = step.kind == "familiarisation"
+        self._publish(step, "trial_over", status=summary.get("status"), ended_by=summary.get("ended_by"))
         self.flush(None if practice else self._trial_id(step), trial, practice=practice)
         self.inner.trial_end(step, summary)
 
@@ -298,6 +327,7 @@ class ViewUI:
         return self._inner_poll()
 
     def wait_unpause(self) -> None:
+        self._publish(self._step, "paused")
         self.hub.show("paused")
         self.flush()
         try:

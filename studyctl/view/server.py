@@ -1,8 +1,11 @@
 """The participant view's HTTP server: loopback only, one secret token per session, Server-Sent Events.
 
-Routes (all under ``/v/<token>/``; anything else is refused and logged)::
+Routes (under ``/v/<token>/``, and the coordinator's under ``/c/<coordinator token>/``; anything else is
+refused and logged)::
 
     GET  /v/<token>/              the page (index.html, view.js, view.css ship inside the package)
+    GET  /c/<ctoken>/             the coordinator's read-only page (coordinator.html/.js/.css); any other
+    GET  /c/<ctoken>/state        method there answers 405; state: the board's snapshot as JSON
     GET  /v/<token>/stream?client=ID   Server-Sent Events: hello, screen, frame, key, surface, tick, role
     POST /v/<token>/input         a participant's input {client, kind, ...} (JSON)
     POST /v/<token>/ack           frames and screens drawn {client, frames: [[seq, t]], screens: [[v, t]]}
@@ -35,6 +38,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from studyctl.errors import UsageError, ValueTypeError
 from studyctl.inputs import loads_json
+from studyctl.view.board import CoordinatorBoard
 from studyctl.view.hub import FRAME_HZ, ViewHub
 
 POLL_S = 0.004
@@ -45,6 +49,11 @@ STATIC = {
     "": ("index.html", "text/html; charset=utf-8"),
     "view.js": ("view.js", "text/javascript; charset=utf-8"),
     "view.css": ("view.css", "text/css; charset=utf-8"),
+}
+COORD_STATIC = {
+    "": ("coordinator.html", "text/html; charset=utf-8"),
+    "coordinator.js": ("coordinator.js", "text/javascript; charset=utf-8"),
+    "coordinator.css": ("coordinator.css", "text/css; charset=utf-8"),
 }
 SECURITY_HEADERS = {
     "Cache-Control": "no-store",
@@ -99,6 +108,7 @@ class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
     server_version = "studyctl-view"
     sys_version = ""
+    area = "v"
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the base class's name
         return None  # requests are not logged one by one; refusals are (see ViewHub.refuse)
@@ -117,18 +127,25 @@ class _Handler(BaseHTTPRequestHandler):
         if parts.path == "/favicon.ico" and self.command == "GET":  # asked by browsers on their own
             self._send(HTTPStatus.NOT_FOUND, b"", "text/plain; charset=utf-8")
             return None
-        prefix = "/v/"
-        if not parts.path.startswith(prefix):
+        # /v/<token>/ is the participant's page, /c/<coordinator token>/ the coordinator's (read-only)
+        area = parts.path[1:2]
+        if parts.path[2:3] != "/" or area not in ("v", "c") or (area == "c" and view.board is None):
             return self._refuse("no_token", detail)
-        token, _, rest = parts.path[len(prefix):].partition("/")
-        if not hmac.compare_digest(token.encode(), view.token.encode()):
+        token, _, rest = parts.path[3:].partition("/")
+        secret = view.token if area == "v" else view.coord_token
+        if not hmac.compare_digest(token.encode(), secret.encode()):
             return self._refuse("wrong_token", detail)
+        self.area = area
         origin = self.headers.get("Origin")
         if origin is not None and origin not in view.allowed_origins:
             return self._refuse("origin", detail)
         site = self.headers.get("Sec-Fetch-Site")
         if site is not None and site not in ("same-origin", "none"):
             return self._refuse("cross_site", detail)
+        if area == "c" and self.command not in ("GET", "HEAD"):
+            self._send(HTTPStatus.METHOD_NOT_ALLOWED, b"the coordinator page is read-only\n",
+                       "text/plain; charset=utf-8")
+            return None
         if self.command == "POST":
             if origin is None:
                 return self._refuse("origin_missing", detail)
@@ -143,6 +160,8 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _send(self, status: int, body: bytes, ctype: str) -> None:
         self.send_response(status)
+        if self.close_connection:
+            self.send_header("Connection", "close")
         self.send_header("Content-Type", ctype)
         self.send_header("Content-Length", str(len(body)))
         for k, v in SECURITY_HEADERS.items():
@@ -156,11 +175,27 @@ class _Handler(BaseHTTPRequestHandler):
         rest = self._route()
         if rest is None:
             return
-        if rest in STATIC:
+        if self.area == "c":
+            self._coordinator(rest)
+        elif rest in STATIC:
             name, ctype = STATIC[rest]
             self._send(HTTPStatus.OK, _static(name), ctype)
         elif rest == "stream":
             self._stream()
+        else:
+            self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
+
+    def _coordinator(self, rest: str) -> None:
+        # one request per connection: a kept-alive poll would outlive the server's stop and never see the end
+        self.close_connection = True
+        if self.server.view.stopping:
+            self._send(HTTPStatus.GONE, b"the session's view has closed\n", "text/plain; charset=utf-8")
+        elif rest in COORD_STATIC:
+            name, ctype = COORD_STATIC[rest]
+            self._send(HTTPStatus.OK, _static(name), ctype)
+        elif rest == "state":
+            board = self.server.view.board
+            self._send(HTTPStatus.OK, _json_bytes(_clean(board.snapshot())), "application/json")
         else:
             self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
 
@@ -319,7 +354,8 @@ class ViewServer:
         The session's secret (default: 128 random bits, URL-safe).
     """
 
-    def __init__(self, hub: ViewHub, *, host: str = "127.0.0.1", port: int = 0, token: str | None = None) -> None:
+    def __init__(self, hub: ViewHub, *, host: str = "127.0.0.1", port: int = 0, token: str | None = None,
+                 board: CoordinatorBoard | None = None) -> None:
         if host not in ("127.0.0.1", "localhost", "::1"):
             raise UsageError(f"participant view host {host!r}: the view is served on this machine only; "
                              "use 127.0.0.1 (the default), localhost or ::1")
@@ -328,6 +364,9 @@ class ViewServer:
         self.hub = hub
         self.host = host
         self.token = token or secrets.token_urlsafe(16)
+        # the coordinator's page has a secret of its own: the participant's screen never learns its address
+        self.board = board
+        self.coord_token = secrets.token_urlsafe(16)
         self.stopping = False
         bind = "127.0.0.1" if host == "localhost" else host
         try:
@@ -354,11 +393,18 @@ class ViewServer:
         host = "[::1]" if self.host == "::1" else self.host
         return f"http://{host}:{self.port}/v/{self.token}/"
 
+    @property
+    def coordinator_url(self) -> str | None:
+        """The coordinator page's address (None without a board)."""
+        if self.board is None:
+            return None
+        return f"{self.url.rsplit('/v/', 1)[0]}/c/{self.coord_token}/"
+
     def redact(self, path: str) -> str:
         """A path for the log with any token cut to its first 4 characters (never log a secret)."""
-        if path.startswith("/v/"):
+        if path.startswith(("/v/", "/c/")):
             token, _, rest = path[3:].partition("/")
-            return f"/v/{token[:4]}…/{rest}"
+            return f"{path[:3]}{token[:4]}…/{rest}"
         return path[:200]
 
     def start(self) -> ViewServer:

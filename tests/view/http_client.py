@@ -10,8 +10,9 @@ from typing import Any
 
 
 def request(view, method: str, rest: str, body: Any = None, *, token: str | None = None, headers=None,
-            origin: bool = True) -> tuple[int, Any, dict[str, str]]:
-    """``method`` ``/v/<token>/<rest>`` on the view's server; returns (status, JSON or text, headers)."""
+            origin: bool = True, path: str = "v") -> tuple[int, Any, dict[str, str]]:
+    """``method`` ``/<path>/<token>/<rest>`` on the view's server (path ``v``: the participant's page, ``c``: the
+    coordinator's); returns (status, JSON or text, headers)."""
     conn = http.client.HTTPConnection("127.0.0.1", view.server.port, timeout=10)
     hdrs = {"Host": f"127.0.0.1:{view.server.port}"}
     data = None
@@ -21,7 +22,7 @@ def request(view, method: str, rest: str, body: Any = None, *, token: str | None
     if origin and method == "POST":
         hdrs["Origin"] = f"http://127.0.0.1:{view.server.port}"
     hdrs.update(headers or {})
-    conn.request(method, f"/v/{token or view.server.token}/{rest}", body=data, headers=hdrs)
+    conn.request(method, f"/{path}/{token or view.server.token}/{rest}", body=data, headers=hdrs)
     resp = conn.getresponse()
     raw = resp.read()
     conn.close()
