@@ -141,13 +141,11 @@ def register_sim(app: typer.Typer) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from studyctl.populations import describe_choice
         from studyctl.protocol import load_protocol
-        from studyctl.workflows.simulate import check_simulation, cohort_population, simulate_study
+        from studyctl.workflows.simulate import check_simulation, choose_population, simulate_study
 
         proto = load_protocol(check_simulation(protocol, participants, sim_rate_hz))
-        pop = cohort_population(proto, population if population is not None else "shipped")
-        typer.echo(describe_choice(pop, proto.study.id, population is not None), err=True)
+        pop = choose_population(proto, population, say=lambda line: typer.echo(line, err=True))
         folder = out or Path(f"{Path(protocol).stem}-sim")
         with Progress(
             TextColumn("{task.description}"),

@@ -72,13 +72,10 @@ def _summary(result, opened: OpenStudy, as_json: bool = False) -> None:
 
 def _shipped_population(opened: OpenStudy, log: Callable[[str], None]) -> Any:
     """The protocol's shipped population (None when it has none), said on stderr as `simulate` says it."""
-    from studyctl.populations import SHIPPED, describe_choice, population_for  # noqa: PLC0415 (rehearsals only)
-    from studyctl.store.enrollment import study_protocol  # noqa: PLC0415
+    from studyctl.store.enrollment import study_protocol  # noqa: PLC0415 (rehearsals only)
+    from studyctl.workflows.simulate import choose_population  # noqa: PLC0415
 
-    protocol = study_protocol(opened.study)
-    population = population_for(protocol, SHIPPED)
-    log(describe_choice(population, protocol.study.id, explicit=False))
-    return population
+    return choose_population(study_protocol(opened.study), say=log)
 
 
 @contextmanager

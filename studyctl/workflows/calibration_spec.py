@@ -99,16 +99,17 @@ def prepare_calibration(
         One line naming what is wrong and how to fix it.
     """
     from studyctl.analysis import load_plan
-    from studyctl.populations import free_params, population_for
+    from studyctl.populations import free_params
     from studyctl.populations.loader import participant_params
     from studyctl.populations.targets import load_targets_file
     from studyctl.power.seeds import check_master_seed
     from studyctl.protocol import load_protocol, resolve_protocol
+    from studyctl.workflows.simulate import choose_population
 
     path = resolve_protocol(protocol)
     proto = load_protocol(path)
     pid = proto.study.id
-    pop = population_for(proto, population if population is not None else "shipped")
+    pop = choose_population(proto, population)
     if pop is None:
         raise PopulationError(f"protocol {pid!r} has no shipped population to start from; give one with "
                               "--population FILE (format: studyctl-population/1)")

@@ -17,7 +17,7 @@ import pandas as pd
 
 from studyctl.engine.api import check_sim_rate, run_session
 from studyctl.errors import UsageError
-from studyctl.populations import SHIPPED
+from studyctl.populations import SHIPPED, describe_choice
 from studyctl.populations import population_for as cohort_population  # re-exported for callers
 from studyctl.protocol import load_protocol, resolve_protocol
 from studyctl.protocol.schedule import allocate_strata
@@ -26,6 +26,19 @@ from studyctl.store.status import study_status
 from studyctl.store.workspace import init_workspace, open_study
 
 ProgressFn = Callable[[int, int, str], None]  # (participants done, participants total, message)
+
+
+def choose_population(protocol: Any, given: Any = None, *, say: Callable[[str], None] | None = None) -> Any:
+    """The population a virtual run of ``protocol`` (a loaded protocol) draws its people from, said in one line.
+
+    ``given``: a population file or :class:`~studyctl.populations.TraitPopulation` the user named, or None for the
+    protocol's shipped one (None back when it ships none: the participant's own defaults). ``say`` gets the line
+    that names it (name, version, sha256 prefix); `studyctl simulate` and `run --rehearse --virtual` both print it.
+    """
+    population = cohort_population(protocol, SHIPPED if given is None else given)
+    if say is not None:
+        say(describe_choice(population, protocol.study.id, explicit=given is not None))
+    return population
 
 
 @dataclass(frozen=True)
