@@ -15,93 +15,41 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import secrets
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator
 from datetime import datetime
-from typing import Any, TypeVar
+from typing import Any
 
 import pandas as pd
-from sqlalchemy import func, insert, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session as OrmSession
 
 from studyctl import __version__
 from studyctl.closing import Closeable
 from studyctl.errors import NotFoundError, UsageError
-from studyctl.store.audit import AuditReport, append_audit, canonical_json, verify_audit
+from studyctl.store.audit import AuditReport, append_audit, verify_audit
 from studyctl.store.db import Database
 from studyctl.store.models import (
     PARTICIPANT_STATUSES,
     SESSION_STATUSES,
     TRIAL_STATUSES,
     AuditLog,
-    Event,
-    LocationReport,
     Participant,
-    QuestionnaireResponse,
     Session,
     Study,
     Trial,
     utcnow,
 )
 from studyctl.store.records import load_mark, seal_session
-from studyctl.store.samples import DEFAULT_STREAM, SampleWriter, read_samples, sample_streams
+from studyctl.store.session_records import SessionRecords
+from studyctl.store.values import MAX_TEXT, check_choice, check_seed, check_text, require, schedule_sha256
 
-MAX_TEXT = 200
-_SEED_LIMIT = 2**63
 _TRIAL_FIELDS = frozenset(
     {"status", "timed_out", "started_at", "ended_at", "outcome", "invalid_reason", "placement", "time_limit_s"}
 )
 _SESSION_FIELDS = frozenset({"status", "ended_at", "resume_count", "seed", "site"})
-_Row = TypeVar("_Row", Study, Participant, Session, Trial)
 
 
-def check_text(value: Any, what: str, *, max_len: int = MAX_TEXT, allow_none: bool = False) -> str | None:
-    """Validate a short text stored verbatim (codes, names): non-empty, ≤ ``max_len``, no NUL."""
-    if value is None and allow_none:
-        return None
-    if not isinstance(value, str):
-        raise UsageError(f"{what} must be text, got {type(value).__name__} {value!r}")
-    if value == "":
-        raise UsageError(f"{what} must not be empty")
-    if len(value) > max_len:
-        raise UsageError(f"{what} {value[:40]!r}… is {len(value)} characters long; at most {max_len} are allowed")
-    if "\x00" in value:
-        raise UsageError(f"{what} {value!r} contains a NUL character (\\x00), which PostgreSQL cannot store; "
-                         "remove it")
-    try:
-        value.encode("utf-8")
-    except UnicodeEncodeError:
-        raise UsageError(f"{what} {value!r} is not valid Unicode text (a lone surrogate); re-type it") from None
-    return value
-
-
-def _require(s: OrmSession, model: type[_Row], key: int) -> _Row:
-    """``s.get(model, key)``, or :class:`NotFoundError` ``no <table> with id <key>``."""
-    row = s.get(model, key)
-    if row is None:
-        raise NotFoundError(f"no {model.__tablename__} with id {key}")
-    return row
-
-
-def _check_choice(value: str, allowed: tuple[str, ...], what: str) -> str:
-    if value not in allowed:
-        raise UsageError(f"{what} {value!r} is not allowed; use one of {', '.join(allowed)}")
-    return value
-
-
-def _check_seed(seed: int | None, what: str) -> int | None:
-    if seed is None:
-        return None
-    if isinstance(seed, bool) or not isinstance(seed, int) or not (0 <= seed < _SEED_LIMIT):
-        raise UsageError(f"{what} must be an integer in [0, 2**63), got {seed!r}")
-    return seed
-
-
-def schedule_sha256(schedule: Any) -> str:
-    """sha256 of the canonical JSON of a schedule (stored to detect later edits of the plan)."""
-    return hashlib.sha256(canonical_json(schedule).encode("utf-8")).hexdigest()
-
-
-class StudyStore(Closeable):
+class StudyStore(SessionRecords, Closeable):
     """Repository over one study database (SQLite file or PostgreSQL).
 
     Create with :meth:`open` / :meth:`create`, or wrap an existing :class:`Database`.
@@ -174,7 +122,7 @@ class StudyStore(Closeable):
         """
         check_text(name, "study name")
         check_text(protocol_name, "protocol name", allow_none=True)
-        seed = _check_seed(seed, "study seed")
+        seed = check_seed(seed, "study seed")
         if seed is None:
             seed = secrets.randbits(63)
         digest = None if protocol_text is None else hashlib.sha256(protocol_text.encode("utf-8")).hexdigest()
@@ -243,13 +191,13 @@ class StudyStore(Closeable):
         check_text(stratum, "stratum", allow_none=True)
         check_text(group, "group", allow_none=True)
         check_text(schedule_algorithm_version, "schedule algorithm version", allow_none=True, max_len=64)
-        _check_choice(status, PARTICIPANT_STATUSES, "participant status")
-        _check_seed(schedule_seed, "schedule seed")
+        check_choice(status, PARTICIPANT_STATUSES, "participant status")
+        check_seed(schedule_seed, "schedule seed")
         if sequence_slot is not None and (isinstance(sequence_slot, bool) or not isinstance(sequence_slot, int)):
             raise UsageError(f"sequence slot must be an integer, got {sequence_slot!r}")
         digest = None if schedule is None else schedule_sha256(schedule)
         with self._tx(tx) as s:
-            _require(s, Study, study_id)
+            require(s, Study, study_id)
             clash = s.scalar(select(Participant.id).where(Participant.study_id == study_id, Participant.code == code))
             if clash is not None:
                 raise UsageError(f"participant code {code!r} is already enrolled in this study; codes must be unique")
@@ -275,7 +223,7 @@ class StudyStore(Closeable):
 
     def get_participant_by_id(self, participant_id: int, *, tx: OrmSession | None = None) -> Participant:
         with self._read(tx) as s:
-            return _require(s, Participant, participant_id)
+            return require(s, Participant, participant_id)
 
     def list_participants(self, study_id: int, *, tx: OrmSession | None = None) -> list[Participant]:
         """All participants of a study in enrollment order."""
@@ -286,9 +234,9 @@ class StudyStore(Closeable):
         self, participant_id: int, status: str, *, reason: str | None = None, tx: OrmSession | None = None
     ) -> Participant:
         """Change a participant's status (``withdrawn`` records the time and the reason)."""
-        _check_choice(status, PARTICIPANT_STATUSES, "participant status")
+        check_choice(status, PARTICIPANT_STATUSES, "participant status")
         with self._tx(tx) as s:
-            p = _require(s, Participant, participant_id)
+            p = require(s, Participant, participant_id)
             old = p.status
             p.status = status
             if status == "withdrawn":
@@ -309,10 +257,10 @@ class StudyStore(Closeable):
         tx: OrmSession | None = None,
     ) -> Session:
         """Open a new running session for a participant."""
-        _check_seed(seed, "session seed")
+        check_seed(seed, "session seed")
         check_text(site, "site", allow_none=True)
         with self._tx(tx) as s:
-            _require(s, Participant, participant_id)
+            require(s, Participant, participant_id)
             sess = Session(participant_id=participant_id, status="running", started_at=utcnow(), seed=seed,
                            resume_count=0, site=site)
             s.add(sess)
@@ -323,7 +271,7 @@ class StudyStore(Closeable):
 
     def get_session(self, session_id: int, *, tx: OrmSession | None = None) -> Session:
         with self._read(tx) as s:
-            return _require(s, Session, session_id)
+            return require(s, Session, session_id)
 
     def list_sessions(self, participant_id: int, *, tx: OrmSession | None = None) -> list[Session]:
         with self._read(tx) as s:
@@ -335,9 +283,9 @@ class StudyStore(Closeable):
         if unknown:
             raise UsageError(f"cannot update session field(s) {sorted(unknown)}; allowed: {sorted(_SESSION_FIELDS)}")
         if "status" in fields:
-            _check_choice(fields["status"], SESSION_STATUSES, "session status")
+            check_choice(fields["status"], SESSION_STATUSES, "session status")
         with self._tx(tx) as s:
-            sess = _require(s, Session, session_id)
+            sess = require(s, Session, session_id)
             before = {k: getattr(sess, k) for k in fields}
             for k, v in fields.items():
                 setattr(sess, k, v)
@@ -367,11 +315,11 @@ class StudyStore(Closeable):
         A replacement for an invalid or aborted trial passes ``replaces_trial_id``; the old row stays.
         """
         check_text(condition, "condition")
-        _check_choice(status, TRIAL_STATUSES, "trial status")
+        check_choice(status, TRIAL_STATUSES, "trial status")
         if time_limit_s is not None and not (time_limit_s > 0):
             raise UsageError(f"time_limit_s must be > 0, got {time_limit_s!r}")
         with self._record_tx(tx, session_id) as s:
-            sess = _require(s, Session, session_id)
+            sess = require(s, Session, session_id)
             if replaces_trial_id is not None and s.get(Trial, replaces_trial_id) is None:
                 raise NotFoundError(f"trial {replaces_trial_id} to replace does not exist")
             trial = Trial(session_id=session_id, participant_id=sess.participant_id, plan_position=plan_position,
@@ -395,9 +343,9 @@ class StudyStore(Closeable):
         if unknown:
             raise UsageError(f"cannot update trial field(s) {sorted(unknown)}; allowed: {sorted(_TRIAL_FIELDS)}")
         if "status" in fields:
-            _check_choice(fields["status"], TRIAL_STATUSES, "trial status")
-        with self._record_tx(tx, lambda s: _require(s, Trial, trial_id).session_id) as s:
-            trial = _require(s, Trial, trial_id)
+            check_choice(fields["status"], TRIAL_STATUSES, "trial status")
+        with self._record_tx(tx, lambda s: require(s, Trial, trial_id).session_id) as s:
+            trial = require(s, Trial, trial_id)
             old_status = trial.status
             for k, v in fields.items():
                 setattr(trial, k, v)
@@ -410,7 +358,7 @@ class StudyStore(Closeable):
 
     def get_trial(self, trial_id: int, *, tx: OrmSession | None = None) -> Trial:
         with self._read(tx) as s:
-            return _require(s, Trial, trial_id)
+            return require(s, Trial, trial_id)
 
     def list_trials(
         self, *, session_id: int | None = None, participant_id: int | None = None, tx: OrmSession | None = None
@@ -423,135 +371,6 @@ class StudyStore(Closeable):
             stmt = stmt.where(Trial.participant_id == participant_id)
         with self._read(tx) as s:
             return list(s.scalars(stmt))
-
-    # -- events -----------------------------------------------------------------------------------
-    def append_event(
-        self,
-        session_id: int,
-        kind: str,
-        payload: Mapping[str, Any] | None = None,
-        *,
-        t_mono: float,
-        t_wall: datetime | None = None,
-        trial_id: int | None = None,
-        durable: bool = False,
-        tx: OrmSession | None = None,
-    ) -> int:
-        """Append one event to a session's log; returns its ``seq`` (1, 2, … per session)."""
-        return self.append_events(session_id, [(t_mono, kind, payload or {})], trial_id=trial_id, t_wall=t_wall,
-                                  durable=durable, tx=tx)[0]
-
-    def append_events(
-        self,
-        session_id: int,
-        events: Sequence[tuple[float, str, Mapping[str, Any] | None]],
-        *,
-        trial_id: int | None = None,
-        t_wall: datetime | None = None,
-        durable: bool = False,
-        tx: OrmSession | None = None,
-    ) -> list[int]:
-        """Append ``(t_mono, kind, payload)`` events in one transaction; returns their ``seq`` numbers.
-
-        Like sample flushes, event commits survive the process being killed; pass ``durable=True`` to
-        also fsync (power-cut safe) right away. Batch events that arrive together: one commit each.
-        """
-        if not events:
-            return []
-        wall = t_wall or utcnow()
-        with self._record_tx(tx, session_id, durable=durable) as s:
-            last = s.scalar(select(func.max(Event.seq)).where(Event.session_id == session_id))
-            start = (last or 0) + 1
-            rows = []
-            for i, (t_mono, kind, payload) in enumerate(events):
-                check_text(kind, "event kind", max_len=100)
-                rows.append({"session_id": session_id, "trial_id": trial_id, "seq": start + i,
-                             "t_mono": float(t_mono), "t_wall": wall, "kind": kind,
-                             "payload": dict(payload) if payload is not None else None})
-            s.execute(insert(Event), rows)
-        return [r["seq"] for r in rows]
-
-    def events_frame(self, session_id: int, trial_id: int | None = None) -> pd.DataFrame:
-        """A session's events (optionally one trial's) with columns seq, trial_id, t_mono, t_wall, kind, payload."""
-        stmt = select(Event.seq, Event.trial_id, Event.t_mono, Event.t_wall, Event.kind, Event.payload).where(
-            Event.session_id == session_id).order_by(Event.seq)
-        if trial_id is not None:
-            stmt = stmt.where(Event.trial_id == trial_id)
-        with self.reading() as s:
-            rows = s.execute(stmt).all()
-        return pd.DataFrame([tuple(r) for r in rows],
-                            columns=["seq", "trial_id", "t_mono", "t_wall", "kind", "payload"])
-
-    # -- samples ----------------------------------------------------------------------------------
-    def sample_writer(self, trial_id: int, channels: Sequence[str] | None = None, **kwargs: Any) -> SampleWriter:
-        """A :class:`SampleWriter` for a trial (``stream``, ``dtype``, ``flush_interval_s``, ``guard``, ``seal`` as
-        keywords). Its chunks are sealed into the audit chain as they are flushed unless ``seal=False`` (the
-        session engine, which seals them with the trial's next record)."""
-        kwargs.setdefault("seal", True)
-        return SampleWriter(self.db, trial_id, channels, **kwargs)
-
-    def read_samples(self, trial_id: int, stream: str = DEFAULT_STREAM) -> pd.DataFrame:
-        """A trial's samples as a DataFrame (``t`` then one column per channel)."""
-        return read_samples(self.db, trial_id, stream)
-
-    def sample_streams(self, trial_id: int) -> list[str]:
-        return sample_streams(self.db, trial_id)
-
-    # -- answers and reports ----------------------------------------------------------------------
-    def record_response(
-        self,
-        participant_id: int,
-        *,
-        instrument: str,
-        instrument_version: str,
-        item: str,
-        code: int,
-        session_id: int | None = None,
-        trial_id: int | None = None,
-        context: str | None = None,
-        answered_at: datetime | None = None,
-        tx: OrmSession | None = None,
-    ) -> QuestionnaireResponse:
-        """Store one coded questionnaire answer (the numeric code, never the label)."""
-        check_text(instrument, "instrument")
-        check_text(instrument_version, "instrument version", max_len=64)
-        check_text(item, "questionnaire item")
-        check_text(context, "response context", allow_none=True)
-        if isinstance(code, bool) or not isinstance(code, int):
-            raise UsageError(f"response code must be an integer, got {code!r}")
-        with self._record_tx(tx, session_id) as s:
-            r = QuestionnaireResponse(participant_id=participant_id, session_id=session_id, trial_id=trial_id,
-                                      instrument=instrument, instrument_version=instrument_version, item=item,
-                                      code=code, answered_at=answered_at or utcnow(), context=context)
-            s.add(r)
-            s.flush()
-        return r
-
-    def record_location_report(
-        self, trial_id: int, *, t: float, payload: Mapping[str, Any], correct: bool | None = None,
-        tx: OrmSession | None = None,
-    ) -> LocationReport:
-        """Store a participant's location report (grid cell or position) at trial time ``t``."""
-        with self._record_tx(tx, lambda s: _require(s, Trial, trial_id).session_id) as s:
-            r = LocationReport(trial_id=trial_id, t=float(t), payload=dict(payload), correct=correct)
-            s.add(r)
-            s.flush()
-        return r
-
-    def responses_frame(self, participant_id: int | None = None) -> pd.DataFrame:
-        cols = ["participant_id", "session_id", "trial_id", "instrument", "instrument_version", "item", "code",
-                "answered_at", "context"]
-        stmt = select(*(getattr(QuestionnaireResponse, c) for c in cols)).order_by(QuestionnaireResponse.id)
-        if participant_id is not None:
-            stmt = stmt.where(QuestionnaireResponse.participant_id == participant_id)
-        with self.reading() as s:
-            rows = s.execute(stmt).all()
-        return pd.DataFrame([tuple(r) for r in rows], columns=cols)
-
-    def location_reports(self, trial_id: int) -> list[LocationReport]:
-        with self.reading() as s:
-            return list(s.scalars(select(LocationReport).where(LocationReport.trial_id == trial_id)
-                                  .order_by(LocationReport.id)))
 
     # -- audit ------------------------------------------------------------------------------------
     def audit(
@@ -574,4 +393,4 @@ class StudyStore(Closeable):
         return pd.DataFrame([tuple(r) for r in rows], columns=cols)
 
 
-__all__ = ["StudyStore", "check_text", "schedule_sha256"]
+__all__ = ["MAX_TEXT", "StudyStore", "check_text", "schedule_sha256"]
