@@ -2,8 +2,8 @@
 
 This module shapes the data of each plan entry into cells (metric × split, levels ordered as the plan
 says), dispatches every cell to the entry's test in the registry (:mod:`studyctl.analysis.procedures`),
-turns each finding's typed summary into a row, and adjusts p-values (across an entry's rows and across a
-post-hoc test's pairs). It knows no test by name.
+turns each finding's typed summary into a row, and adjusts p-values across an entry's rows and across a
+post-hoc test's pairs (:func:`~studyctl.stats.adjust_pvalues`). It knows no test by name.
 
 A test that cannot be computed (too few values, a constant sample, pooled counts where per-participant
 values are needed) still gets its row, with ``status = "not_computed"`` and the reason in ``warnings``,
@@ -26,39 +26,19 @@ from studyctl.analysis.plan import AnalysisPlan, PlanTest, Posthoc
 from studyctl.analysis.procedures import EACH_LEVEL, EACH_PAIR, Cell, Finding, TestSpec
 from studyctl.analysis.result_tables import cells_table, proportions_table, units_table
 from studyctl.analysis.results import AnalysisResult, TestRow
-from studyctl.analysis.shape import Prepared, factor_column, ordered_levels, prepare, unit_values
+from studyctl.analysis.shape import (
+    Prepared,
+    factor_column,
+    ordered_levels,
+    paired_matrix,
+    pooled_counts,
+    prepare,
+    unit_values,
+)
 from studyctl.analysis.table import MetricTable
 from studyctl.errors import StudyctlError
+from studyctl.stats.posthoc import adjust_pvalues
 from studyctl.stats.summary import TestSummary
-
-
-def p_adjust(pvalues: Sequence[float], method: str) -> np.ndarray:
-    """Holm, Bonferroni or Benjamini-Hochberg adjusted p-values (NaN entries stay NaN and are not counted)."""
-    p = np.asarray(pvalues, dtype=float)
-    out = np.full_like(p, np.nan)
-    ok = np.isfinite(p)
-    m = int(ok.sum())
-    if m == 0 or method == "none":
-        return p.copy()
-    q = p[ok]
-    order = np.argsort(q, kind="stable")
-    ranked = q[order]
-    if method == "bonferroni":
-        adj = np.minimum(q * m, 1.0)
-    elif method == "holm":
-        steps = np.maximum.accumulate(ranked * (m - np.arange(m)))
-        adj = np.empty(m)
-        adj[order] = np.minimum(steps, 1.0)
-    elif method == "bh":
-        steps = ranked * m / np.arange(1, m + 1)
-        steps = np.minimum.accumulate(steps[::-1])[::-1]
-        adj = np.empty(m)
-        adj[order] = np.minimum(steps, 1.0)
-    else:
-        raise ValueError(f"unknown p adjustment {method!r}")
-    out[ok] = adj
-    return out
-
 
 #: the row columns a finding's typed summary fills as they are (its p_adjust and warnings are merged with the entry's)
 _SUMMARY_COLUMNS = tuple(
@@ -177,7 +157,7 @@ class _EntryRunner:
         rows = [_mark_undefined(r) for r in rows]
         primary = [i for i, r in enumerate(rows) if r.kind != "posthoc" and r.status == "ok" and np.isfinite(r.p)]
         if self.entry.correction != "none" and primary:
-            adj = p_adjust([rows[i].p for i in primary], self.entry.correction)
+            adj = adjust_pvalues([rows[i].p for i in primary], self.entry.correction)
             for i, a in zip(primary, adj, strict=True):
                 rows[i] = rows[i].with_(
                     p_adj=float(a),
@@ -199,7 +179,7 @@ class _EntryRunner:
             why = f"{self.spec.name} needs per-participant values; the data source has pooled counts"
             return [self.row(metric, "", status="not_computed", warnings=why)]
         if design == catalog.PROPORTION:
-            units = _pooled_counts(data, keep)
+            units = pooled_counts(data, keep)
         else:
             units = (unit_values(data, kind=kind, keep=keep, aggregate=self.plan.aggregate) if self.units is None
                      else self.units(metric, kind, keep, self.plan.aggregate, data))
@@ -261,7 +241,7 @@ class _EntryRunner:
 
     def paired(self, sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.ndarray, list[str]]:
         """A participants × levels matrix of complete blocks, and a note on who was left out."""
-        matrix, dropped = _paired_matrix(sub, col, levels)
+        matrix, dropped = paired_matrix(sub, col, levels)
         warnings = []
         if dropped:
             warnings.append(
@@ -362,7 +342,7 @@ class _EntryRunner:
         for a, b in itertools.combinations(levels, 2):
             rows.extend(self.run_pair(metric, split, sub, col, a, b, spec, kind="posthoc", parent=parent, options={}))
         ok = [i for i, r in enumerate(rows) if r.status == "ok"]
-        adj = p_adjust([rows[i].p for i in ok], ph.p_adjust)
+        adj = adjust_pvalues([rows[i].p for i in ok], ph.p_adjust)
         for i, a_ in zip(ok, adj, strict=True):
             rows[i] = rows[i].with_(p_adj=float(a_), p_adjust=ph.p_adjust, significant=bool(a_ < self.alpha))
         return rows
@@ -419,48 +399,6 @@ class _EntryRunner:
                 out.append(self.row(metric, split, kind="pairwise", groups=f"{a} vs {b}", status="not_computed",
                                     warnings=str(exc)))
         return out
-
-
-def _paired_pivot(sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.ndarray, list[str]]:
-    """Complete blocks by ``pivot_table`` (mean per participant × level; participants sorted; a participant
-    with no value at all is not listed) and the participants left out."""
-    wide = sub.pivot_table(index="participant", columns=col, values="value", aggfunc="mean")
-    wide = wide.reindex(columns=levels)
-    complete = wide.dropna()
-    return complete.to_numpy(dtype=float), [str(p) for p in wide.index.difference(complete.index)]
-
-
-def _paired_matrix(sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.ndarray, list[str]]:
-    """:func:`_paired_pivot` without pandas' pivot machinery where every participant × level has at most one
-    unit (the usual case; a mean of one value is that value): the same matrix, rows and list, in a fraction
-    of the time (a power analysis shapes thousands of these)."""
-    person = sub["participant"].to_numpy(dtype=object)
-    level = sub[col].to_numpy(dtype=object)
-    value = sub["value"].to_numpy(dtype=float)
-    named = pd.notna(level)
-    # strings only: pivot_table sorts numbers as numbers, np.unique of their text would not
-    if not all(isinstance(v, str) for v in person) or not all(isinstance(v, str) for v in level[named]):
-        return _paired_pivot(sub, col, levels)
-    person, level, value = person[named], level[named], value[named]
-    people, p_idx = np.unique(person, return_inverse=True)
-    present, l_idx = np.unique(level, return_inverse=True)
-    cell = p_idx * len(present) + l_idx
-    if len(np.unique(cell)) != len(cell):  # repeated units: leave the means to pivot_table
-        return _paired_pivot(sub, col, levels)
-    wide = np.full((len(people), len(present)), np.nan)
-    wide[p_idx, l_idx] = value
-    seen = ~np.isnan(wide).all(axis=1)  # pivot_table drops people with no value at all
-    pos = {lv: j for j, lv in enumerate(present)}
-    cols = np.column_stack([wide[:, pos[lv]] if lv in pos else np.full(len(people), np.nan) for lv in levels])
-    complete = seen & ~np.isnan(cols).any(axis=1)
-    return cols[complete], [str(p) for p in people[seen & ~complete]]
-
-
-def _pooled_counts(data: pd.DataFrame, keep: list[str]) -> pd.DataFrame:
-    g = data.groupby(keep, dropna=False, sort=False)
-    return g.agg(
-        successes=("value", "sum"), chances=("denominator", "sum"), participants=("participant", "nunique")
-    ).reset_index()
 
 
 def _mark_undefined(row: TestRow) -> TestRow:

@@ -168,3 +168,46 @@ def ordered_levels(values: pd.Series, preferred: list[str] | None) -> list[str]:
     if preferred:
         return [p for p in preferred if p in present]
     return present
+
+
+def paired_pivot(sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.ndarray, list[str]]:
+    """Complete blocks by ``pivot_table`` (mean per participant × level; participants sorted; a participant
+    with no value at all is not listed) and the participants left out."""
+    wide = sub.pivot_table(index="participant", columns=col, values="value", aggfunc="mean")
+    wide = wide.reindex(columns=levels)
+    complete = wide.dropna()
+    return complete.to_numpy(dtype=float), [str(p) for p in wide.index.difference(complete.index)]
+
+
+def paired_matrix(sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.ndarray, list[str]]:
+    """:func:`paired_pivot` without pandas' pivot machinery where every participant × level has at most one
+    unit (the usual case; a mean of one value is that value): the same matrix, rows and list, in a fraction
+    of the time (a power analysis shapes thousands of these)."""
+    person = sub["participant"].to_numpy(dtype=object)
+    level = sub[col].to_numpy(dtype=object)
+    value = sub["value"].to_numpy(dtype=float)
+    named = pd.notna(level)
+    # strings only: pivot_table sorts numbers as numbers, np.unique of their text would not
+    if not all(isinstance(v, str) for v in person) or not all(isinstance(v, str) for v in level[named]):
+        return paired_pivot(sub, col, levels)
+    person, level, value = person[named], level[named], value[named]
+    people, p_idx = np.unique(person, return_inverse=True)
+    present, l_idx = np.unique(level, return_inverse=True)
+    cell = p_idx * len(present) + l_idx
+    if len(np.unique(cell)) != len(cell):  # repeated units: leave the means to pivot_table
+        return paired_pivot(sub, col, levels)
+    wide = np.full((len(people), len(present)), np.nan)
+    wide[p_idx, l_idx] = value
+    seen = ~np.isnan(wide).all(axis=1)  # pivot_table drops people with no value at all
+    pos = {lv: j for j, lv in enumerate(present)}
+    cols = np.column_stack([wide[:, pos[lv]] if lv in pos else np.full(len(people), np.nan) for lv in levels])
+    complete = seen & ~np.isnan(cols).any(axis=1)
+    return cols[complete], [str(p) for p in people[seen & ~complete]]
+
+
+def pooled_counts(data: pd.DataFrame, keep: list[str]) -> pd.DataFrame:
+    """Successes, chances and participants summed per ``keep`` group (counts pooled over participants)."""
+    g = data.groupby(keep, dropna=False, sort=False)
+    return g.agg(
+        successes=("value", "sum"), chances=("denominator", "sum"), participants=("participant", "nunique")
+    ).reset_index()

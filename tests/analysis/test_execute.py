@@ -8,9 +8,9 @@ import pytest
 
 from studyctl import stats
 from studyctl.analysis import MetricTable, load_plan, run_plan
-from studyctl.analysis.execute import p_adjust
 from studyctl.analysis.results import ROW_COLUMNS
 from studyctl.errors import AnalysisError
+from studyctl.stats import adjust_pvalues
 
 CONDITIONS = ["no_feedback", "piecewise", "linear", "bio_inspired"]
 EFFECT = dict(zip(CONDITIONS, [0.0, 0.3, 0.6, 0.9], strict=True))
@@ -170,11 +170,11 @@ def test_unplanned_condition_is_noted_not_dropped_silently(lean_plan):
 
 
 @pytest.mark.parametrize("method", ["holm", "bonferroni", "bh"])
-def test_p_adjust_matches_statsmodels(method):
+def test_p_adjustment_matches_statsmodels(method):
     from statsmodels.stats.multitest import multipletests
 
     p = np.array([0.01, 0.04, 0.03, 0.2, np.nan, 0.001])
-    ours = p_adjust(p, method)
+    ours = adjust_pvalues(p, method)
     ok = ~np.isnan(p)
     ref = multipletests(p[ok], method={"holm": "holm", "bonferroni": "bonferroni", "bh": "fdr_bh"}[method])[1]
     np.testing.assert_allclose(ours[ok], ref, rtol=1e-12)
