@@ -165,6 +165,9 @@ class CoordinatorBoard:
             rate = payload.get("rate_hz")
             self.rate_hz = float(rate) if isinstance(rate, (int, float)) else None
             return
+        if kind in ("scan", "report"):  # from the view, the terminal or a virtual participant alike
+            self.trial_counts[kind + "s"] += 1
+            return
         if kind in ("device_fault", "device_recovered", "safety"):
             self.trial_counts[kind] += 1
             self.session_counts[kind] += 1
@@ -242,7 +245,7 @@ class CoordinatorBoard:
         if trial is None:
             self._ticks.clear()
             return out
-        out["scans"], out["reports"] = trial.scans, trial.reports
+        out["scans"], out["reports"] = self.trial_counts["scans"], self.trial_counts["reports"]
         limit = self.progress["step"]["time_limit_s"] if self.progress and self.progress.get("step") else None
         out["time_limit_s"] = limit
         if tick is None:
@@ -286,7 +289,8 @@ class CoordinatorBoard:
             "timer": timer,
             "progress": self.progress,
             "loop": self._loop(now),
-            "device": {"fault_active": self.fault_active, "trial": dict(self.trial_counts),
+            "device": {"fault_active": self.fault_active,
+                       "trial": {k: n for k, n in self.trial_counts.items() if k not in ("scans", "reports")},
                        "session": dict(self.session_counts), "events": list(self.events),
                        **((self.progress or {}).get("device") or {})},
             "participant_screen": {"screen": screen, "prompt": prompt, "screens": clients,

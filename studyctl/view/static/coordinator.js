@@ -96,6 +96,7 @@
       : (p.session_id ? "no lease held" : "–"));
     set("store-read", s.store && s.store.error ? "could not read the study database: " + s.store.error
       : (s.store && s.store.read_at ? "read from the study database at " + s.store.read_at : ""));
+    if (p.session_id) set("note-how", "studyctl note \"…\" --session " + p.session_id);
     const notes = s.notes || [];
     list("notes", notes.length ? notes : [null], (li, n) => {
       if (!n) { li.className = "dim"; li.textContent = "no notes on this session yet"; return; }
