@@ -62,8 +62,11 @@ def chunk_size(protocol: Any) -> int:
     return n
 
 
-#: Parts of the package that do not shape a simulated person's metric rows (a change there keeps a pool valid).
-_NOT_SIMULATION = ("bench", "cli", "report", "view", "workflows")
+#: Parts of the package that do not shape a simulated person's metric rows (a change there keeps a pool valid):
+#: the statistics and stage 2's own modules run on the stored rows every time, they never made them.
+_NOT_SIMULATION = ("bench", "cli", "report", "view", "workflows", "stats")
+_NOT_SIMULATION_FILES = tuple(f"power/{m}.py" for m in ("twostage", "units", "summary", "target", "results",
+                                                         "executor", "bootstrap", "fast"))
 
 
 def simulation_code_digest() -> str:
@@ -76,7 +79,8 @@ def simulation_code_digest() -> str:
     for path in sorted(root.rglob("*")):
         rel = path.relative_to(root)
         if not path.is_file() or path.suffix not in (".py", ".yaml", ".yml", ".json", ".npz") or \
-                rel.parts[0] in _NOT_SIMULATION or "__pycache__" in rel.parts:
+                rel.parts[0] in _NOT_SIMULATION or rel.as_posix() in _NOT_SIMULATION_FILES or \
+                "__pycache__" in rel.parts:
             continue
         h.update(str(rel).encode())
         h.update(hashlib.sha256(path.read_bytes()).digest())
