@@ -94,6 +94,11 @@ def register(app: typer.Typer) -> None:
                                              "replicates measure the design's error (default: the smallest)."),
         check_replicates: int = typer.Option(50, "--check-replicates",
                                              help="Two-stage: full-engine replicates per checked size (0: no check)."),
+        pool_bootstrap: int = typer.Option(20, "--pool-bootstrap",
+                                           help="Two-stage: bootstrap pools (the pool's people resampled) that "
+                                                "measure the pool's own sampling error at --check-sizes, 50 stage-2 "
+                                                "replicates each; that error is part of the comparison with the "
+                                                "full engine (0: not measured)."),
         as_json: bool = typer.Option(False, "--json", help="Print the results as one JSON document on stdout "
                                                            "(power table, target sizes, files)."),
     ) -> None:
@@ -163,7 +168,8 @@ def register(app: typer.Typer) -> None:
             progress.remove_task(task)
             try:
                 result = run_two_stage(spec, out, pool_dir=pool_dir, pool=pool, check_sizes=checks,
-                                       check_replicates=check_replicates, scheduler=scheduler, workers=workers,
+                                       check_replicates=check_replicates, boot_pools=pool_bootstrap,
+                                       scheduler=scheduler, workers=workers,
                                        on_stage=on_stage)
             finally:
                 progress.stop()
@@ -198,16 +204,19 @@ def _done(console: Console, result, show_posthoc: bool, as_json: bool) -> None: 
         console.print(target_table(result.target))
     if result.error is not None:
         e = result.error.summary()
-        console.print(f"two-stage error: max |two-stage - full engine| = {e['power_error_pp']:.1f} pp at n = "
-                      f"{', '.join(map(str, e['checked_sizes']))} ({e['exact_replicates']} full-engine vs "
-                      f"{e['two_stage_replicates']} two-stage replicates; MC SE up to {e['mc_se_exact_pp_max']:.1f} / "
-                      f"{e['mc_se_two_stage_pp_max']:.1f} pp)", markup=False)
+        pool = ("pool error not measured (--pool-bootstrap 0): the SE leaves it out"
+                if e["pool_se_pp_max"] != e["pool_se_pp_max"] else f"pool SE up to {e['pool_se_pp_max']:.1f} pp")
+        console.print(f"two-stage error: max |two-stage - full engine| = {e['power_error_pp']:.1f} pp (SE "
+                      f"{e['power_error_se_pp']:.1f}) at n = {', '.join(map(str, e['checked_sizes']))} "
+                      f"({e['exact_replicates']} full-engine vs {e['two_stage_replicates']} two-stage replicates; MC "
+                      f"SE up to {e['mc_se_exact_pp_max']:.1f} / {e['mc_se_two_stage_pp_max']:.1f} pp; {pool}; "
+                      f"chi2 {e['chi2']:.1f} on {e['rows']} rows)", markup=False)
     if result.pool is not None:
         p = result.pool
         console.print(f"pool: {p['people']} people in {p['path']} ({p['chunks_built_now']} chunk(s) simulated now)",
                       markup=False)
     console.print(f"simulated {result.ran} replicate(s), reused {result.reused}, in {result.seconds:.1f} s "
                   f"({result.backend})", markup=False)
-    for kind in ("table", "target", "error", "figure", "population", "replicates"):
+    for kind in ("table", "target", "error", "pool_error", "figure", "population", "replicates"):
         if kind in result.files:
             console.print(f"{kind}: {result.files[kind]}", markup=False)

@@ -27,7 +27,7 @@ import pandas as pd
 from studyctl.analysis.results import rows_frame
 from studyctl.errors import UsageError
 from studyctl.power.pool import Pool
-from studyctl.power.replicate import ReplicateResult, _rows
+from studyctl.power.replicate import ROW_COLUMNS, ReplicateResult, _rows
 from studyctl.power.seeds import draw_rng, replicate_seeds
 from studyctl.power.spec import PowerSpec
 from studyctl.power.units import PoolUnits, replicate_rows
@@ -45,9 +45,13 @@ def composition(protocol, seed: int, participants: int, replicate: int) -> dict[
     return cells
 
 
-def draw_members(pool: Pool, cells: dict[tuple[str, int | None], int], rng: np.random.Generator) -> list[str]:
-    """Member ids for every cell, without replacement within the pool (UsageError if a cell runs short)."""
-    members = pool.members
+def draw_members(pool: Pool, cells: dict[tuple[str, int | None], int], rng: np.random.Generator,
+                 members: pd.DataFrame | None = None) -> list[str]:
+    """Member ids for every cell, without replacement within the pool (UsageError if a cell runs short).
+
+    ``members``: draw from these rows of the pool's people instead (a bootstrap pool, where a person's row can
+    repeat: the same person can then be drawn twice)."""
+    members = pool.members if members is None else members
     chosen: list[str] = []
     for (stratum, seq), count in cells.items():
         mask = members["stratum"] == stratum
@@ -66,6 +70,28 @@ def draw_members(pool: Pool, cells: dict[tuple[str, int | None], int], rng: np.r
 def member_frames(pool: Pool) -> dict[str, pd.DataFrame]:
     """Each pool person's metric rows (the table of a replicate is its people's rows, in draw order)."""
     return dict(tuple(pool.metrics.groupby("participant", sort=False)))
+
+
+class Stage2:
+    """What every stage-2 replicate of one pool shares: the protocol, each person's rows and the pool's units."""
+
+    def __init__(self, spec: PowerSpec, pool: Pool) -> None:
+        self.spec, self.pool = spec, pool
+        self.protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
+        self.by_member = member_frames(pool)
+        self.units = PoolUnits(spec.plan, pool.metrics, spec.study_id)
+
+    def rows(self, chosen: list[str]) -> tuple:
+        """The replicate's test rows (:data:`studyctl.power.replicate.ROW_COLUMNS` without size and index)."""
+        return _rows(rows_frame(replicate_rows(self.units, chosen, self.by_member)))
+
+    def rows_frame(self, members: pd.DataFrame, participants: int, replicate: int,
+                   rng: np.random.Generator) -> pd.DataFrame:
+        """A replicate drawn with ``rng`` from ``members`` (e.g. a bootstrap pool) as a rows frame."""
+        cells = composition(self.protocol, self.spec.seed, participants, replicate)
+        chosen = draw_members(self.pool, cells, rng, members)
+        data = [(participants, replicate, *row) for row in self.rows(chosen)]
+        return pd.DataFrame(data, columns=list(ROW_COLUMNS))
 
 
 def draw_replicate(spec: PowerSpec, pool: Pool, participants: int, replicate: int,
@@ -132,12 +158,22 @@ def batches(todo: list[tuple[int, int]], per_task: int) -> list[tuple[int, int, 
 
 @dataclass(frozen=True)
 class PowerError:
-    """Two-stage vs full-engine power at the checked sizes (``to_frame()``: one row per test row and size)."""
+    """Two-stage vs full-engine power at the checked sizes (``to_frame()``: one row per test row and size).
+
+    Per row: the difference in percentage points and its standard error from all three Monte-Carlo sources —
+    the full-engine replicates (binomial), the stage-2 draws (binomial) and the pool's own sampling error (pool
+    bootstrap, :mod:`studyctl.power.bootstrap`; NaN when not measured) — and ``z`` = difference / that SE. The
+    design is unbiased (a random study from a random pool is a random study), so the z values should look like
+    standard normal draws; their sum of squares is ``chi2`` over ``rows``.
+    """
 
     frame: pd.DataFrame
     sizes: tuple[int, ...]
     exact_replicates: int
     two_stage_replicates: int
+    pool_people: int | None = None
+    boot_pools: int = 0
+    boot_replicates: int = 0
 
     def to_frame(self) -> pd.DataFrame:
         return self.frame.copy()
@@ -149,23 +185,41 @@ class PowerError:
     def summary(self) -> dict:
         f = self.frame
         worst = f.loc[f["diff_pp"].abs().idxmax()] if not f.empty else None
+        z = f["z"].to_numpy(dtype=float) if not f.empty else np.zeros(0)
+        z = z[np.isfinite(z)]
+        pool_se = f["pool_se_pp"].to_numpy(dtype=float) if not f.empty else np.zeros(0)
         return {
             "power_error_pp": self.max_abs_pp,
+            # the difference is only meaningful against its SE: the worst row's, and every source's largest
+            "power_error_se_pp": math.nan if worst is None else float(worst["combined_se_pp"]),
             "checked_sizes": list(self.sizes),
             "exact_replicates": self.exact_replicates,
             "two_stage_replicates": self.two_stage_replicates,
-            # The MC standard errors at the worst row, in percentage points: the difference is only meaningful
-            # against sqrt(se_exact² + se_two_stage²).
+            "pool_people": self.pool_people,
+            "boot_pools": self.boot_pools,
+            "boot_replicates": self.boot_replicates,
             "worst": None if worst is None else {k: (v.item() if hasattr(v, "item") else v)
                                                  for k, v in worst.items()},
             "mc_se_exact_pp_max": float(f["mc_se_exact_pp"].max()) if not f.empty else math.nan,
             "mc_se_two_stage_pp_max": float(f["mc_se_two_stage_pp"].max()) if not f.empty else math.nan,
+            "pool_se_pp_max": float(np.nanmax(pool_se)) if np.isfinite(pool_se).any() else math.nan,
+            "combined_se_pp_max": float(f["combined_se_pp"].max()) if not f.empty else math.nan,
+            "mean_diff_pp": float(f["diff_pp"].mean()) if not f.empty else math.nan,
+            "rows": int(z.size),
+            "chi2": float((z ** 2).sum()),
+            "rows_abs_z_over_2": int((np.abs(z) > 2).sum()),
+            # the pool's SE falls as 1/sqrt(people): the pool that would bring the worst row's to 2 pp
+            "pool_people_for_2pp_se": (math.ceil(self.pool_people * (float(np.nanmax(pool_se)) / 2.0) ** 2)
+                                       if self.pool_people and np.isfinite(pool_se).any() else None),
         }
 
 
-def compare(two_stage: pd.DataFrame, exact: pd.DataFrame, sizes: tuple[int, ...]) -> PowerError:
+def compare(two_stage: pd.DataFrame, exact: pd.DataFrame, sizes: tuple[int, ...],
+            pool_error: pd.DataFrame | None = None) -> PowerError:
     """Per non-post-hoc test row at ``sizes``: two-stage minus full-engine power in percentage points, with the
-    binomial Monte-Carlo standard error of each (sqrt(p(1-p)/R) × 100)."""
+    binomial Monte-Carlo standard error of each (sqrt(p(1-p)/R) × 100), the pool's standard error from
+    ``pool_error`` (:meth:`studyctl.power.bootstrap.PoolError.to_frame`; without it the pool's error is not in
+    the combined SE, which then understates the difference's spread) and z = difference / combined SE."""
     # groups too: a model's terms (group, condition, their interaction) are rows of one test, metric and split
     keys = ["participants", "test_id", "metric", "split", "kind", "groups"]
     a = two_stage[(two_stage["kind"] != "posthoc") & two_stage["participants"].isin(sizes)]
@@ -180,8 +234,21 @@ def compare(two_stage: pd.DataFrame, exact: pd.DataFrame, sizes: tuple[int, ...]
         # the Wilson interval too: at p = 0 or 1 the binomial SE is 0 however few replicates there were
         out[f"ci_low_{side}"] = m[f"power_ci_low_{side}"].astype(float)
         out[f"ci_high_{side}"] = m[f"power_ci_high_{side}"].astype(float)
+    people = boots = boot_reps = 0
+    if pool_error is not None and not pool_error.empty:
+        pe = pool_error[pool_error["kind"] != "posthoc"][[*keys, "pool_se"]]
+        out = out.merge(pe, on=keys, how="left")
+        out["pool_se_pp"] = 100 * out.pop("pool_se").astype(float)
+        people = int(pool_error["pool_people"].iloc[0])
+        boots, boot_reps = int(pool_error["boot_pools"].iloc[0]), int(pool_error["boot_replicates"].iloc[0])
+    else:
+        out["pool_se_pp"] = np.nan
     out["diff_pp"] = 100 * (out["power_two_stage"] - out["power_exact"])
-    out["combined_se_pp"] = np.sqrt(out["mc_se_two_stage_pp"] ** 2 + out["mc_se_exact_pp"] ** 2)
+    binom = out["mc_se_two_stage_pp"] ** 2 + out["mc_se_exact_pp"] ** 2
+    out["combined_se_pp"] = np.sqrt(binom + out["pool_se_pp"].fillna(0.0) ** 2)
+    # a row at 0 or 1 on both sides has SE 0 and difference 0: no evidence either way (z left undefined)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out["z"] = np.where(out["combined_se_pp"] > 0, out["diff_pp"] / out["combined_se_pp"], np.nan)
     reps_e = int(b["replicates"].max()) if not b.empty else 0
     reps_t = int(a["replicates"].max()) if not a.empty else 0
-    return PowerError(out.reset_index(drop=True), tuple(sizes), reps_e, reps_t)
+    return PowerError(out.reset_index(drop=True), tuple(sizes), reps_e, reps_t, people or None, boots, boot_reps)

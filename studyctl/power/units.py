@@ -50,14 +50,38 @@ class PoolUnits:
         parts = [pos[m] for m in chosen if m in pos]
         return np.concatenate(parts) if parts else np.zeros(0, dtype=np.intp)
 
+    @staticmethod
+    def _labels(pos: dict[str, np.ndarray], chosen: Sequence[str]) -> np.ndarray | None:
+        """Per gathered row, its person's label in the replicate when someone is drawn twice (a replicate of
+        a bootstrap pool): the second copy is another participant, ``member~1`` (None: nobody repeats)."""
+        if len(set(chosen)) == len(chosen):
+            return None
+        seen: dict[str, int] = {}
+        labels = []
+        for m in chosen:
+            if m in pos:
+                k = seen.get(m, 0)
+                seen[m] = k + 1
+                labels.append(np.full(len(pos[m]), m if k == 0 else f"{m}~{k}", dtype=object))
+        return np.concatenate(labels) if labels else None
+
     def view(self, chosen: Sequence[str], by_member: dict[str, pd.DataFrame]) -> tuple[Prepared, UnitSource | None]:
         """The prepared data of a replicate made of ``chosen`` (in that order) and where its units come from."""
         if self._prep is None:
-            frame = pd.concat([by_member[m] for m in chosen if m in by_member], ignore_index=True)
+            frames, seen = [], {}
+            for m in chosen:
+                if m in by_member:
+                    k = seen[m] = seen.get(m, -1) + 1
+                    frames.append(by_member[m] if k == 0 else by_member[m].assign(participant=f"{m}~{k}"))
+            frame = pd.concat(frames, ignore_index=True)
             return prepare(self.plan, MetricTable(frame=frame, source="two-stage pool", study=self._table.study)), None
         idx = self._gather(self._rows, chosen)
-        idx = idx[np.argsort(self._metric_code[idx], kind="stable")]
+        labels = self._labels(self._rows, chosen)
+        order = np.argsort(self._metric_code[idx], kind="stable")
+        idx = idx[order]
         frame = self._prep.frame.take(idx).reset_index(drop=True)
+        if labels is not None:
+            frame["participant"] = labels[order]
         prep = Prepared(frame, self._prep.missing.iloc[0:0], (), ())
 
         def units(metric: str, kind: str, keep: list[str], aggregate: str, data: pd.DataFrame) -> pd.DataFrame:
@@ -67,7 +91,11 @@ class PoolUnits:
                 table = unit_values(whole, kind=kind, keep=keep, aggregate=aggregate)
                 self._units[key] = (table, _positions(table["participant"]))
             table, pos = self._units[key]
-            return table.take(self._gather(pos, chosen)).reset_index(drop=True)
+            out = table.take(self._gather(pos, chosen)).reset_index(drop=True)
+            labels = self._labels(pos, chosen)
+            if labels is not None:
+                out["participant"] = labels
+            return out
 
         return prep, units
 

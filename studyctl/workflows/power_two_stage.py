@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from studyctl.errors import UsageError
+from studyctl.power.bootstrap import pool_bootstrap
 from studyctl.power.executor import SerialBackend, open_backend
 from studyctl.power.pool import build_pool, check_pool_size
 from studyctl.power.population import population_model
@@ -25,6 +26,7 @@ from studyctl.protocol import load_protocol_text
 from studyctl.workflows.power import PowerRun, _atomic, _write, run_power
 
 ERROR_FILE = "power_error.csv"
+POOL_ERROR_FILE = "power_pool_error.csv"
 #: Stage-2 replicates per Dask task at most (a replicate takes ~0.1–1 s: tens per task keep scheduling small).
 STAGE2_BATCH = 50
 STAGE2_DIR = "two_stage"
@@ -53,13 +55,17 @@ def run_two_stage(
     pool: int | None = None,
     check_sizes: tuple[int, ...] | None = None,
     check_replicates: int = 50,
+    boot_pools: int = 20,
+    boot_replicates: int = 50,
     scheduler: str | None = None,
     workers: int | None = None,
     on_stage: Callable[[str, int, int], None] | None = None,
     figure: bool = True,
 ) -> PowerRun:
     """Stage 1 (pool of ``pool`` people, default 20 × the largest n, in ``pool_dir``), stage 2 (every replicate
-    of ``spec`` drawn from it), and ``check_replicates`` full-engine replicates at ``check_sizes`` (0: no check).
+    of ``spec`` drawn from it), and ``check_replicates`` full-engine replicates at ``check_sizes`` (0: no check)
+    compared with it, the pool's own error measured at those sizes by ``boot_pools`` bootstrap pools of
+    ``boot_replicates`` stage-2 replicates each (:mod:`studyctl.power.bootstrap`; 0 pools: not measured).
 
     ``on_stage(stage, done, total)`` reports progress ("pool", "stage 2", "exact check").
     """
@@ -69,6 +75,10 @@ def run_two_stage(
     checks = tuple(check_sizes or ())
     if check_replicates < 0:
         raise UsageError(f"--check-replicates must be 0 or more, got {check_replicates}")
+    if boot_pools < 0 or boot_pools == 1 or boot_replicates < 2:
+        raise UsageError(f"--pool-bootstrap {boot_pools} with {boot_replicates} replicates each: the pool's error "
+                         "needs 0 (not measured) or at least 2 bootstrap pools of at least 2 replicates; use e.g. "
+                         "--pool-bootstrap 20")
     protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
     backend = open_backend(scheduler, workers, spec.memory_limit)
     try:
@@ -111,18 +121,27 @@ def run_two_stage(
         backend.close()
     per_size = {n: int((reps["participants"] == n).sum()) for n in spec.sizes}
     table = summarise(rows, spec.sizes, per_size)
-    error = None
+    error = boot = None
+    if checks and boot_pools:
+        if on_stage is not None:
+            on_stage("pool bootstrap", 0, len(checks))
+        boot = pool_bootstrap(spec, built, checks, boot_pools, boot_replicates)
+        if on_stage is not None:
+            on_stage("pool bootstrap", len(checks), len(checks))
     if checks and check_replicates:
         exact_spec = dataclasses.replace(spec, sizes=checks, replicates=check_replicates, target=None)
         exact = run_power(exact_spec, out / EXACT_DIR, scheduler=scheduler, workers=workers, figure=False,
                           on_progress=None if on_stage is None else
                           lambda d, t, _r: on_stage("exact check", d, t))
-        error = compare(table.frame, exact.table.frame, checks)
+        error = compare(table.frame, exact.table.frame, checks, None if boot is None else boot.to_frame())
     target = None if spec.target is None else smallest_sizes(table.frame, spec.target)
     population = population_model(spec.population, protocol).to_frame()
     note = _note(error, built.size)
     files = _write(out, spec, table, population, reps, f"two-stage: pool and stage 2 on {backend_desc}",
                    figure, target, note=note)
+    if boot is not None:
+        files["pool_error"] = out / POOL_ERROR_FILE
+        _atomic(files["pool_error"], lambda p: boot.to_frame().to_csv(p, index=False))
     if error is not None:
         files["error"] = out / ERROR_FILE
         _atomic(files["error"], lambda p: error.to_frame().to_csv(p, index=False))
@@ -144,7 +163,10 @@ def run_two_stage(
 def _note(error: PowerError | None, people: int) -> str:
     if error is None:
         return f"two-stage design: {people}-person pool; error against full-engine replicates not checked"
-    return (f"two-stage design ({people}-person pool): max |two-stage - full engine| = {error.max_abs_pp:.1f} pp at "
-            f"n = {', '.join(map(str, error.sizes))} ({error.exact_replicates} full-engine replicates; MC SE up to "
-            f"{error.frame['mc_se_exact_pp'].max():.1f} pp full engine, "
-            f"{error.frame['mc_se_two_stage_pp'].max():.1f} pp two-stage)")
+    e = error.summary()
+    pool = ("pool SE not measured" if not math.isfinite(e["pool_se_pp_max"])
+            else f"pool SE up to {e['pool_se_pp_max']:.1f} pp")
+    return (f"two-stage design ({people}-person pool): max |two-stage - full engine| = {e['power_error_pp']:.1f} pp "
+            f"± {e['power_error_se_pp']:.1f} (SE) at n = {', '.join(map(str, error.sizes))} "
+            f"({error.exact_replicates} full-engine replicates; MC SE up to {e['mc_se_exact_pp_max']:.1f} pp full "
+            f"engine, {e['mc_se_two_stage_pp_max']:.1f} pp stage 2; {pool}; chi2 {e['chi2']:.0f} on {e['rows']} rows)")

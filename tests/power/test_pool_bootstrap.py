@@ -1,0 +1,94 @@
+"""The pool's own sampling error: a bootstrap of the pool, and a comparison whose SE includes it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from power_testdata import PLAN, PROTOCOL, SEED
+
+from studyctl.power import prepare_power
+from studyctl.power.bootstrap import pool_bootstrap, pool_variance, resample_members
+from studyctl.power.pool import build_pool
+from studyctl.power.twostage import Stage2, compare
+
+
+def test_pool_variance_removes_the_binomial_part():
+    rng = np.random.default_rng(3)
+    # one power for every pool: the spread of the estimates is all binomial, the pool's variance ~0
+    same = rng.binomial(200, 0.4, size=400) / 200
+    assert pool_variance(same, 200) == pytest.approx(0.0, abs=2e-4)
+    # pools whose true power spreads with SD 0.08: the estimate finds it
+    spread = rng.binomial(200, np.clip(rng.normal(0.5, 0.08, size=400), 0, 1)) / 200
+    assert pool_variance(spread, 200) ** 0.5 == pytest.approx(0.08, abs=0.01)
+    assert np.isnan(pool_variance(np.array([0.5]), 200))
+
+
+def test_resampling_keeps_every_cell_size():
+    members = pd.DataFrame({"member": [f"p{i}" for i in range(12)], "chunk": 0,
+                            "stratum": ["a"] * 6 + ["b"] * 6, "sequence": [0, 1] * 6})
+    boot = resample_members(members, np.random.default_rng(1))
+    assert boot.groupby(["stratum", "sequence"]).size().tolist() == [3, 3, 3, 3]
+    for (s, q), g in boot.groupby(["stratum", "sequence"]):
+        own = set(members[(members["stratum"] == s) & (members["sequence"] == q)]["member"])
+        assert set(g["member"]) <= own
+    many = [resample_members(members, np.random.default_rng(k))["member"].nunique() for k in range(20)]
+    assert min(many) < 12  # with replacement: someone repeats
+
+
+@pytest.fixture(scope="module")
+def small_pool(tmp_path_factory):
+    spec = prepare_power(PROTOCOL, PLAN, sizes="4", replicates=3, seed=SEED)
+    return spec, build_pool(spec, tmp_path_factory.mktemp("pools"), 12)
+
+
+@pytest.mark.slow
+def test_a_person_drawn_twice_is_two_participants(small_pool):
+    """A replicate with a person twice equals the plan run on a table where the copy has its own code."""
+    from studyctl.analysis.execute import hypothesis_rows
+    from studyctl.analysis.results import rows_frame
+    from studyctl.analysis.shape import prepare
+    from studyctl.analysis.table import MetricTable
+    from studyctl.power.replicate import _rows
+
+    spec, pool = small_pool
+    stage2 = Stage2(spec, pool)
+    a, b, c = pool.members["member"].iloc[[0, 1, 6]]
+    chosen = [a, b, c, a]
+    got = stage2.rows(chosen)
+    m = pool.metrics
+    frame = pd.concat([m[m["participant"] == a], m[m["participant"] == b], m[m["participant"] == c],
+                       m[m["participant"] == a].assign(participant=f"{a}~1")], ignore_index=True)
+    want = _rows(rows_frame(hypothesis_rows(spec.plan, prepare(spec.plan, MetricTable(frame=frame)))))
+    pd.testing.assert_frame_equal(pd.DataFrame(got), pd.DataFrame(want))
+    # and the copy counts: three distinct people give other rows
+    assert not pd.DataFrame(stage2.rows([a, b, c])).equals(pd.DataFrame(got))
+
+
+@pytest.mark.slow
+def test_pool_bootstrap_rows_and_compare_with_it(small_pool):
+    spec, pool = small_pool
+    boot = pool_bootstrap(spec, pool, (4,), 3, 4)
+    f = boot.to_frame()
+    assert not f.empty and (f["boot_pools"] == 3).all() and (f["pool_people"] == 12).all()
+    assert ((f["pool_se"] >= 0) | f["pool_se"].isna()).all()
+    again = pool_bootstrap(spec, pool, (4,), 3, 4).to_frame()
+    pd.testing.assert_frame_equal(f, again)  # seeded
+
+
+def test_compare_puts_the_pool_error_in_the_se():
+    base = {"test_id": "t", "metric": "m", "split": "", "kind": "omnibus", "participants": 8, "groups": "condition"}
+    two = pd.DataFrame([{**base, "power": 0.60, "replicates": 400, "power_ci_low": 0.55, "power_ci_high": 0.65}])
+    ex = pd.DataFrame([{**base, "power": 0.50, "replicates": 100, "power_ci_low": 0.40, "power_ci_high": 0.60}])
+    without = compare(two, ex, (8,))
+    boot = pd.DataFrame([{**base, "role": "", "test": "", "parent": "", "pool_se": 0.08, "pool_people": 160,
+                          "boot_pools": 20, "boot_replicates": 50}])
+    with_pool = compare(two, ex, (8,), boot)
+    binom = (100 * (0.6 * 0.4 / 400) ** 0.5) ** 2 + (100 * (0.25 / 100) ** 0.5) ** 2
+    assert without.to_frame()["combined_se_pp"].iloc[0] == pytest.approx(binom ** 0.5)
+    assert with_pool.to_frame()["combined_se_pp"].iloc[0] == pytest.approx((binom + 64) ** 0.5)
+    s = with_pool.summary()
+    assert s["power_error_pp"] == pytest.approx(10.0) and s["pool_se_pp_max"] == pytest.approx(8.0)
+    assert s["chi2"] == pytest.approx(100 / (binom + 64))
+    assert s["pool_people_for_2pp_se"] == 160 * 16  # (8 / 2)² times the pool
+    assert np.isnan(without.summary()["pool_se_pp_max"])
