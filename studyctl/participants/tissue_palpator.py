@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import math
 from array import array
+from bisect import bisect_right
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
@@ -122,8 +123,13 @@ PARAMS = (
           source="FITTED: decision criterion per press: the person holds a press until its stiffness judgement "
           "(all cues fused) has this SD or less, at most max_dwell_s (0: always the shortest dwell)"),
     Param("steady_rate_n_s", 2.0, low=0.01, high=100.0, unit="N/s",
-          source="CHOSEN: a force changing faster than this is felt as still settling (0.1 N in 50 ms, about "
-          "a force JND at 1 N); the judgement starts once it is steady"),
+          source="CHOSEN: a push whose average changes faster than this is felt as still settling (0.1 N in 50 ms, "
+          "about a force JND at 1 N); the judgement starts once it is steady"),
+    Param("steady_window_s", 0.2, low=0.01, high=2.0, unit="s",
+          source="CHOSEN: steadiness is judged by comparing the push averaged over the last half of this window "
+          "with the half before; 0.1 s halves span three cycles of the ~30 Hz on/off push that seed 003's "
+          "release-on-retract rendering gives a held stylus, and people cannot modulate a force faster than "
+          "5-10 Hz (Brooks 1990, telerobotic response requirements), so a judgement of 'steady' takes this long"),
     Param("max_dwell_s", 2.0, low=0.0, high=30.0, unit="s", source="CHOSEN: nobody holds one press longer"),
     Param("force_trust", 1.0, low=0.0, high=1.0,
           source="CHOSEN: the share of the force cue's information a person uses (1: statistically optimal "
@@ -487,18 +493,18 @@ class VirtualTissuePalpator(Participant):
                 self._phase, self._phase_t = "dwell", 0.0
                 press["bx"], press["by"], press["bz"] = ctrl[0], ctrl[1], ctrl[2]
                 press["hold"] = self._hold_time(press, force)
+                press["w_t"], press["w_c"], press["w_felt"] = [], [], 0.0
         elif phase == "dwell":
             # the force and indentation held at the bottom, averaged over the hold (judged from the terminal
             # force, Tan et al. 1995), so a transient of the hand's own dynamics does not count as stiffness
-            last = press.get("f_last")
-            press["f_last"] = force
-            # (a rising force; a force that vanishes, as FF renders none while the tool retracts, is not settling)
-            if last is not None and force - last > p["steady_rate_n_s"] * max(self._dt, 1e-6):
-                # the force still changes (the hand settling against the tissue): judge from when it is steady
+            if not self._steady(press, force):
+                # the push still changes (the hand settling against the tissue): judge from when it is steady
                 press["f_sum"] = press["f_max"] = press["x_sum"] = press["y_sum"] = press["z_sum"] = 0.0
                 press["n_held"], press["steady_t"] = 0, self._phase_t
             press["f_sum"] += force
-            press["f_max"] = max(press["f_max"], force)
+            if force > press["f_max"] or not press["n_held"]:
+                # the strongest push, and how deep the tool was when it pushed that hard
+                press["f_max"], press["z_at_max"] = force, ctrl[2]
             press["x_sum"] += ctrl[0]
             press["y_sum"] += ctrl[1]
             press["z_sum"] += ctrl[2]
@@ -513,6 +519,35 @@ class VirtualTissuePalpator(Participant):
             if self._goal_reached() or timed_out:
                 self._goal, self._settle_at = None, math.inf
                 self._next_press()
+
+    def _steady(self, press: dict[str, Any], force: float) -> bool:
+        """Whether the push felt at the press bottom has stopped changing: its average over the last half of
+        ``steady_window_s`` differs from its average over the half before by at most ``steady_rate_n_s`` times
+        the half window. A criterion over time, so it does not depend on the loop rate: seed 003's FF renders no
+        normal force while the tool retracts, so a held stylus gets an on/off push of ~30 Hz (the spring-held
+        hand chatters against the rule) and a tick-to-tick test never found it steady. No push felt at all is
+        steady at once (nothing to wait for)."""
+        ts, cs = press["w_t"], press["w_c"]
+        t = self._phase_t
+        ts.append(t)
+        cs.append((cs[-1] if cs else 0.0) + force)
+        if press["w_felt"] < force:
+            press["w_felt"] = force
+        if press["w_felt"] <= 0.02:
+            return True
+        half = 0.5 * self.params["steady_window_s"]
+        if t < 2.0 * half:
+            return False
+        n = len(ts)
+        i1 = bisect_right(ts, t - half)
+        i0 = bisect_right(ts, t - 2.0 * half)
+        if i1 <= i0 or n <= i1:
+            return False
+        # cumulative sums: the mean over ticks (i0, i1] and (i1, n-1]
+        c0 = cs[i0 - 1] if i0 > 0 else 0.0
+        early = (cs[i1 - 1] - c0) / (i1 - i0)
+        late = (cs[-1] - cs[i1 - 1]) / (n - i1)
+        return abs(late - early) <= self.params["steady_rate_n_s"] * half
 
     def _cue_sigmas(self) -> tuple[float, float]:
         """SD of one judgement (over ``judge_time_s``) of the force cue (with the finger's skin cue when touching
@@ -571,10 +606,12 @@ class VirtualTissuePalpator(Participant):
         x, y = (press["x_sum"] / n, press["y_sum"] / n) if n else (press["bx"], press["by"])
         row = {"x": x, "y": y, "force": math.nan, "ratio": math.nan, "stage": self._stage}
         # The resistance felt is the strongest steady push of the hold: where the rendering drops the force
-        # whenever the tool backs off (seed 003's FF), the mean would count those gaps as softness.
+        # whenever the tool backs off (seed 003's FF), the mean would count those gaps as softness. It is judged
+        # with the indentation (seen on the cursor or felt by the hand) at the moment it pushed that hard: over
+        # a one-second hold the hand drifts deeper, and the strongest push paired with the mean depth read 2 %
+        # press-to-press scatter (SD) out of uniform tissue (noise-free percepts, 1 s holds), paired at the push 0.4 %.
         held = press["f_max"] if n else 0.0
-        # the indentation the participant sees (cursor) or feels (hand), held at the bottom
-        depth = press["h"] - (press["z_sum"] / n if n else press["bz"])
+        depth = press["h"] - (press["z_at_max"] if n else press["bz"])
         if held > 0.0 and depth > 0.2:
             # Stiffness as people judge it: the force felt per indentation seen (Srinivasan & LaMotte 1995).
             felt = held * (1.0 + scale * p["force_weber"] * float(rng.normal()))
@@ -588,6 +625,8 @@ class VirtualTissuePalpator(Participant):
                 skin = held / depth * (1.0 + scale * cut * float(rng.normal()))
                 w_kin, w_cut = 1.0 / max(kin, 1e-9) ** 2, 1.0 / max(cut, 1e-9) ** 2
                 row["force"] = (w_kin * row["force"] + w_cut * skin) / (w_kin + w_cut)
+            # the judged push and the depth it was judged at, for comparing presses held at like depths
+            row["felt"], row["seen"] = row["force"] * seen, seen
         track = press["track"]  # cumulative (cursor descent, hand descent) over the descending ticks
         if len(track) >= 2 and track[-1][0] > 0.5:
             bc, bh = track[-1]
@@ -602,6 +641,8 @@ class VirtualTissuePalpator(Participant):
                 seen_scale = math.sqrt(p["judge_time_s"] / max(watched, p["judge_time_s"]))
                 noise = seen_scale * math.hypot(p["visual_weber"], p["hand_weber"])
                 row["ratio"] = (bh - oh) / (bc - oc) * (1.0 + noise * float(rng.normal()))
+                # how deep the cursor was over the window (its descent into the tissue, as seen on screen)
+                row["ratio_seen"] = 0.5 * (bc + oc) * (1.0 + p["depth_weber"] * float(rng.normal()))
         self._presses.append(row)
 
     # ------------------------------------------------------------------ the decision
@@ -621,12 +662,16 @@ class VirtualTissuePalpator(Participant):
         cues: list[tuple[np.ndarray, str]] = []
         force = np.array([r["force"] for r in rows])
         if np.isfinite(force[survey]).sum() >= 5 and np.nanmedian(force[survey]) > 0.02:
-            cues.append((force, "force"))
+            felt = np.array([r.get("felt", math.nan) for r in rows])
+            seen = np.array([r.get("seen", math.nan) for r in rows])
+            cues.append((_depth_matched(felt, seen, survey), "force"))
         ratio = np.array([r["ratio"] for r in rows])
         if np.isfinite(ratio[survey]).sum() >= 5:
             visual_force = self._r0() * ratio - 1.0
             if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
-                cues.append((visual_force, "cursor"))
+                # the slowing grows with depth as the force does: compared at like depths, as the push is
+                seen = np.array([r.get("ratio_seen", math.nan) for r in rows])
+                cues.append((_depth_matched(visual_force, seen, survey), "cursor"))
         self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum()),
                           "survey_stopped_early": self._stopped_early}
         if not cues:
@@ -816,6 +861,32 @@ class VirtualTissuePalpator(Participant):
         judged = math.log(float(np.mean(both)) / float(np.mean(force))) + weber * float(rng.normal())
         steps = int(judged / math.log1p(weber)) if judged > 0 else 0
         return codes[min(steps, len(codes) - 1)]
+
+
+def _depth_matched(felt: np.ndarray, seen: np.ndarray, survey: np.ndarray) -> np.ndarray:
+    """Per press: a cue (the push felt, or the force the cursor's slowing reads) over what the tissue around
+    gives at the same indentation.
+
+    The maps' forces grow faster than the depth (about d^1.7 between 2 and 7 mm, Hertz-like; linear below
+    the shallowest map), so force per depth is itself larger for a deeper press: a press held 4.7 mm deep
+    (the first press of a PHF+FF trial, before the cursor ratchets up in the on/off push) read 26-42 %
+    "stiffer" than its neighbours held at 1.7 mm, and was reported as a nodule at the block's corner where
+    every trial starts; in FF and by hand the press-to-press depth scatter alone made force per depth vary
+    by 3 % (SD) where the tissue is uniform. A person learns over the survey how hard the tissue pushes at
+    each depth and compares each press with that: a smooth curve, quadratic in log force against log depth,
+    fitted to the survey presses (a press held at a depth like no other pulls the curve to itself and so
+    reads as ordinary rather than as stiff)."""
+    ok = np.isfinite(felt) & np.isfinite(seen) & (felt > 0) & (seen > 0)
+    ref = survey & ok
+    out = np.full(len(felt), math.nan)
+    if ref.sum() < 8:
+        out[ok] = felt[ok] / seen[ok]
+        return out
+    x, y = np.log(np.where(ok, seen, 1.0)), np.log(np.where(ok, felt, 1.0))
+    xm = float(np.mean(x[ref]))
+    coef = np.polyfit(x[ref] - xm, y[ref], 2 if np.ptp(x[ref]) > 0.05 else 1)
+    out[ok] = np.exp(y[ok] - np.polyval(coef, x[ok] - xm))
+    return out
 
 
 def _feedback_named(row: Mapping[str, Any]) -> set[str]:

@@ -33,7 +33,11 @@ def test_force_feedback_trial_finds_nodules_better_than_chance():
     controller = StiffnessMapForceFeedback({}, scene)
     device = SimulatedForceDevice({}, scene, np.random.default_rng(1))  # spring-held hand, Omni class
     device.open()
-    participant = VirtualTissuePalpator({})
+    # a person of seed 003's population (its trait locations): it compares each press with the tissue at the same
+    # depth, so its depth judgement (read off the screen, 3 %) weighs about 1.7 times (the maps' force-depth
+    # slope), and it holds a press until its judgement is that precise
+    participant = VirtualTissuePalpator({"depth_weber": 0.03, "press_precision": 0.05, "line_spacing_mm": 9.5,
+                                         "press_spacing_mm": 9.5, "z_threshold": 3.5, "report_fraction": 0.15})
     info = TrialInfo(condition="FF", time_limit_s=600.0, rate_hz=200.0, visual="realtime", public={})
     samples = []
     outcome = run_trial(

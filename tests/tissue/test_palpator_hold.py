@@ -1,0 +1,69 @@
+"""What the tissue palpator's hand gets during a held press and how it judges it: steadiness is a criterion
+over time (the same at any loop rate, and reached under seed 003's on/off push), and presses held at
+different depths are compared at like depths (a deeper press of uniform tissue is not a nodule)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from studyctl.participants.tissue_palpator import VirtualTissuePalpator, _depth_matched
+from studyctl.plugins.interfaces import TrialInfo
+
+
+def _person(rate_hz: float) -> VirtualTissuePalpator:
+    p = VirtualTissuePalpator({})
+    p.begin_trial(TrialInfo(condition="FF", time_limit_s=10.0, rate_hz=rate_hz, visual="realtime", public={}),
+                  np.random.default_rng(0))
+    return p
+
+
+def _steady_after(rate_hz: float, push) -> float:
+    """Feed a held press's force tick by tick; the first time (s) the push is judged steady."""
+    p = _person(rate_hz)
+    press = {"w_t": [], "w_c": [], "w_felt": 0.0}
+    dt = 1.0 / rate_hz
+    for k in range(1, int(3.0 * rate_hz)):
+        p._phase_t = k * dt
+        if p._steady(press, push(k * dt)):
+            return k * dt
+    return math.inf
+
+
+def _chatter(t: float) -> float:
+    """seed 003's FF under a held stylus: a 1.5 N overshoot, 0.1 s of no normal force while the hand rebounds,
+    then the table force switched on and off at ~30 Hz (no normal force while the depth decreases)."""
+    if t < 0.03:
+        return 1.5
+    if t < 0.13:
+        return 0.05
+    return 0.57 if (t * 30.0) % 1.0 < 0.5 else 0.03
+
+
+def test_an_on_off_push_is_judged_steady_after_the_same_time_at_any_loop_rate():
+    t250, t1000 = _steady_after(250.0, _chatter), _steady_after(1000.0, _chatter)
+    assert 0.2 < t250 < 0.6  # after the overshoot and the rebound, not at the timeout
+    assert t1000 == pytest.approx(t250, abs=0.02)
+
+
+def test_a_rising_push_is_not_steady_and_no_push_needs_no_wait():
+    assert _steady_after(250.0, lambda t: 0.5 + 5.0 * t) == math.inf  # 5 N/s, faster than steady_rate_n_s
+    assert _steady_after(250.0, lambda t: 0.0) == pytest.approx(1 / 250.0)
+    assert _steady_after(250.0, lambda t: 0.8) == pytest.approx(0.2, abs=0.01)  # one window to judge it
+
+
+def test_presses_are_compared_with_the_tissue_at_the_same_depth():
+    rng = np.random.default_rng(1)
+    depths = list(1.6 + 0.5 * rng.random(40)) + [4.7]  # the first press of a trial held much deeper
+    pushes = [0.2 * d**1.7 for d in depths]  # uniform, Hertz-like tissue
+    depths.append(1.8)
+    pushes.append(1.3 * 0.2 * 1.8**1.7)  # a nodule: 30 % more push at its depth
+    survey = np.ones(len(depths), dtype=bool)
+    cue = _depth_matched(np.array(pushes), np.array(depths), survey)
+    contrast = cue / np.median(cue) - 1.0
+    assert abs(contrast[-2]) < 0.05  # force per depth alone reads it ~60 % stiffer
+    assert (0.2 * 4.7**1.7 / 4.7) / (0.2 * 1.8**1.7 / 1.8) > 1.6
+    assert contrast[-1] == pytest.approx(0.3, abs=0.03)
+    assert np.max(np.abs(contrast[:-2])) < 0.02
