@@ -523,10 +523,10 @@ class VirtualTissuePalpator(Participant):
     def _steady(self, press: dict[str, Any], force: float) -> bool:
         """Whether the push felt at the press bottom has stopped changing: its average over the last half of
         ``steady_window_s`` (of the hold so far, when shorter) differs from its average over the half before by at
-        most ``steady_rate_n_s`` times the half window. A criterion over time, so it does not depend on the loop rate: seed 003's FF renders no
-        normal force while the tool retracts, so a held stylus gets an on/off push of ~30 Hz (the spring-held
-        hand chatters against the rule) and a tick-to-tick test never found it steady. No push felt at all is
-        steady at once (nothing to wait for)."""
+        most ``steady_rate_n_s`` times the half window, and has for a half window. A criterion over time, so it
+        does not depend on the loop rate: seed 003's FF renders no normal force while the tool retracts, so a
+        held stylus gets an on/off push of ~30 Hz (the spring-held hand chatters against the rule) and a
+        tick-to-tick test never found it steady. No push felt at all is steady at once (nothing to wait for)."""
         ts, cs = press["w_t"], press["w_c"]
         t = self._phase_t
         ts.append(t)

@@ -33,8 +33,8 @@ def _steady_after(rate_hz: float, push) -> float:
 
 
 def _chatter(t: float) -> float:
-    """seed 003's FF under a held stylus: the push rising to a 1.5 N overshoot, 0.1 s of no normal force while the hand rebounds,
-    then the table force switched on and off at ~30 Hz (no normal force while the depth decreases)."""
+    """seed 003's FF under a held stylus: the push rising to a 1.5 N overshoot, 0.1 s of no normal force while
+    the hand rebounds, then the table force switched on and off at ~30 Hz (none while the depth decreases)."""
     if t < 0.03:
         return 1.5 * t / 0.03
     if t < 0.13:
