@@ -10,7 +10,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from studyctl.errors import ModelParameterError
-from studyctl.models.needle import NeedleGeometry, NeedleTissueModel
+from studyctl.models.needle import NeedleTissueModel
+from studyctl.models.needle_guidance import NeedleGeometry
 from studyctl.models.needle_params import UNITS, NeedleParams
 from studyctl.plugins.interfaces import Controller, Observation, Scene
 from studyctl.plugins.params import ParamProblem, unknown_param

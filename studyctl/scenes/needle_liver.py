@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from studyctl.errors import ModelParameterError
-from studyctl.models.needle import NeedleGeometry
+from studyctl.models.needle_guidance import NeedleGeometry
 from studyctl.plugins.interfaces import Channels, Scene
 from studyctl.plugins.params import Param, problems_with_rules
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from studyctl.models.needle import NeedleGeometry
+from studyctl.models.needle_guidance import NeedleGeometry
 from studyctl.scenes.needle_liver import NeedleLiverScene
 
 HERE = str(Path(__file__).parent)

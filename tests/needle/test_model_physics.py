@@ -17,11 +17,9 @@ from studyctl.models.needle import (
     TUMOUR_SURFACE,
     NeedleParams,
     NeedleTissueModel,
-    body_frame,
-    body_to_device,
-    radial_guidance,
     stiffness_force,
 )
+from studyctl.models.needle_guidance import body_frame, body_to_device, radial_guidance
 
 SPEED = 15.0  # mm/s, the stated constant insertion speed of the Figure 3 check
 
@@ -308,7 +306,7 @@ def test_closed_loop_energy_does_not_grow():
     """A hand of pure mass released beside the path: the guidance PD takes energy out; without its damper it
     would not (negative control, built without validation)."""
     from studyctl.devices.force3d import SimulatedForceDevice
-    from studyctl.models.needle import NeedleGeometry
+    from studyctl.models.needle_guidance import NeedleGeometry
 
     g = NeedleGeometry((0.0, 0.0, -25.0), 55.0, (0.0, 0.0, -25.0), 1.25, (0.0, 0.0, 30.0))
     a, u = np.array(g.incision_mm), np.array(g.planned_direction)
