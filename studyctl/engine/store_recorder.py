@@ -20,17 +20,14 @@ rebuilds it from the database in :meth:`StoreRecorder.load`.
 from __future__ import annotations
 
 import math
-import operator
-import time
-from array import array
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
 from sqlalchemy import select
 
 from studyctl.engine.plan import SessionPlan
 from studyctl.engine.recorder import MEMORY_EVENT, SessionState, TrialRecord
+from studyctl.engine.sample_buffer import StoreSamples
 from studyctl.errors import NotFoundError, SessionError
 from studyctl.store import StudyStore
 from studyctl.store.lease import SessionLeaseHandle, current_holder, owner_alive, take_lease
@@ -43,86 +40,6 @@ PLAN_EVENTS = ("session_plan", "plan_amended")
 # durable commit. Either way the database is always a consistent prefix of what happened.
 DURABLE_EVENTS = frozenset({"scan", "report", "device_fault", "session_resumed", "coordinator_abort",
                             "coordinator_pause", "coordinator_mark_invalid"})
-
-
-class _StoreSamples:
-    """Buffers a trial's samples and commits them through the store's SampleWriter at least every second
-    of wall time (``FLUSH_WALL_S``): a crash loses at most that much, as the store promises.
-
-    On a simulated clock a second of wall time spans many simulated seconds, so committing by wall time
-    (not by sample time) keeps virtual runs from committing every 50 samples.
-    """
-
-    FLUSH_WALL_S = 1.0
-
-    def __init__(self, store: StudyStore, trial_id: int, guard=None) -> None:
-        self._store = store
-        self._trial = trial_id
-        self._guard = guard  # the session lease's check, run inside every flush's transaction
-        self._writer = None
-        self._keys: tuple[str, ...] | None = None
-        self._get = None
-        # Rows go straight into flat float64 buffers (no per-flush conversion of a list of tuples); a value
-        # array('d') refuses (None, a string) switches to object rows that numpy converts as it always did.
-        self._t = array("d")
-        self._flat: array | None = array("d")
-        self._rows: list[tuple[Any, ...]] = []
-        self._last = time.monotonic()
-
-    def write(self, t: float, values: Mapping[str, float]) -> None:
-        if self._get is None:
-            self._keys = tuple(values)
-            self._get = operator.itemgetter(*self._keys) if len(self._keys) > 1 else (lambda v: (v[self._keys[0]],))
-        try:
-            row = self._get(values)
-        except KeyError as exc:
-            raise SessionError(f"sample at t={t:g} s lacks channel {exc.args[0]!r} logged so far "
-                               f"({', '.join(self._keys)}); a device or controller changed its channels") from None
-        flat = self._flat
-        if flat is not None:
-            n0 = len(flat)
-            try:
-                flat.extend(row)
-            except (TypeError, ValueError, OverflowError):
-                del flat[n0:]  # extend stops part-way
-                self._to_rows()
-                self._rows.append(row)
-        else:
-            self._rows.append(row)
-        self._t.append(t)
-        if time.monotonic() - self._last >= self.FLUSH_WALL_S:
-            self.flush()
-
-    def flush(self) -> None:
-        self._last = time.monotonic()
-        if not self._t:
-            return
-        if self._writer is None:
-            # the writer's own flushing is disabled: this class decides when to commit
-            # sealed with the trial's next record (the recorder seals per transaction), not per flush
-            self._writer = self._store.sample_writer(self._trial, list(self._keys), flush_interval_s=1e12,
-                                                     guard=self._guard, seal=False)
-        t = np.frombuffer(self._t, dtype=float)
-        if self._flat is not None:
-            values = np.frombuffer(self._flat, dtype=float).reshape(len(t), len(self._keys))
-        else:
-            values = np.asarray(self._rows, dtype=float)
-        self._writer.append_block(t, values)  # copies into the writer's buffer
-        del t, values  # release the views before the buffers are replaced
-        self._writer.flush()
-        self._t, self._flat, self._rows = array("d"), array("d"), []
-
-    def _to_rows(self) -> None:
-        """Keep this flush's rows as tuples from now on (a value that is not a plain number was logged)."""
-        k = len(self._keys)
-        flat = self._flat.tolist()
-        self._rows = [tuple(flat[i : i + k]) for i in range(0, len(flat), k)]
-        self._flat = None
-
-    def close(self) -> None:
-        self.flush()
-        if self._writer is not None:
-            self._writer.close()
 
 
 def _add_trial_row(store: StudyStore, tx, session_id: int, step, status: str, attempt: int,
@@ -419,9 +336,9 @@ class StoreRecorder:
             self._append(tx, "trial_marked", {"trial_id": trial_id, "status": status, "reason": reason}, None, None)
         self._state.set_trial(trial_id, status, reason)
 
-    def samples(self, trial_id: int, channels: list[str]) -> _StoreSamples:
+    def samples(self, trial_id: int, channels: list[str]) -> StoreSamples:
         # a writer that lost the session's lease (another process took it over) stores no further samples
-        return _StoreSamples(self.store, trial_id, guard=self.lease.verify if self.lease is not None else None)
+        return StoreSamples(self.store, trial_id, guard=self.lease.verify if self.lease is not None else None)
 
     def answer(self, position, instrument, version, item, code, response_time_s) -> None:
         with self._tx() as tx:

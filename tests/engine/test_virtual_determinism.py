@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import studyctl.engine.store_recorder as store_recorder
+import studyctl.engine.sample_buffer as sample_buffer
 import studyctl.plugins.safety as safety
 from studyctl.plugins.interfaces import ChannelLimit, DeviceLimits, Observation
 
@@ -34,13 +34,13 @@ def _slow(monkeypatch: pytest.MonkeyPatch) -> None:
 
     monkeypatch.setattr(safety.SafetyLayer, "__init__", slow_init)
     monkeypatch.setattr(safety, "_all_finite_floats", lambda values: False)
-    samples_init = store_recorder._StoreSamples.__init__
+    samples_init = sample_buffer.StoreSamples.__init__
 
     def rows_init(self, *args, **kwargs) -> None:  # noqa: ANN001
         samples_init(self, *args, **kwargs)
         self._flat = None
 
-    monkeypatch.setattr(store_recorder._StoreSamples, "__init__", rows_init)
+    monkeypatch.setattr(sample_buffer.StoreSamples, "__init__", rows_init)
 
 
 def _limits(rate: float | None) -> DeviceLimits:
