@@ -23,15 +23,8 @@ import time
 import numpy as np
 
 from studyctl.bench import BenchResult
-from studyctl.models.force_render import (
-    DEFAULT_INTERPOLATION,
-    INTERPOLATIONS,
-    ForceRenderer,
-    Placement,
-    RenderParams,
-    make_lookup,
-    reference_forces,
-)
+from studyctl.models.force_lookup import DEFAULT_INTERPOLATION, INTERPOLATIONS, make_lookup
+from studyctl.models.force_render import ForceRenderer, Placement, RenderParams, reference_forces
 from studyctl.models.surface_mesh import SurfaceMesh, closest_points_on_triangles
 from studyctl.models.synthetic_phantom import curved_phantom_002, silicone_block_003
 

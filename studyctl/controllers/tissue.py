@@ -26,7 +26,8 @@ from collections.abc import Mapping
 from typing import Any, ClassVar
 
 from studyctl.errors import ModelParameterError
-from studyctl.models.force_render import INTERPOLATIONS, ForceRenderer, RenderParams
+from studyctl.models.force_lookup import INTERPOLATIONS
+from studyctl.models.force_render import ForceRenderer, RenderParams
 from studyctl.models.pseudo_haptics import PseudoHapticCursor, PseudoHapticParams
 from studyctl.plugins.interfaces import Controller, Observation, Scene
 from studyctl.plugins.params import Param, validate_params

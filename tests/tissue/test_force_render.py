@@ -9,14 +9,8 @@ import numpy as np
 import pytest
 
 from studyctl.errors import ModelParameterError
-from studyctl.models.force_render import (
-    INTERPOLATIONS,
-    ForceRenderer,
-    Placement,
-    RenderParams,
-    make_lookup,
-    reference_forces,
-)
+from studyctl.models.force_lookup import INTERPOLATIONS, make_lookup
+from studyctl.models.force_render import ForceRenderer, Placement, RenderParams, reference_forces
 from studyctl.models.stiffness_map import StiffnessMap
 from studyctl.models.surface_mesh import SurfaceMesh
 
