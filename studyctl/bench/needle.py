@@ -176,7 +176,7 @@ def _virtual_trial(limit_s: float) -> tuple[float, float, int]:
 
 
 def _jitter_in_process(seconds: float) -> dict[str, float]:
-    from studyctl.engine.servo import TimedClock  # noqa: PLC0415
+    from studyctl.engine.realtime import TimedClock  # noqa: PLC0415
 
     scene = _scene()
     ctrl = NeedleHybridController(_scenario("ESG"), scene)

@@ -153,7 +153,7 @@ def _io_problems(device: Any, simulated: bool, ticks: int) -> list[str]:
 
 
 def _hang_problems(cls: type, params: dict[str, Any], hang_after_s: float = 0.5, limit_s: float = 5.0) -> list[str]:
-    from studyctl.engine.servo import TimedClock  # noqa: PLC0415
+    from studyctl.engine.realtime import TimedClock  # noqa: PLC0415
     from studyctl.engine.trial_loop import run_trial  # noqa: PLC0415
 
     events: list[tuple[str, dict]] = []

@@ -39,7 +39,7 @@ from studyctl.engine.factory import (
 from studyctl.engine.plan import ConditionSpec, SessionPlan, Step
 from studyctl.engine.recorder import MEMORY_EVENT, Recorder, SessionState
 from studyctl.engine.seeding import TrialStreams, person_rng, trial_streams
-from studyctl.engine.servo import ServoSpec, run_trial_in_servo_process
+from studyctl.engine.servo import ServoProcess, ServoSpec
 from studyctl.engine.trial_loop import TrialOutcome, run_trial
 from studyctl.engine.ui import Control, ManualOutcome, SessionUI
 from studyctl.errors import DeviceError, InvalidAnswer, SessionError, SessionInterrupted, StudyctlError, UsageError
@@ -144,6 +144,7 @@ class SessionRunner:
         self._clock0 = clock.now()
         self._offset = 0.0
         self._seed = 0
+        self._servo: ServoProcess | None = None  # the session's servo process, started by its first hardware trial
 
     # -- time --------------------------------------------------------------------------------------
     def now(self) -> float:
@@ -186,6 +187,7 @@ class SessionRunner:
             self._announce_resume(state)
         self.rec.set_status("running")
         refresh_checkpoint = resuming and state.plan.checkpoint == "condition"
+        self._servo = ServoProcess()
         try:
             while True:
                 state = self.rec.state()
@@ -213,6 +215,8 @@ class SessionRunner:
                 f"session {sid} stopped by Ctrl-C; everything done so far is saved. "
                 f"Continue with `studyctl resume {sid}`"
             ) from None
+        finally:
+            self._servo.close()  # one servo process served every hardware trial of this run
         self.rec.event("session_end", {}, t=self.now())
         self.rec.set_status("completed")
         return self.result()
@@ -824,8 +828,13 @@ class SessionRunner:
                 percept["view"] = scene.view(latest["sample"])
             return list(participant.act(latest["t"], percept).requests)
 
-        result = run_trial_in_servo_process(spec, on_event=on_child_event, on_sample=on_sample,
-                                            requests=None if in_child else requests, should_stop=should_stop)
+        servo = self._servo or ServoProcess()  # outside run() (a test's single trial): a process of its own
+        try:
+            result = servo.run_trial(spec, on_event=on_child_event, on_sample=on_sample,
+                                     requests=None if in_child else requests, should_stop=should_stop)
+        finally:
+            if servo is not self._servo:
+                servo.close()
         follow(result.duration_s)
         recall = getattr(participant, "recall", None)
         if in_child and result.memory is not None and callable(recall):  # what it learnt in the child's trial

@@ -28,6 +28,24 @@ SCRIPT = {
 }
 
 
+PACING = ("missed_deadline", "loop_stalled")
+
+
+def _kinds(rows):
+    """Event kinds without the servo's own events and a loaded machine's pacing faults with what follows them (the
+    recovery and the safety layer's second ramp-up)."""
+    out, paced = [], False
+    for k, p in rows:
+        rule = (p or {}).get("rule")
+        if k in ("servo_timing", "servo_clock") or (k in ("device_fault", "device_recovered") and rule in PACING):
+            paced = paced or k == "device_recovered"
+            continue
+        if k == "safety" and rule == "ramp_done" and paced:
+            continue
+        out.append(k)
+    return out
+
+
 def _records(store, sid):
     """Per trial (plan order): event kinds in order, the report payloads, the scene truth and the sample columns."""
     out = []
@@ -38,8 +56,7 @@ def _records(store, sid):
                              .order_by(Event.seq)).all()
             # the servo process's own events, and a loaded machine's pacing faults (the in-process loop beside the
             # store stalls on a busy machine: why the servo process exists; `bench servo` measures it)
-            kinds = [k for k, p in rows if k not in ("servo_timing", "servo_clock")
-                     and not (k == "device_fault" and (p or {}).get("rule") in ("missed_deadline", "loop_stalled"))]
+            kinds = _kinds(rows)
             out.append({
                 "status": tr.status,
                 "kinds": kinds,
@@ -47,12 +64,20 @@ def _records(store, sid):
                 "truth": [p for k, p in rows if k == "scene_truth"],
                 "ticks": next(p["ticks"] for k, p in rows if k == "trial_loop_end"),
                 "servo": sum(k == "servo_timing" for k, _ in rows),
+                "rt": [p["rt"] for k, p in rows if k == "servo_timing"],
             })
     for rec, tr in zip(out, trials, strict=True):
         frame = store.read_samples(tr.id)
         rec["columns"] = list(frame.columns)
         rec["rows"] = len(frame)
     return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return open(f"/proc/{pid}/stat").read().split()[2] != "Z"
+    except FileNotFoundError:
+        return False
 
 
 def test_servo_and_in_process_paths_record_the_same(study):
@@ -69,6 +94,10 @@ def test_servo_and_in_process_paths_record_the_same(study):
         assert x["columns"] == y["columns"] and "force_n" in x["columns"] and "balloon_pct" in x["columns"]
         assert x["rows"] == x["ticks"] and y["rows"] == y["ticks"]
         assert abs(x["ticks"] - y["ticks"]) <= 2  # both 0.7 s at 50 Hz on a real clock
+    # one servo process served the whole session (not one per trial), and it ended with the session
+    pids = {r["rt"][0]["pid"] for r in rs}
+    assert len(pids) == 1 and [r["rt"][0]["trial_in_process"] for r in rs] == [1, 2, 3, 4]
+    assert pids != {os.getpid()} and not _alive(pids.pop())
 
 
 RUNNER = textwrap.dedent('''
