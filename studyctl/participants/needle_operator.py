@@ -307,6 +307,9 @@ class VirtualNeedleOperator(Participant):
     def _on_plan(self, t: float) -> tuple[Request, ...]:
         st = self._st
         if st.realtime:
+            # it looks at the live view with the button released (maintain mode) as it would read a scan: pressed,
+            # the guidance would pull its waiting hand towards the planned line, sideways into the liver
+            st.button = 0.0
             if st.plan is not None:  # the live view showed everything: look at it, then go
                 st.phase, st.next_phase = Phase.READ, Phase.APPROACH
                 st.busy_until = t + st.read_s + self.p.plan_read_extra_s

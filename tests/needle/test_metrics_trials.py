@@ -168,6 +168,16 @@ def test_virtual_operator_reaches_the_tumour_through_the_simulator():
     assert m2 == m
 
 
+def test_waiting_for_the_live_view_does_not_let_guidance_pull_the_tip_into_the_liver():
+    # With the real-time view the person used to wait with the button pressed: the radial guidance pulled its yielding
+    # hand sideways onto the planned line, through the capsule (on main: ~8 withdrawals and re-entries per RT trial).
+    op = VirtualNeedleOperator({})
+    out, m = _trial("RT", op, site=1, seed=41)
+    kinds = [e["kind"] for e in out.events]
+    assert out.ended_by == "finish"
+    assert kinds.count("capsule_contact") == 1 and "needle_withdrawn" not in kinds and "track_reused" not in kinds
+
+
 @pytest.mark.slow
 def test_realtime_view_needs_no_scans_and_enhanced_sensing_gives_a_cue():
     op = VirtualNeedleOperator({})
