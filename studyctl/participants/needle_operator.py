@@ -139,6 +139,7 @@ class TrialState:
     stop_reason: str = ""
     felt_radial_s: float = 0.0
     radial_onset: Vec = (0.0, 0.0, 0.0)  # felt hand position where the current lateral push was first felt
+    radial_onset_n: float = 0.0  # and the push it felt there (N)
     corrections: int = 0
     guided: bool = False  # this insertion already runs at the guided speed
     line_checked: bool = False  # the one scan before feeling for the tumour was taken
@@ -179,6 +180,9 @@ class VirtualNeedleOperator(Participant):
         # guidance channel keeps the tip on the path
         self.trust_cue: dict[str, float] = {}
         self.trust_guide: dict[str, float] = {}
+        # the stiffness (N/m) it has felt the guidance channel to have, per scenario label (force rise over sideways
+        # travel): sets how much faster it dares to advance inside the channel (:meth:`_channel_speed`)
+        self.wall_k: dict[str, float] = {}
         self.s: TrialState | None = None
 
     # ------------------------------------------------------------------ session and trial set-up
@@ -186,11 +190,12 @@ class VirtualNeedleOperator(Participant):
         """What it has learnt to trust per scenario, and its own trial record, stored by the engine with each
         finished trial: a session resumed in a new process goes on as the uninterrupted one would."""
         return {"trust_cue": dict(self.trust_cue), "trust_guide": dict(self.trust_guide),
-                "history": [dict(r) for r in self.history]}
+                "wall_k": dict(self.wall_k), "history": [dict(r) for r in self.history]}
 
     def recall(self, memory: Mapping[str, Any]) -> None:
         self.trust_cue = {str(k): float(v) for k, v in (memory.get("trust_cue") or {}).items()}
         self.trust_guide = {str(k): float(v) for k, v in (memory.get("trust_guide") or {}).items()}
+        self.wall_k = {str(k): float(v) for k, v in (memory.get("wall_k") or {}).items()}
         self.history = [dict(r) for r in (memory.get("history") or [])]
 
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
@@ -302,6 +307,28 @@ class VirtualNeedleOperator(Participant):
 
     def _trusts_guide(self) -> bool:
         return self.trust_guide.get(self._st.info.condition, 0.0) >= 0.5
+
+    def _probing_channel(self) -> bool:
+        """Moving along the planned line (in tissue, or the last leg of the approach onto the incision), slowly
+        sideways: a lateral push growing now comes from straying off the line, not from sweeping across it fast
+        (where the channel's damper pushes back whatever its stiffness)."""
+        st = self._st
+        mv = st.move
+        if st.phase is Phase.INSERT:
+            return True
+        return st.phase is Phase.APPROACH and isinstance(mv, MinJerk) and mv.then is None
+
+    def _channel_speed(self) -> float:
+        """Advance speed inside a guidance channel it trusts.
+
+        Its pace through tissue is set by the lateral accuracy it must keep by itself: its hand's slips grow with
+        speed (signal-dependent motor noise, :meth:`_command`). A channel of stiffness k, felt against its own arm
+        stiffness k_arm, lets a hand slip move the tip only k_arm/(k_arm + k) as far, so the same tip accuracy
+        allows (1 + k/k_arm) times its speed, but never more than its free-reach speed (``approach_speed_ratio``).
+        """
+        st, p = self._st, self.p
+        k = self.wall_k.get(st.info.condition, 0.0)
+        return st.v_ins * min(p.approach_speed_ratio, 1.0 + k / p.arm_stiffness_n_per_m)
 
     # ------------------------------------------------------------------ phase handlers
     def _on_plan(self, t: float) -> tuple[Request, ...]:
@@ -455,12 +482,8 @@ class VirtualNeedleOperator(Participant):
         extra = stop - pl.length if stop > pl.length else 0.0
         u, tum = pl.u, pl.tumour
         aim = (tum[0] + extra * u[0], tum[1] + extra * u[1], tum[2] + extra * u[2])
-        speed = st.v_ins
         st.guided = self._trusts_guide()
-        if st.guided:
-            speed *= p.guided_speed_gain
-        if trust:
-            speed *= p.cued_speed_gain
+        speed = self._channel_speed() if st.guided else st.v_ins
         self._start_line(b, u, pl.marker, stop, speed, aim=aim)
         st.stop_reason = "depth"
         return ()
@@ -577,6 +600,7 @@ class VirtualNeedleOperator(Participant):
             hand = st.sense.felt(percept, st.last_cmd)
             if st.felt_radial_s == 0.0:
                 st.radial_onset = hand  # where the lateral push was first felt
+                st.radial_onset_n = felt.radial_n
             st.felt_radial_s += st.dt
             if st.felt_radial_s > 0.2:
                 st.sense.sig_lat = min(st.sense.sig_lat, p.finish_mm)
@@ -586,14 +610,20 @@ class VirtualNeedleOperator(Participant):
             dx, dy, dz = hand[0] - o[0], hand[1] - o[1], hand[2] - o[2]
             along = dx * a[0] + dy * a[1] + dz * a[2]
             travel = math.sqrt(max(0.0, dx * dx + dy * dy + dz * dz - along * along))
-            if felt.radial_n > p.wall_n and travel <= p.wall_travel_mm and st.phase is Phase.INSERT \
-                    and not st.record["wall"]:
-                # the channel, felt in tissue (once a trial): it learns to rely on it
+            if felt.radial_n > p.wall_n and travel <= p.wall_travel_mm and st.radial_onset_n < p.wall_n \
+                    and self._probing_channel() and not st.record["wall"]:
+                # the channel, felt while lining up over the incision or in tissue (once a trial), as a push that grew
+                # from just noticeable (a push already strong when first felt says nothing of stiffness): it learns
+                # to rely on it, and how stiff it is (force rise over the sideways travel; its felt position
+                # resolves no finer than 0.05 mm)
                 st.record["wall"] = True
                 _learn(self.trust_guide, cond, p.guide_trust_rate, True)
+                k_felt = 1000.0 * (felt.radial_n - st.radial_onset_n) / max(travel, 0.05)
+                k_old = self.wall_k.get(cond)
+                self.wall_k[cond] = k_felt if k_old is None else k_old + p.guide_trust_rate * (k_felt - k_old)
                 if self._trusts_guide() and not st.guided and isinstance(st.move, Line) and st.stop_reason == "depth":
                     st.guided = True  # a firm channel, felt now: it need not fear lateral slips for the rest
-                    st.move.v *= p.guided_speed_gain
+                    st.move.v = max(st.move.v, self._channel_speed())
                     st.cue.expect_change()
         else:
             st.felt_radial_s = 0.0
@@ -671,9 +701,12 @@ class VirtualNeedleOperator(Participant):
                 u = mv.dir
                 st.ref = (r[0] + step * u[0], r[1] + step * u[1], r[2] + step * u[2])
                 mv.ref_s += step
-        # lateral wobble (Ornstein–Uhlenbeck), stronger with a noisier hand
+        # lateral wobble (Ornstein–Uhlenbeck), stronger with a noisier hand and, advancing faster than its own
+        # insertion pace, in proportion to the speed (signal-dependent motor noise, Harris & Wolpert 1998)
         k = dt / p.motor_tau_s
         sd = p.motor_noise_mm * math.sqrt(2 * k)
+        if isinstance(mv, Line) and st.button >= 0.5 and mv.v > st.v_ins:
+            sd *= mv.v / st.v_ins
         wb = st.wobble
         for i in range(3):
             wb[i] += -k * wb[i] + sd * z[i]

@@ -34,10 +34,10 @@ PARAMS = (
           source="CHOSEN: slow within-trial fluctuation of the advance speed (signal-dependent motor noise)"),
     Param("realtime_speed_gain", 1.0, 0.2, 3.0, unit="×",
           source="FITTED: speed with a live image relative to steering between scans"),
-    Param("guided_speed_gain", 2.3, 0.5, 4.0, unit="×",
-          source="FITTED: speed inside a guidance channel it has learnt to trust (lateral slips are not feared)"),
-    Param("cued_speed_gain", 2.0, 0.5, 4.0, unit="×",
-          source="FITTED: speed when it has learnt that the tumour announces itself (overshooting is not feared)"),
+    Param("arm_stiffness_n_per_m", 300.0, 50.0, 2000.0, unit="N/m",
+          source="CHOSEN: the stiffness of its own grip on the pen, as the simulated hand's (devices/force3d "
+                 "hand_stiffness_n_per_m, relaxed grip 100–500 N/m): a lateral slip of the hand moves the tip by "
+                 "k_arm/(k_arm + k_channel) of it inside a channel of stiffness k_channel"),
     Param("motor_noise_mm", 0.3, 0.02, 3.0, unit="mm",
           source="CHOSEN: lateral wobble of the hand set-point (stationary SD; smoothness trait)"),
     Param("motor_tau_s", 0.5, 0.05, 5.0, unit="s", source="CHOSEN: correlation time of that wobble"),
@@ -117,8 +117,7 @@ class OperatorParams:
     speed_trial_cv: float
     speed_noise: float
     realtime_speed_gain: float
-    guided_speed_gain: float
-    cued_speed_gain: float
+    arm_stiffness_n_per_m: float
     motor_noise_mm: float
     motor_tau_s: float
     orientation_sd_deg: float
