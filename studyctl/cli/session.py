@@ -95,7 +95,7 @@ INPUT_HELP = (
     "trials: {TRIAL_NUMBER: \\[{t: SECONDS, request: scan|report|finish, answer: 'C 3'}]} (requests at trial time t); "
     "likert: {ITEM_ID: \\[code, ...]} or {INSTRUMENT_ID: {ITEM_ID: \\[...]}} (used in order); default_likert: CODE; "
     "outcomes: \\[{duration_s: S, reports: \\['C 3']}] (manual trials, in order); "
-    "controls: \\[{trial: N, t: S, action: abort|pause|invalid, reason: TEXT}]; "
+    "controls: \\[{trial: N, t: S, action: abort|pause|invalid|note, reason: TEXT}] (a note's text is its reason); "
     "familiarisation: end_early|full. See README 'Rehearsals and scripted sessions'."
 )
 

@@ -551,6 +551,11 @@ class SessionRunner:
         return condition_rate(cond, self.factory)
 
     def _control(self, control: Control, tid: int, t: float, flag: dict[str, Any]) -> str | None:
+        if control.kind == "note":  # typed during the trial: kept, the trial goes on
+            self.rec.event("coordinator_note", {"text": control.reason}, t=t, trial_id=tid)
+            self.rec.audit("note", {"text": control.reason[:4000], "trial_id": tid,
+                                    "session_id": self.rec.session_id, "during_trial": True})
+            return None
         if control.kind == "invalid":
             flag["invalid"] = control.reason or "marked invalid by the coordinator"
             self.rec.event("coordinator_mark_invalid", {"reason": flag["invalid"]}, t=t, trial_id=tid)

@@ -368,8 +368,12 @@ class StoreRecorder:
 
     def audit(self, action: str, detail) -> None:
         with self._tx() as tx:
-            self.store.audit(f"session.{action}" if "." not in action else action, entity="session",
-                             entity_id=self.session_id, details=_jsonable(dict(detail)), tx=tx)
+            if action == "note":  # a coordinator's note on the running trial: the same row as `studyctl note`
+                self.store.audit("note", entity="trial", entity_id=detail["trial_id"],
+                                 details=_jsonable(dict(detail)), tx=tx)
+            else:
+                self.store.audit(f"session.{action}" if "." not in action else action, entity="session",
+                                 entity_id=self.session_id, details=_jsonable(dict(detail)), tx=tx)
             if action == "session_resumed":
                 self.store.update_session(self.session_id, resume_count=self._state.resumes + 1, tx=tx)
         if action == "session_resumed":

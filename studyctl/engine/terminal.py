@@ -38,7 +38,7 @@ from studyctl.engine.ui import Control, ManualOutcome, TimerResult
 from studyctl.errors import InvalidAnswer, UsageError
 
 REDRAW_S = 0.25
-LINE_MODES = {"r": "report", "a": "abort", "i": "invalid"}
+LINE_MODES = {"r": "report", "a": "abort", "i": "invalid", "n": "note"}
 
 
 def fmt_clock(seconds: float) -> str:
@@ -299,7 +299,7 @@ class TerminalUI:
         c.print(Text(f"Trial {step.trial_index} — condition {step.condition}, time limit {fmt_clock(time_limit_s)}",
                      style="bold"))
         c.print(Text("participant: s scan · r report · f finished    coordinator: p pause · a abort · "
-                     "i mark invalid    Ctrl-C stop", style="dim"))
+                     "i mark invalid · n note    Ctrl-C stop", style="dim"))
         self.term.ask("Press Enter to start the trial ")
         self.term.raw()
 
@@ -325,13 +325,14 @@ class TerminalUI:
         t = self.term
         if t.take_key("p"):
             return Control("pause", "coordinator pressed p")
-        for mode in ("abort", "invalid"):
+        for mode in ("abort", "invalid", "note"):
             text = t.take_line(mode)
             if text is not None:
                 if not text:
-                    t.notice = f"{mode}: a reason is required (press {mode[0]} again)"
+                    what = "a note needs text" if mode == "note" else f"{mode}: a reason is required"
+                    t.notice = f"{what} (press {mode[0]} again)"
                     return None
-                t.notice = "marked invalid" if mode == "invalid" else ""
+                t.notice = {"invalid": "marked invalid", "note": "note saved"}.get(mode, "")
                 return Control(mode, text)
         return None
 

@@ -31,7 +31,8 @@ from studyctl.yamlmarks import load_plain
 
 @dataclass(frozen=True)
 class Control:
-    """A coordinator command: ``pause``, ``abort`` (stop the trial) or ``invalid`` (flag it), with a reason."""
+    """A coordinator command: ``pause``, ``abort`` (stop the trial), ``invalid`` (flag it), with a reason, or
+    ``note`` (a free-text note on the running trial; the reason is the note)."""
 
     kind: str
     reason: str = ""

@@ -7,6 +7,7 @@ reason, Ctrl-C. Then the database is checked.
 
 from __future__ import annotations
 
+import json
 import os
 import pty
 import re
@@ -167,6 +168,8 @@ def test_person_session_at_the_terminal(workspace):
     term.send("\r")
     term.expect(r"time left")
     term.send("iparticipant looked\r")  # mark invalid: the trial goes on
+    term.send("nroom got noisy\r")  # a note on the running trial: the trial goes on too
+    term.expect(r"note saved")
     time.sleep(0.3)
     term.send("f")
     term.expect(r"Trial 2: finished")
@@ -191,7 +194,11 @@ def test_person_session_at_the_terminal(workspace):
         ]
         assert set(responses.instrument_version) == {"1.0"}
         events = store.events_frame(1)
-        assert {"step_enter", "step_done", "trial_start", "report", "coordinator_abort",
+        notes = store.audit_frame()
+        notes = notes[notes.action == "note"]
+        assert [json.loads(d)["text"] for d in notes.details] == ["room got noisy"]
+        assert notes.entity.tolist() == ["trial"] and notes.entity_id.tolist() == [str(trials[2].id)]
+        assert {"step_enter", "step_done", "trial_start", "report", "coordinator_abort", "coordinator_note",
                 "coordinator_mark_invalid", "practice_trial_loop_start", "practice_trial_loop_end"} <= set(events.kind)
         practice = [p for k, p in zip(events.kind, events.payload, strict=True)
                     if k == "step_done" and p.get("practice")]

@@ -115,3 +115,25 @@ def test_consent_without_a_declared_version_takes_any(tmp_path, capsys):
         enroll(o.store, code="PTY-AAAAA")
     code, out, _ = _cli(capsys, "consent", "PTY-AAAAA", "--version", "local-3", "--json", "-w", str(ws))
     assert code == 0 and '"version": "local-3"' in out
+
+
+def test_a_note_typed_during_a_trial_is_a_record(tmp_path):
+    """The run prompt's `n` (here the scripted equivalent): the trial goes on, the note is in the export."""
+    ws = _workspace(tmp_path, consent=None, target=None)
+    answers = tmp_path / "answers.yaml"
+    answers.write_text(yaml.safe_dump({**SCRIPT, "controls": [{"trial": 1, "t": 1.0, "action": "note",
+                                                               "reason": "probe re-seated"}]}))
+    with open_study(workspace=ws) as o:
+        enroll(o.store, code="PTY-AAAAA")
+        result = run_session(o.store, "PTY-AAAAA", virtual=False, script=answers)
+        assert result.status == "completed" and result.trials_completed == 2  # the note stopped nothing
+        first = min(t.id for t in o.store.list_trials(session_id=result.session_id) if t.status == "completed")
+        assert o.store.verify_audit().ok
+        events = o.store.events_frame(result.session_id)
+        assert events[events.kind == "coordinator_note"].payload.tolist() == [{"text": "probe re-seated"}]
+    out_dir = tmp_path / "export"
+    assert main(["export", str(out_dir), "-w", str(ws), "--no-samples"]) == 0
+    records = pd.read_csv(out_dir / "records.csv")
+    assert records.record.tolist() == ["note"] and records.text.tolist() == ["probe re-seated"]
+    assert records.trial_id.astype(int).tolist() == [first]
+    assert main(["audit", "verify", "-w", str(ws)]) == 0
