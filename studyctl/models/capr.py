@@ -41,7 +41,7 @@ from types import MappingProxyType
 
 import numpy as np
 import pandas as pd
-from scipy import linalg, signal
+from scipy import linalg
 
 from studyctl.errors import ModelParameterError
 from studyctl.models.capr_afferents import (  # noqa: F401 - the model's parts, importable from here too
@@ -162,6 +162,7 @@ class CaprModel:
 
     # -- construction --------------------------------------------------------------------------------
     def _build(self) -> None:
+        from scipy import signal  # lazy: scipy.signal imports scipy.stats (about a second)
         m = self.m
         n_types = len(self.populations)
         # One continuous system per type; discretised (FOH) once, then lifted over the m sub-samples.
@@ -303,6 +304,7 @@ class CaprModel:
         differences of cumulative sums. Equal to streaming to ~1e-6 relative (float32 nonlinear stage; tested).
         Leaves the streaming state reset.
         """
+        from scipy import signal  # lazy: scipy.signal imports scipy.stats (about a second)
         f = _force_sequence(force_n)
         self.reset()
         m, k_ticks, n_types = self.m, f.size, len(self.types)
@@ -351,6 +353,7 @@ class CaprModel:
     @cached_property
     def _sos(self) -> list[np.ndarray]:
         """Second-order sections of each type's discrete filter (FOH at ``fs_model``), built on first use."""
+        from scipy import signal  # lazy: scipy.signal imports scipy.stats (about a second)
         return [signal.zpk2sos(*signal.ss2zpk(*discretise(pop.afferent, self.dt))) for pop in self.populations]
 
 

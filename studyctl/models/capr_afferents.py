@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 import numpy as np
-from scipy import signal
 
 from studyctl.errors import ModelParameterError
 
@@ -156,6 +155,7 @@ def state_space(t: AfferentType) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 
 def discretise(t: AfferentType, dt: float, method: str = "foh"):
     """Discrete (A, B, C, D) of eq. 2 at step ``dt`` (``foh``: exact for linearly interpolated input)."""
+    from scipy import signal  # lazy: scipy.signal imports scipy.stats (about a second)
     if not dt > 0:
         raise ModelParameterError(f"CAPR: time step {dt!r} must be > 0 s")
     ad, bd, cd, dd, _ = signal.cont2discrete(state_space(t), dt, method=method)

@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from studyctl.errors import ModelParameterError
 from studyctl.models.perception import Sense
@@ -333,6 +332,7 @@ class VirtualPalpator(Participant):
 
     def _score(self, ev: _CellEvidence, ref: dict[tuple[str, str], float | None]) -> float:
         """Evidence that a cell differs from normal tissue, in noise SDs of its mean (inf: felt only here)."""
+        from scipy import stats  # lazy: importing scipy.stats costs about a second
         best = -math.inf
         for key in self._keys:
             logs = ev.logs.get(key)

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from scipy import optimize as _opt
-from scipy import stats as _st
 
 from studyctl.errors import StatsInputError
 
@@ -144,6 +143,7 @@ def mixed_coefficients(y: Sequence[float], factors: dict[str, Sequence], subject
 
 
 def _wald(labels: Sequence[str], beta: np.ndarray, cov: np.ndarray, level: float) -> tuple[Coefficient, ...]:
+    from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
     z = float(_st.norm.ppf(0.5 + level / 2))
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return tuple(Coefficient(name, float(b), float(s), float(b - z * s), float(b + z * s))
@@ -199,6 +199,7 @@ def partial_eta_squared_ci(f: float, df1: float, df2: float, confidence: float =
 
     def ncp(target: float) -> float:
         """λ with P(F' ≤ f; λ) = target (0 when even λ = 0 leaves less than target below f)."""
+        from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
         below = lambda lam: float(_st.ncf.cdf(f, df1, df2, lam)) if lam > 0 else float(_st.f.cdf(f, df1, df2))  # noqa: E731
         if below(0.0) <= target:
             return 0.0

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import stats as _st
 
 from studyctl.errors import StatsInputError
 
@@ -191,6 +190,8 @@ def _ols_f(y: np.ndarray, x: np.ndarray, assign: list[int], t: int) -> tuple[flo
     if rss_f <= 1e-12 * float(((y - y.mean()) ** 2).sum()):
         raise np.linalg.LinAlgError("no residual variance: the model fits every observation exactly")
     f = (ss / df1) / (rss_f / df2)
+    from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
+
     p = float(_st.f.sf(f, df1, df2))
     return f, float(df1), float(df2), p, ss / (ss + rss_f) if ss + rss_f > 0 else NAN
 
@@ -276,6 +277,7 @@ def _mixed_llf_iterative(y: np.ndarray, x: np.ndarray, groups: np.ndarray) -> fl
 def _mixed_lr(y: np.ndarray, x: np.ndarray, assign: list[int], t: int, groups: np.ndarray,
               full_llf: float | None = None) -> tuple[float, float, float, float]:
     """(χ², df, p, full llf) of the likelihood-ratio test of term ``t`` (ML fits with and without it)."""
+    from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
     keep = [j for j, a in enumerate(assign) if a != t]
     llf_f = _mixed_llf(y, x, groups) if full_llf is None else full_llf
     llf_r = _mixed_llf(y, x[:, keep], groups)
@@ -342,6 +344,7 @@ def aligned_responses(frame: pd.DataFrame, names: Sequence[str], term: tuple[str
 def art_anova(y: Sequence[float], factors: dict[str, Sequence], subject: Sequence | None = None, *,
               levels: dict[str, Sequence[str]] | None = None) -> ModelResult:
     """Aligned rank transform ANOVA of the full factorial of ``factors`` (two or more)."""
+    from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
     frame = _clean(y, factors, subject)
     names = list(factors)
     if len(names) < 2:
@@ -381,6 +384,7 @@ def ordinal_model(y: Sequence[float], factor: Sequence, *, levels: Sequence[str]
                   subject: Sequence | None = None) -> ModelResult:
     """Proportional-odds cumulative logit model of ordinal answers ``y`` on one factor; the factor's
     likelihood-ratio χ² against the thresholds-only model. Answers must be whole numbers."""
+    from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
     frame = _clean(y, {"factor": factor}, subject)
     lv = _levels(frame, ["factor"], {"factor": levels or []})
     why = _problem(frame, ["factor"], lv)

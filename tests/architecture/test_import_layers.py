@@ -182,3 +182,18 @@ def test_statistics_and_models_import_only_the_foundation(package: str) -> None:
     the bounded readers (a stiffness map's manifest is a file)."""
     used = {_package(t) for s, t, _ in _edges() if _package(s) == package} - {package}
     assert used <= FOUNDATION, used
+
+
+@pytest.mark.slow
+def test_collection_imports_leave_scipy_stats_out():
+    """scipy.stats (also pulled in by scipy.signal) costs about a second to import: the modules the test files
+    import at collection load it only when a test statistic or filter is computed."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "import studyctl.analysis.execute, studyctl.stats, studyctl.models.capr, studyctl.participants.palpator\n"
+            "import studyctl.cli.app, studyctl.workflows.report, studyctl.stats.model_intervals\n"
+            "print(sorted(m for m in ('scipy.stats', 'scipy.signal') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

@@ -11,7 +11,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy import signal
 
 from studyctl.errors import ModelParameterError
 from studyctl.models import capr
@@ -44,6 +43,7 @@ def _input(rng, fs, seconds=1.0):
 
 @pytest.mark.parametrize("aff", TYPES, ids=[t.name for t in TYPES])
 def test_state_space_realises_the_transfer_function(aff):
+    from scipy import signal
     num, den = capr.transfer_function(aff)
     a, b, c, d = capr.state_space(aff)
     w = 2 * np.pi * np.logspace(-1, 3.5, 60)
@@ -75,6 +75,7 @@ def test_static_gains():
 @pytest.mark.parametrize("fs", RATES)
 @pytest.mark.parametrize("aff", TYPES, ids=[t.name for t in TYPES])
 def test_foh_discretisation_matches_lsim(aff, fs):
+    from scipy import signal
     rng = np.random.default_rng(int(fs) + len(aff.name))
     t, u = _input(rng, fs, seconds=0.6 if fs > 5000 else 1.5)
     tf = signal.TransferFunction(*capr.transfer_function(aff))
@@ -87,6 +88,7 @@ def test_foh_discretisation_matches_lsim(aff, fs):
 
 @pytest.mark.parametrize("aff", TYPES, ids=[t.name for t in TYPES])
 def test_step_response_matches_scipy_step(aff):
+    from scipy import signal
     fs = 2000.0
     t = np.arange(int(0.5 * fs)) / fs
     tf = signal.TransferFunction(*capr.transfer_function(aff))
@@ -110,6 +112,7 @@ def test_discretisation_is_stable_at_every_step(dt):
 
 def test_backward_euler_of_the_public_code_is_less_accurate():
     """The CAPR code's implicit finite differences at 500 Hz drift from the continuous response; FOH does not."""
+    from scipy import signal
     aff = capr.RA1
     fs = 500.0
     t, u = _input(np.random.default_rng(5), fs)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import signal
 
 from studyctl.errors import ModelParameterError
 from studyctl.models import capr
@@ -30,6 +29,7 @@ def test_unit_counts_match_the_public_model(full):
 
 def _naive_rates(pops, force, fs_in=50.0, fs=500.0, window_s=0.2, activation=5.0):
     """Every unit filtered on its own (scipy lsim of eq. 2 on its own network input): the definition."""
+    from scipy import signal
     m = int(fs / fs_in)
     f = np.concatenate([[0.0], force])
     t_in = np.arange(f.size) / fs_in

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from studyctl.errors import ModelParameterError
 from studyctl.models.palpation_hw import A201, K_PSI_N_PER_MM2, BalloonModel, VibrationMotorModel
@@ -102,6 +101,7 @@ def test_eq5_balloon_control_for_force():
 
 
 def test_weber_observer_discriminates_one_fraction_75_percent_of_the_time():
+    from scipy import stats
     rng = np.random.default_rng(7)
     sense = Sense("pressure", threshold=0.0, weber=0.1)
     n = 40000

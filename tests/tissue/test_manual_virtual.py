@@ -10,7 +10,6 @@ import math
 import numpy as np
 import pytest
 import yaml
-from scipy.stats import binom
 
 from studyctl.cli.app import main
 from studyctl.controllers.tissue import StiffnessMapForceFeedback
@@ -117,6 +116,8 @@ def _manual_trials(scene_for, seeds, *, count: int | None = None):
 
 @pytest.mark.slow
 def test_manual_detection_comes_from_touch_not_from_the_truth():
+    from scipy.stats import binom
+
     p_chance = chance_hit_probability(_scene().truth()["nodules"], 10.0, (0.0, 120.0, 0.0, 120.0))
     assert p_chance < 0.1
     seeds = range(4)

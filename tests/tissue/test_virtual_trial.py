@@ -7,7 +7,6 @@ import inspect
 
 import numpy as np
 import pytest
-from scipy.stats import binom
 
 from studyctl.controllers.tissue import StiffnessMapForceFeedback
 from studyctl.devices.force3d import SimulatedForceDevice
@@ -28,6 +27,7 @@ def test_the_palpator_never_sees_the_truth():
 
 @pytest.mark.slow
 def test_force_feedback_trial_finds_nodules_better_than_chance():
+    from scipy.stats import binom
     needs = StiffnessMapForceFeedback.needs({}) | {"view"}
     scene = StiffnessTissueScene.build({}, {"orientation_deg": 0}, needs, np.random.default_rng(0))
     controller = StiffnessMapForceFeedback({}, scene)
