@@ -7,7 +7,10 @@ Rounds alternate between
 
 * **baseline** (the peer): the same trial without a view attached;
 * **view**: the participant view attached (``ViewUI`` + ``ViewParticipant``) and streaming to a headless
-  Chromium (Debian's ``/usr/bin/chromium``) that draws every frame it gets and echoes when it drew it.
+  Chromium (Debian's ``/usr/bin/chromium``) that draws every frame it gets and echoes when it drew it;
+* **coordinator**: the same, plus the coordinator's page open in a second headless Chromium, polling the
+  board's state twice a second (the board is not bound to a store here: the database read it does at most
+  every 2 s in a real session is not in this figure).
 
 Figures
 -------
@@ -20,7 +23,8 @@ Figures
 ``loop_overhead_pct``
     What the view takes of the 1 kHz loop's budget: the increase of the loop's mean busy time per tick
     (wall clock, from waking up to going back to sleep) with the view streaming to the browser, as a share
-    of the 1 ms period. ``loop_overhead_pct_of_work`` is the same increase relative to the loop's own busy
+    of the 1 ms period (``loop_overhead_pct_with_coordinator``: with the coordinator's page open too,
+    against the same baseline). ``loop_overhead_pct_of_work`` is the same increase relative to the loop's own busy
     time (stricter: this controller needs only a few tens of µs per tick). On a shared 2-core machine both
     include the browser competing for the CPU. ``loop_late_ticks_pct`` counts ticks that woke > 0.5 ms late.
 ``hook_us_per_tick``
@@ -59,6 +63,7 @@ CHROMIUM_FLAGS = (
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
     "--window-size=1280,800", "--mute-audio",
 )
+COORDINATOR_SETTLE_S = 3.0
 RT_PARAMS = {  # protocols/needle_insertion.yaml, condition RT (Table 1)
     "capsule": {"k_stiff": 100},
     "liver": {"k_cut": 5, "f_dynamic": 0.8, "f_static": 1.0, "c": 10},
@@ -169,6 +174,37 @@ def _chromium() -> str:
     return exe
 
 
+def _with_coordinator(exe: str, view: ParticipantView, seconds: float) -> dict[str, float]:
+    """One view round with the coordinator's page open in a second browser (started for the round, so it polls
+    only then)."""
+    board = view.board
+    with tempfile.TemporaryDirectory(prefix="studyctl-bench-coordinator-") as profile:
+        return _coordinator_round(exe, profile, board, view, seconds)
+
+
+def _coordinator_round(exe: str, profile: str, board: Any, view: ParticipantView, seconds: float
+                       ) -> dict[str, float]:
+    page = subprocess.Popen([exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", view.coordinator_url],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30.0
+        while board.polls < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if board.polls < 2:
+            raise NotFoundError(f"bench view: the headless browser ({exe}) did not open the coordinator page in 30 s")
+        time.sleep(COORDINATOR_SETTLE_S)  # a freshly started browser keeps busy for a while after its first request
+        before = board.polls
+        stats = _stats(_trial(seconds, view))
+        stats["polls_per_s"] = (board.polls - before) / seconds
+        return stats
+    finally:
+        page.terminate()
+        try:
+            page.wait(10)
+        except subprocess.TimeoutExpired:
+            page.kill()
+
+
 def _stats(clock: _TimedClock, skip: int = 200) -> dict[str, float]:
     busy = np.array(clock.busy[skip:]) * 1e6
     cpu = np.array(clock.cpu[skip:]) * 1e6
@@ -196,6 +232,7 @@ def _run(seconds: float, rounds: int) -> BenchResult:
     exe = _chromium()
     base_rounds: list[dict[str, float]] = []
     view_rounds: list[dict[str, float]] = []
+    coord_rounds: list[dict[str, float]] = []
     latencies: list[float] = []
     drawn_rates: list[float] = []
     rtts: list[float] = []
@@ -223,6 +260,8 @@ def _run(seconds: float, rounds: int) -> BenchResult:
                 drawn_rates.append(len(lat) / seconds)
                 view_rounds.append(_stats(clock))
                 hub.show("trial", trial=1, condition="RT")
+                coord_rounds.append(_with_coordinator(exe, view, seconds))
+                hub.show("trial", trial=1, condition="RT")
         finally:
             browser.terminate()
             try:
@@ -235,6 +274,7 @@ def _run(seconds: float, rounds: int) -> BenchResult:
     lat = np.array(latencies)
     base_busy = float(np.median([r["busy_us_mean"] for r in base_rounds]))
     view_busy = float(np.median([r["busy_us_mean"] for r in view_rounds]))
+    coord_busy = float(np.median([r["busy_us_mean"] for r in coord_rounds]))
     base_cpu = float(np.median([r["cpu_us_mean"] for r in base_rounds]))
     view_cpu = float(np.median([r["cpu_us_mean"] for r in view_rounds]))
     figures = {
@@ -244,6 +284,9 @@ def _run(seconds: float, rounds: int) -> BenchResult:
         "frames_drawn_per_s": float(np.median(drawn_rates)),
         "loop_overhead_pct": 100.0 * (view_busy - base_busy) / 1000.0,
         "loop_overhead_pct_of_work": 100.0 * (view_busy - base_busy) / base_busy,
+        "loop_overhead_pct_with_coordinator": 100.0 * (coord_busy - base_busy) / 1000.0,
+        "loop_late_ticks_pct_with_coordinator": float(np.median([r["late_pct"] for r in coord_rounds])),
+        "coordinator_polls_per_s": float(np.median([r["polls_per_s"] for r in coord_rounds])),
         "hook_us_per_tick": hooked_us - loop_us,
         "loop_busy_us_mean": view_busy,
         "loop_cpu_us_mean": view_cpu,
@@ -259,8 +302,9 @@ def _run(seconds: float, rounds: int) -> BenchResult:
     }
     if rtts:
         figures["clock_sync_rtt_ms"] = float(min(rtts))
-    rows = [{"round": i + 1, "mode": mode, **r} for i, (b, v) in enumerate(zip(base_rounds, view_rounds, strict=True))
-            for mode, r in (("baseline", b), ("view", v))]
+    rows = [{"round": i + 1, "mode": mode, **r}
+            for i, (b, v, c) in enumerate(zip(base_rounds, view_rounds, coord_rounds, strict=True))
+            for mode, r in (("baseline", b), ("view", v), ("coordinator", c))]
     return BenchResult(
         name="view",
         figures=figures,
@@ -268,7 +312,8 @@ def _run(seconds: float, rounds: int) -> BenchResult:
         tables={"rounds": rows},
         notes=[
             f"seed 001 RT trial at 1 kHz on the real clock, {rounds} × {seconds:g} s per mode, rounds alternated; "
-            "peer = the same loop without the view (same run)",
+            "peer = the same loop without the view (same run); the coordinator rounds add the coordinator's page "
+            "in a second browser",
             "latency: state timestamp (start of the producing tick) → end of the draw in the browser's "
             "requestAnimationFrame callback, page clock synchronised to the server's by round trips",
             f"browser: {exe} headless; {len(lat)} frames acknowledged",

@@ -135,6 +135,7 @@ class CoordinatorBoard:
         self._ticks: collections.deque[tuple[float, int]] = collections.deque(maxlen=16)
         self._stored: dict[str, Any] = {"lease": None, "notes": [], "read_at": None, "error": None}
         self._stored_at = -1e9
+        self.polls = 0  # snapshots served (the bench waits for the page's first)
         self._erase_scan = 0  # erasure rows read up to this audit id
         self._erased_until = 0  # notes at or before this audit id are about an erased session of the same id
 
@@ -264,6 +265,7 @@ class CoordinatorBoard:
 
     def snapshot(self) -> dict[str, Any]:
         """Everything the page shows, as JSON values."""
+        self.polls += 1
         with self._lock:
             self._read_store()
             stored = dict(self._stored)
