@@ -29,9 +29,13 @@ and source in :mod:`~studyctl.participants.needle_params`; a person's traits (sp
 sense, force thresholds, caution, how fast it learns to trust a cue) arrive as constructor params drawn by a
 population file, and each trial varies its pace around them with the trial's random stream.
 
-Code map: :class:`OperatorParams` (the checked ``PARAMS``), :class:`TrialState` (everything held during a
-trial), :class:`Phase` with one handler per phase (``_step``); what it senses is in
-:mod:`~studyctl.participants.needle_perception`, how it answers questionnaires in
+Code map: :class:`VirtualNeedleOperator` here holds the session-level memory, the tick, one handler per
+:class:`~studyctl.participants.needle_trial.Phase` (``_step``) and the transitions between phases; what it
+does with images and forces, and what it learns to trust, is the
+:class:`~studyctl.participants.needle_senses.OperatorSenses` mixin; how it moves is
+:mod:`~studyctl.participants.needle_motor`; the trial state and movement records are in
+:mod:`~studyctl.participants.needle_trial`; raw sensing in :mod:`~studyctl.participants.needle_perception`;
+parameters in :mod:`~studyctl.participants.needle_params`; questionnaire answers in
 :mod:`~studyctl.participants.needle_questionnaire`.
 
 Questionnaire answers are judged from the session's stored trial record the engine passes with each item
@@ -42,131 +46,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from enum import Enum, auto
 from typing import Any
 
 import numpy as np
 
-from studyctl.participants.ct_reader import CTReading, read_ct
-from studyctl.participants.needle_params import DEFAULTS, PARAMS, OperatorParams, Vec
-from studyctl.participants.needle_perception import AxialCueDetector, Plan, PositionSense, feel_force
+from studyctl.participants.needle_motor import command, make_action, start_line, start_reach
+from studyctl.participants.needle_params import DEFAULTS, PARAMS, OperatorParams
+from studyctl.participants.needle_perception import PositionSense
 from studyctl.participants.needle_questionnaire import judge_item
+from studyctl.participants.needle_senses import OperatorSenses
+from studyctl.participants.needle_trial import Line, MinJerk, Phase, TrialState, learn_trust
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 
 __all__ = ["DEFAULTS", "PARAMS", "OperatorParams", "Phase", "VirtualNeedleOperator"]
-
-class Phase(Enum):
-    """Where the operator is in a trial; :meth:`VirtualNeedleOperator._step` has one handler for each."""
-
-    PLAN = auto()  # no plan yet: ask for the planning scan (or look at the live view)
-    READ = auto()  # holding still, waiting for a scan and reading it
-    APPROACH = auto()  # free-space reach to the pre-entry point above the incision
-    INSERT = auto()  # advancing along a line (insertion, or a correction after a scan)
-    HOLD = auto()  # stopped, button released, settling
-    JUDGE = auto()  # is the tip in the tumour? (entered right after the confirming scan is read)
-    FINISH = auto()  # about to press finish
-    DONE = auto()  # finished; waits for the trial to end
-
-
-@dataclass
-class MinJerk:
-    """A free-space reach: minimum-jerk reference from ``a`` to ``b`` over ``T`` s, then maybe on to ``then``."""
-
-    a: Vec
-    b: Vec
-    T: float
-    then: Vec | None = None
-    elapsed: float = 0.0
-
-
-@dataclass
-class Line:
-    """Advance the reference until the believed tip is ``stop`` mm past ``origin`` along ``axis``.
-
-    With ``aim`` the reference heads for that point (re-aimed at every decision, so an offset seen on an
-    image is steered out), else it moves along ``dir``. The reference may lead the believed tip (tissue
-    resists, the hand is compliant) by at most 5 mm (``max_ref``): beyond that the push is given up.
-    """
-
-    dir: Vec
-    axis: Vec
-    aim: Vec | None
-    origin: Vec
-    stop: float
-    v: float
-    max_ref: float
-    ref_s: float
-    moving_s: float = 0.0
-
-
-@dataclass
-class TrialState:
-    """Everything the operator holds during one trial (made anew by ``begin_trial``)."""
-
-    info: TrialInfo
-    every: int  # device ticks per decision
-    dt: float  # seconds per decision
-    realtime: bool
-    scans_allowed: bool
-    v_ins: float
-    v_fin: float
-    v_app: float
-    read_s: float  # looking at a scan, this trial
-    z: np.ndarray  # pre-drawn noise: a few rows per decision
-    ref: Vec  # where it wants its (believed) tip
-    prev_ref: Vec
-    last_cmd: Vec
-    action: Action
-    record: dict[str, Any]  # what it will remember of this trial
-    sense: PositionSense
-    cue: AxialCueDetector = field(default_factory=AxialCueDetector)
-    tick: int = 0
-    zi: int = 0
-    wobble: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    speed_dev: float = 0.0
-    axis: Vec = (0.0, 0.0, -1.0)
-    button: float = 1.0
-    phase: Phase = Phase.PLAN
-    next_phase: Phase = Phase.PLAN
-    busy_until: float = 0.0
-    frame: Mapping[str, Any] | None = None
-    last_view_t: float = -1e9
-    plan: Plan | None = None
-    move: MinJerk | Line | None = None
-    react_until: float = 0.0
-    scans: int = 0
-    stop_reason: str = ""
-    felt_radial_s: float = 0.0
-    radial_onset: Vec = (0.0, 0.0, 0.0)  # felt hand position where the current lateral push was first felt
-    radial_onset_n: float = 0.0  # and the push it felt there (N)
-    corrections: int = 0
-    guided: bool = False  # this insertion already runs at the guided speed
-    line_checked: bool = False  # the one scan before feeling for the tumour was taken
-    cue_on_correction: bool = False  # the last cue came while correcting towards a target seen on an image
-
-    def noise(self) -> np.ndarray:
-        z = self.z[self.zi]
-        self.zi = (self.zi + 1) % len(self.z)
-        return z
-
-    def need_plan(self) -> Plan:
-        if self.plan is None:
-            raise RuntimeError("virtual_needle_operator: acting on a plan before a scan produced one")
-        return self.plan
-
-
-def _learn(trust: dict[str, float], key: str, rate: float, confirmed: bool) -> None:
-    """Move trust in a cue a ``rate`` fraction of the way towards 1 (confirmed) or 0 (misled)."""
-    old = trust.get(key, 0.0)
-    trust[key] = old + rate * ((1.0 if confirmed else 0.0) - old)
-
-
-def _norm(v: Vec) -> float:
-    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-
-
-class VirtualNeedleOperator(Participant):
+class VirtualNeedleOperator(OperatorSenses, Participant):
     """Virtual participant for seed 001 (entry point ``virtual_needle_operator``); params: :data:`PARAMS`."""
 
     name = "virtual_needle_operator"
@@ -231,7 +124,7 @@ class VirtualNeedleOperator(Participant):
             sense=PositionSense(3.0),
             tick=every - 1,  # decide on the first call
         )
-        self.s.action = self._make_action(home, ())
+        self.s.action = make_action(self._st, home, ())
 
     @property
     def _st(self) -> TrialState:
@@ -251,8 +144,8 @@ class VirtualNeedleOperator(Participant):
             return st.action
         st.tick = 0
         requests = self._decide(t, percept)
-        cmd = self._command(percept)
-        st.action = self._make_action(cmd, ())
+        cmd = command(st, self.p)
+        st.action = make_action(self._st, cmd, ())
         if requests:  # requests go out once; the ticks until the next decision repeat only the inputs
             return Action(st.action.inputs, requests)
         return st.action
@@ -302,34 +195,6 @@ class VirtualNeedleOperator(Participant):
             return st.read_s * p.confirm_read_ratio
         return st.read_s
 
-    def _trusts_cue(self) -> bool:
-        return self.trust_cue.get(self._st.info.condition, 0.0) >= 0.5
-
-    def _trusts_guide(self) -> bool:
-        return self.trust_guide.get(self._st.info.condition, 0.0) >= 0.5
-
-    def _probing_channel(self) -> bool:
-        """Moving along the planned line (in tissue, or the last leg of the approach onto the incision), slowly
-        sideways: a lateral push growing now comes from straying off the line, not from sweeping across it fast
-        (where the channel's damper pushes back whatever its stiffness)."""
-        st = self._st
-        mv = st.move
-        if st.phase is Phase.INSERT:
-            return True
-        return st.phase is Phase.APPROACH and isinstance(mv, MinJerk) and mv.then is None
-
-    def _channel_speed(self) -> float:
-        """Advance speed inside a guidance channel it trusts.
-
-        Its pace through tissue is set by the lateral accuracy it must keep by itself: its hand's slips grow with
-        speed (signal-dependent motor noise, :meth:`_command`). A channel of stiffness k, felt against its own arm
-        stiffness k_arm, lets a hand slip move the tip only k_arm/(k_arm + k) as far, so the same tip accuracy
-        allows (1 + k/k_arm) times its speed, but never more than its free-reach speed (``approach_speed_ratio``).
-        """
-        st, p = self._st, self.p
-        k = self.wall_k.get(st.info.condition, 0.0)
-        return st.v_ins * min(p.approach_speed_ratio, 1.0 + k / p.arm_stiffness_n_per_m)
-
     # ------------------------------------------------------------------ phase handlers
     def _on_plan(self, t: float) -> tuple[Request, ...]:
         st = self._st
@@ -360,7 +225,7 @@ class VirtualNeedleOperator(Participant):
         if not isinstance(mv, MinJerk):
             return ()
         if mv.then is not None and mv.elapsed >= mv.T:
-            self._start_reach(mv.b, mv.then, st.v_app)
+            start_reach(self._st, mv.b, mv.then, st.v_app)
             return ()
         if mv.elapsed >= mv.T + 0.3:
             st.move = None
@@ -459,7 +324,7 @@ class VirtualNeedleOperator(Participant):
             st.phase = Phase.APPROACH
             st.ref = b
             far = (pl.entry[0] - 20.0 * pl.u[0], pl.entry[1] - 20.0 * pl.u[1], pl.entry[2] - 20.0 * pl.u[2])
-            self._start_reach(b, far, st.v_app, then=pl.entry)
+            start_reach(self._st, b, far, st.v_app, then=pl.entry)
             return ()
         if st.next_phase is Phase.INSERT:
             return self._enter_insert(percept)
@@ -484,7 +349,7 @@ class VirtualNeedleOperator(Participant):
         aim = (tum[0] + extra * u[0], tum[1] + extra * u[1], tum[2] + extra * u[2])
         st.guided = self._trusts_guide()
         speed = self._channel_speed() if st.guided else st.v_ins
-        self._start_line(b, u, pl.marker, stop, speed, aim=aim)
+        start_line(self._st, b, u, pl.marker, stop, speed, aim=aim)
         st.stop_reason = "depth"
         return ()
 
@@ -514,7 +379,7 @@ class VirtualNeedleOperator(Participant):
         tum = pl.tumour
         miss = math.dist(b, tum)
         if st.stop_reason == "cue" and (seen or learn):  # was the felt cue the tumour? learn from it
-            _learn(self.trust_cue, st.info.condition, p.cue_trust_rate, miss <= 2.5 * p.accept_mm)
+            learn_trust(self.trust_cue, st.info.condition, p.cue_trust_rate, miss <= 2.5 * p.accept_mm)
         # after each correction it grows more lenient: a looser placement is accepted rather than a fourth try
         if miss <= p.accept_mm * (1.0 + 0.5 * st.corrections):
             return self._begin_finish(percept, t, "in_tumour")
@@ -524,7 +389,7 @@ class VirtualNeedleOperator(Participant):
         st.cue.felt = False
         # aim at the centroid, stop there (by belief) and look again
         d = ((tum[0] - b[0]) / miss, (tum[1] - b[1]) / miss, (tum[2] - b[2]) / miss)
-        self._start_line(b, d, b, miss, st.v_fin)
+        start_line(self._st, b, d, b, miss, st.v_fin)
         st.stop_reason = "correct"
         st.corrections += 1
         return ()
@@ -551,170 +416,6 @@ class VirtualNeedleOperator(Participant):
             return (Request("scan"),)
         st.busy_until = t + 0.5 * st.read_s
         return ()
-
-    # ------------------------------------------------------------------ seeing and feeling
-    def _belief(self, percept: Mapping[str, Any]) -> Vec:
-        st = self._st
-        return st.sense.belief(percept, st.last_cmd)
-
-    def _take_image(self, frame: Mapping[str, Any], percept: Mapping[str, Any]) -> CTReading:
-        st = self._st
-        reading = read_ct(frame, st.axis)
-        if reading.tip_mm is not None:
-            old = st.sense.see_tip(reading.tip_mm, st.sense.felt(percept, st.last_cmd), 0.3)
-            c, r = st.sense.corr, st.ref
-            # the belief moved, the hand did not: keep the set-point where it is
-            st.ref = (r[0] + c[0] - old[0], r[1] + c[1] - old[1], r[2] + c[2] - old[2])
-            st.prev_ref = st.ref
-        if st.plan is None and reading.tumour_mm is not None and reading.marker_mm is not None:
-            self._make_plan(reading.tumour_mm, reading.marker_mm)
-        return reading
-
-    def _make_plan(self, t: Vec, m: Vec) -> None:
-        st = self._st
-        d = (t[0] - m[0], t[1] - m[1], t[2] - m[2])
-        length = _norm(d)
-        u = (d[0] / length, d[1] / length, d[2] / length)
-        # the pen is pointed along the plan with an orientation error
-        z = st.noise()
-        err = math.radians(self.p.orientation_sd_deg)
-        a = (u[0] + err * z[0], u[1] + err * z[1], u[2] + err * z[2])
-        n = _norm(a)
-        st.axis = (a[0] / n, a[1] / n, a[2] / n)
-        pre = self.p.preentry_mm
-        st.plan = Plan(t, m, u, length, (m[0] - pre * u[0], m[1] - pre * u[1], m[2] - pre * u[2]))
-
-    def _perceive(self, t: float, percept: Mapping[str, Any]) -> None:
-        """Forces on the hand: follow a felt guidance push, and watch the axial force for a cue."""
-        st, p = self._st, self.p
-        felt = feel_force(percept, st.axis, p.force_noise_n, st.noise()) if "fx_n" in percept else None
-        if felt is None:
-            return
-        cond = st.info.condition
-        if st.button >= 0.5 and felt.radial_n > p.radial_threshold_n:
-            # a felt lateral push: yield to it, and trust that it keeps the tip near the path
-            g = p.follow_gain_mm_per_ns * st.dt
-            r, (rx, ry, rz) = st.ref, felt.radial
-            st.ref = (r[0] + g * rx, r[1] + g * ry, r[2] + g * rz)
-            st.record["radial_felt_s"] += st.dt
-            hand = st.sense.felt(percept, st.last_cmd)
-            if st.felt_radial_s == 0.0:
-                st.radial_onset = hand  # where the lateral push was first felt
-                st.radial_onset_n = felt.radial_n
-            st.felt_radial_s += st.dt
-            if st.felt_radial_s > 0.2:
-                st.sense.sig_lat = min(st.sense.sig_lat, p.finish_mm)
-            # how far the hand went sideways while the push grew from just felt to wall_n: a short way is a stiff
-            # wall (EG/ESG, 10x the BL spring), a long way a soft pull; stiffness is judged from force and travel
-            o, a = st.radial_onset, st.axis
-            dx, dy, dz = hand[0] - o[0], hand[1] - o[1], hand[2] - o[2]
-            along = dx * a[0] + dy * a[1] + dz * a[2]
-            travel = math.sqrt(max(0.0, dx * dx + dy * dy + dz * dz - along * along))
-            if felt.radial_n > p.wall_n and travel <= p.wall_travel_mm and st.radial_onset_n < p.wall_n \
-                    and self._probing_channel() and not st.record["wall"]:
-                # the channel, felt while lining up over the incision or in tissue (once a trial), as a push that grew
-                # from just noticeable (a push already strong when first felt says nothing of stiffness): it learns
-                # to rely on it, and how stiff it is (force rise over the sideways travel; its felt position
-                # resolves no finer than 0.05 mm)
-                st.record["wall"] = True
-                _learn(self.trust_guide, cond, p.guide_trust_rate, True)
-                k_felt = 1000.0 * (felt.radial_n - st.radial_onset_n) / max(travel, 0.05)
-                k_old = self.wall_k.get(cond)
-                self.wall_k[cond] = k_felt if k_old is None else k_old + p.guide_trust_rate * (k_felt - k_old)
-                if self._trusts_guide() and not st.guided and isinstance(st.move, Line) and st.stop_reason == "depth":
-                    st.guided = True  # a firm channel, felt now: it need not fear lateral slips for the rest
-                    st.move.v = max(st.move.v, self._channel_speed())
-                    st.cue.expect_change()
-        else:
-            st.felt_radial_s = 0.0
-        if st.button >= 0.5 and self._trusts_guide():
-            # inside a channel it has felt to be firm (the guidance acts from before the incision on), it takes
-            # the tip to be on the path laterally
-            st.sense.sig_lat = min(st.sense.sig_lat, 0.9 * p.finish_mm)
-        # axial cue: a rise above the running baseline while advancing deep in the liver
-        mv = st.move
-        if st.phase is Phase.INSERT and st.plan is not None and st.button >= 0.5 and isinstance(mv, Line):
-            mv.moving_s += st.dt
-            depth = st.plan.depth(self._belief(percept))
-            if st.cue.update(felt.axial, depth, 0.5 * st.plan.length, mv.moving_s, st.dt,
-                             p.force_threshold_n, p.force_weber):
-                st.record["cue"] = True
-                st.react_until = t + p.reaction_s
-
-    # ------------------------------------------------------------------ motor output
-    def _start_reach(self, start: Vec, goal: Vec, speed: float, *, then: Vec | None = None) -> None:
-        """A free-space reach: minimum-jerk reference from ``start`` to ``goal``."""
-        self._st.move = MinJerk(start, goal, max(math.dist(start, goal) / speed, 0.3), then)
-
-    def _start_line(self, start: Vec, direction: Vec, origin: Vec, stop: float, v: float,
-                    aim: Vec | None = None) -> None:
-        """Advance the reference until the believed tip is ``stop`` mm past ``origin`` along ``direction``."""
-        b = start
-        lead_done = (
-            (b[0] - origin[0]) * direction[0] + (b[1] - origin[1]) * direction[1] + (b[2] - origin[2]) * direction[2]
-        )
-        self._st.move = Line(direction, direction, aim, origin, stop, v, stop + 5.0, lead_done)
-
-    def _make_action(self, cmd: Vec, requests: tuple[Request, ...]) -> Action:
-        st = self._st
-        a = st.axis
-        # Plain Python floats (the same doubles): numpy scalars here would make the device's pen axis, and from
-        # it every tick of the controller's force law, numpy-scalar arithmetic, several times slower.
-        return Action(
-            {
-                "x_mm": float(cmd[0]),
-                "y_mm": float(cmd[1]),
-                "z_mm": float(cmd[2]),
-                "dir_x": float(a[0]),
-                "dir_y": float(a[1]),
-                "dir_z": float(a[2]),
-                "button": float(st.button),
-            },
-            requests,
-        )
-
-    def _command(self, percept: Mapping[str, Any]) -> Vec:
-        """Advance the reference, then turn the wanted (believed) tip into a hand set-point."""
-        st, p = self._st, self.p
-        mv = st.move
-        dt = st.dt
-        z = st.noise()
-        if mv is not None and st.button >= 0.5:
-            if isinstance(mv, MinJerk):
-                mv.elapsed += dt
-                s = min(1.0, mv.elapsed / mv.T)
-                w = s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
-                a, b = mv.a, mv.b
-                st.ref = (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * (b[2] - a[2]))
-            else:
-                # constant speed with a slow fluctuation (signal-dependent motor noise)
-                k = dt / 0.5
-                st.speed_dev += -k * st.speed_dev + p.speed_noise * math.sqrt(2 * k) * z[6]
-                step = mv.v * max(0.2, 1.0 + st.speed_dev) * dt
-                r = st.ref
-                aim = mv.aim
-                if aim is not None:
-                    d = (aim[0] - r[0], aim[1] - r[1], aim[2] - r[2])
-                    n = _norm(d)
-                    if n > 2.0:  # close to the aim point the direction is kept
-                        mv.dir = (d[0] / n, d[1] / n, d[2] / n)
-                u = mv.dir
-                st.ref = (r[0] + step * u[0], r[1] + step * u[1], r[2] + step * u[2])
-                mv.ref_s += step
-        # lateral wobble (Ornstein–Uhlenbeck), stronger with a noisier hand and, advancing faster than its own
-        # insertion pace, in proportion to the speed (signal-dependent motor noise, Harris & Wolpert 1998)
-        k = dt / p.motor_tau_s
-        sd = p.motor_noise_mm * math.sqrt(2 * k)
-        if isinstance(mv, Line) and st.button >= 0.5 and mv.v > st.v_ins:
-            sd *= mv.v / st.v_ins
-        wb = st.wobble
-        for i in range(3):
-            wb[i] += -k * wb[i] + sd * z[i]
-        # wanted believed tip → set-point: undo the (unknown to it) position-sense error and correction
-        r, b, c = st.ref, st.sense.beta, st.sense.corr
-        cmd = (r[0] - c[0] - b[0] + wb[0], r[1] - c[1] - b[1] + wb[1], r[2] - c[2] - b[2] + wb[2])
-        st.last_cmd = cmd
-        return cmd
 
     # ------------------------------------------------------------------ questionnaires
     def answer(self, item: Mapping[str, Any], rng: np.random.Generator) -> int:
