@@ -33,6 +33,9 @@ from studyctl.engine.plan import Step
 
 # The store is read at most this often (the page polls twice a second; a session's writer must not feel it).
 STORE_EVERY_S = 2.0
+# The whole study's progress (every participant) at most this often.
+STUDY_EVERY_S = 6.0
+STUDY_PEOPLE_SHOWN = 200
 # Trial-loop events kept for the page (newest last).
 EVENTS_KEPT = 12
 # A loop tick older than this while a trial runs is shown as a stall.
@@ -135,6 +138,9 @@ class CoordinatorBoard:
         self._ticks: collections.deque[tuple[float, int]] = collections.deque(maxlen=16)
         self._stored: dict[str, Any] = {"lease": None, "notes": [], "read_at": None, "error": None}
         self._stored_at = -1e9
+        self._study_at = -1e9
+        self._study_name: str | None = None
+        self._participant_id: int | None = None
         self.polls = 0  # snapshots served (the bench waits for the page's first)
         self._erase_scan = 0  # erasure rows read up to this audit id
         self._erased_until = 0  # notes at or before this audit id are about an erased session of the same id
@@ -143,6 +149,7 @@ class CoordinatorBoard:
     def bind(self, recorder: Any) -> None:
         """Where the session is recorded (for the lease and notes); a recorder without a store is fine."""
         self._store = getattr(recorder, "store", None)
+        self._participant_id = getattr(recorder, "participant_id", None)
         try:
             self._session_id = int(recorder.session_id)
         except (AttributeError, TypeError, ValueError):
@@ -216,11 +223,43 @@ class CoordinatorBoard:
                               "trial_id": d.get("trial_id"), "text": str(d.get("text", ""))})
             if len(notes) >= NOTES_KEPT:
                 break
+        study = self._stored.get("study")
+        if now - self._study_at >= STUDY_EVERY_S:
+            self._study_at = now
+            study = self._read_study()
         if lease is not None:
             lease = {"pid": lease["pid"], "host": lease["host"], "since": _iso(lease["since"]),
                      "heartbeat_age_s": round((datetime.now(UTC) - lease["heartbeat_at"]).total_seconds(), 1)}
         self._stored = {"lease": lease, "notes": notes, "read_at": datetime.now(UTC).isoformat(timespec="seconds"),
-                        "error": None}
+                        "error": None, "study": study}
+
+    def _read_study(self) -> dict[str, Any] | None:
+        """Every participant's progress by condition and the balance so far (what ``studyctl status`` shows)."""
+        from studyctl.engine.progress import study_progress  # noqa: PLC0415 (only when a store is bound)
+        from studyctl.store.models import Participant, Study  # noqa: PLC0415
+
+        try:
+            if self._study_name is None:
+                with self._store.reading() as tx:
+                    self._study_name = tx.scalar(select(Study.name).join(Participant, Participant.study_id == Study.id)
+                                                 .where(Participant.id == self._participant_id))
+            if self._study_name is None:
+                return None
+            progress = study_progress(self._store, self._study_name)
+        except Exception as exc:  # shown on the page; the session is not disturbed
+            return {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"}
+        people: dict[str, dict[str, Any]] = {}
+        conditions: list[str] = []
+        for r in progress.rows:
+            person = people.setdefault(r.participant, {"code": r.participant, "stratum": r.stratum,
+                                                       "status": r.participant_status, "cells": {}, "left": 0})
+            person["cells"][r.condition] = [r.done, r.planned]
+            person["left"] += r.left
+            if r.condition not in conditions:
+                conditions.append(r.condition)
+        return {"name": progress.study, "conditions": conditions,
+                "people": list(people.values())[:STUDY_PEOPLE_SHOWN], "participants": len(people),
+                "totals": progress.totals(), "first_condition": progress.first_condition}
 
     def _erasures_seen(self, tx: Any, audit_log: Any) -> None:
         """The last erasure that listed this session's id (SQLite reuses an erased session's id): notes before
@@ -300,6 +339,7 @@ class CoordinatorBoard:
                                    "frame_latency_ms_p50": round(lat[len(lat) // 2], 1) if lat else None},
             "lease": stored["lease"],
             "notes": stored["notes"],
+            "study": stored.get("study"),
             "store": {"read_at": stored["read_at"], "error": stored["error"]},
         }
 

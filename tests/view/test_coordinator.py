@@ -174,6 +174,10 @@ def test_coordinator_page_live_beside_the_participant_view(store, browser, new_b
         add_note(store, "participant adjusted the chair", session=sid, study=store.get_study(None).name)
         wait_for(lambda: "adjusted the chair" in text(), 10, "the note on the page")
         wait_for(lambda: "held by pid" in coord.find_element(By.ID, "lease").text, 10, "the lease owner")
+        # the whole study (what `studyctl status` shows): this participant's row, by condition
+        wait_for(lambda: "P001" in coord.find_element(By.ID, "study-table").text, 15, "the study's progress")
+        study = coord.execute_script("return window.studyctlCoordinator.state().study")
+        assert [p["code"] for p in study["people"]] == ["P001"] and study["people"][0]["cells"]["PHF"] == [0, 0]
         wait_for(lambda: re.search(r"\d+ Hz of \d+ Hz", coord.find_element(By.ID, "loop-rate").text), 10,
                  "a measured loop rate")
         state = coord.execute_script("return window.studyctlCoordinator.state()")

@@ -96,12 +96,48 @@
       : (p.session_id ? "no lease held" : "–"));
     set("store-read", s.store && s.store.error ? "could not read the study database: " + s.store.error
       : (s.store && s.store.read_at ? "read from the study database at " + s.store.read_at : ""));
+    drawStudy(s.study, p.participant);
     if (p.session_id) set("note-how", "studyctl note \"…\" --session " + p.session_id);
     const notes = s.notes || [];
     list("notes", notes.length ? notes : [null], (li, n) => {
       if (!n) { li.className = "dim"; li.textContent = "no notes on this session yet"; return; }
       li.append(span("dim", n.at.slice(11, 19) + " " + n.actor + (n.trial_id ? " · trial " + n.trial_id : "")), n.text);
     });
+  }
+
+  function cell(tag, text, cls) {
+    const c = document.createElement(tag); c.textContent = text; if (cls) c.className = cls; return c;
+  }
+
+  function drawStudy(st, me) {
+    const table = $("study-table");
+    if (!st || st.error) {
+      table.replaceChildren();
+      set("study-name", st && st.error ? "could not read: " + st.error : "");
+      set("study-totals", ""); set("study-balance", "");
+      return;
+    }
+    set("study-name", st.name + " · " + st.participants + " participant" + (st.participants === 1 ? "" : "s"));
+    const head = document.createElement("tr");
+    head.append(cell("th", "participant"), cell("th", "group"), cell("th", "status"),
+      ...st.conditions.map((c) => cell("th", c)), cell("th", "left"));
+    const rows = st.people.map((person) => {
+      const tr = document.createElement("tr");
+      tr.className = (person.code === me ? "me " : "") + (person.status === "withdrawn" ? "withdrawn" : "");
+      tr.append(cell("td", person.code), cell("td", person.stratum || "–"), cell("td", person.status),
+        ...st.conditions.map((c) => {
+          const v = person.cells[c];
+          return v ? cell("td", v[0] + "/" + v[1], v[1] && v[0] >= v[1] ? "full" : "") : cell("td", "–");
+        }), cell("td", person.left));
+      return tr;
+    });
+    table.replaceChildren(head, ...rows);
+    const t = st.totals;
+    set("study-totals", "trials: " + t.done + " done, " + t.running + " running, " + t.left + " left, " +
+      t.aborted + " aborted, " + t.invalid + " invalid");
+    const balance = Object.entries(st.first_condition).map(([k, v]) =>
+      "[" + k + "] " + Object.entries(v).map(([c, n]) => c + " " + n).join(", ")).join("  ");
+    set("study-balance", "balance, first condition: " + (balance || "–"));
   }
 
   async function poll() {
