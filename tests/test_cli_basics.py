@@ -63,3 +63,29 @@ def test_exit_code_of_a_command_is_kept():
         assert app_module.main([]) == 3
     finally:
         app_module.app = original
+
+
+def test_the_command_table_names_the_module_that_registers_each_command():
+    """A command line imports only its command's module (cli/app.COMMANDS): the table must say where each lives."""
+    import importlib
+
+    from studyctl.cli.app import COMMAND_MODULES, COMMANDS
+
+    registered = {}
+    for module in COMMAND_MODULES:
+        one = typer.Typer()
+        importlib.import_module(module).register(one)
+        names = [c.name or c.callback.__name__.replace("_", "-") for c in one.registered_commands]
+        names += [g.name or g.typer_instance.info.name for g in one.registered_groups]
+        registered.update(dict.fromkeys(names, module))
+    assert registered == COMMANDS
+    assert set(COMMANDS) == set(typer.main.get_command(app).commands)
+
+
+def test_a_command_line_imports_only_its_own_command_module():
+    code = ("import sys\nfrom studyctl.cli.app import app_for\napp_for(['run', '--help'])\n"
+            "print(sorted(m for m in sys.modules if m.startswith('studyctl.cli.')), 'pandas' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["['studyctl.cli.app',", "'studyctl.cli.common',", "'studyctl.cli.session']",
+                                  "False"]

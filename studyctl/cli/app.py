@@ -6,6 +6,7 @@ Each module in :data:`COMMAND_MODULES` exposes ``register(app: typer.Typer) -> N
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 import typer
@@ -47,13 +48,19 @@ def _flags_without_type(core) -> None:  # noqa: ANN001 - typer.core
 
 _flags_without_type(typer.core)
 
-app = typer.Typer(
-    name="studyctl",
-    help="Run human-subject studies of haptic feedback, from the protocol to the published statistics.",
-    no_args_is_help=True,
-    add_completion=True,
-    pretty_exceptions_enable=False,
-)
+# Each top-level command (or command group) and the module that registers it: a command line names one, and only
+# that module is imported (`studyctl run` never loads the statistics, `protocol check` never the engine; a hostile
+# input is refused by a small process). Help, completion and unknown commands build the whole app. A test checks
+# this table against what the modules register.
+COMMANDS = {
+    "bench": "studyctl.cli.bench", "calibrate": "studyctl.cli.calibrate", "plugins": "studyctl.cli.plugins",
+    "protocol": "studyctl.cli.protocol", "enroll": "studyctl.cli.enroll", "withdraw": "studyctl.cli.records",
+    "consent": "studyctl.cli.records", "note": "studyctl.cli.records", "init": "studyctl.cli.study",
+    "status": "studyctl.cli.study", "run": "studyctl.cli.session", "resume": "studyctl.cli.session",
+    "export": "studyctl.cli.session", "db": "studyctl.cli.db", "audit": "studyctl.cli.audit",
+    "analyze": "studyctl.cli.analysis", "report": "studyctl.cli.analysis", "simulate": "studyctl.cli.analysis",
+    "demo": "studyctl.cli.analysis", "power": "studyctl.cli.power", "device": "studyctl.cli.device",
+}
 
 
 def _version_callback(value: bool) -> None:
@@ -62,7 +69,6 @@ def _version_callback(value: bool) -> None:
         raise typer.Exit()
 
 
-@app.callback()
 def _root(
     version: bool = typer.Option(
         False, "--version", callback=_version_callback, is_eager=True, help="Print the version and exit."
@@ -71,15 +77,48 @@ def _root(
     """Run human-subject studies of haptic feedback, from the protocol to the published statistics."""
 
 
-for _module in COMMAND_MODULES:
-    importlib.import_module(_module).register(app)
+def build_app(modules: tuple[str, ...] = COMMAND_MODULES) -> typer.Typer:
+    """The ``studyctl`` command with the commands of ``modules`` (all of them by default)."""
+    built = typer.Typer(
+        name="studyctl",
+        help="Run human-subject studies of haptic feedback, from the protocol to the published statistics.",
+        no_args_is_help=True,
+        add_completion=True,
+        pretty_exceptions_enable=False,
+    )
+    built.callback()(_root)
+    for module in modules:
+        importlib.import_module(module).register(built)
+    return built
+
+
+_whole: typer.Typer | None = None
+
+
+def __getattr__(name: str) -> typer.Typer:
+    """``app``: the whole command, built on first use (tests and tools import it)."""
+    global _whole
+    if name != "app":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    if _whole is None:
+        _whole = build_app()
+    return _whole
+
+
+def app_for(args: list[str]) -> typer.Typer:
+    """The command for one command line: only the module of the command it names, when it names a known one."""
+    completing = any(k.startswith("_") and k.endswith("_COMPLETE") for k in os.environ)
+    if args and not completing and args[0] in COMMANDS:
+        return build_app((COMMANDS[args[0]],))
+    return sys.modules[__name__].app  # the whole command (or one a test put in its place)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: run the CLI and turn any StudyctlError into one ``Error:`` line."""
     try:
         # In non-standalone mode click hands ``typer.Exit(n)`` back as the return value.
-        returned = app(args=argv, standalone_mode=False)
+        args = sys.argv[1:] if argv is None else list(argv)
+        returned = app_for(args)(args=args, standalone_mode=False)
     except StudyctlError as exc:
         typer.echo(f"Error: {exc}", err=True)
         return exc.exit_code

@@ -8,18 +8,19 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
-from studyctl.engine.api import resume_session, run_session, session_is_virtual
-from studyctl.engine.export import export_study
-from studyctl.store.anchor import audit_head
-from studyctl.store.workspace import OpenStudy, open_study
-from studyctl.view import open_view
+
+# The engine, the store and the view (SQLAlchemy, pandas, pyarrow: ~120 MB) are imported inside the commands, after
+# a --input file was read: a hostile answers file is refused by a process that never loaded them.
+if TYPE_CHECKING:
+    from studyctl.engine.ui import Script
+    from studyctl.store.workspace import OpenStudy
 
 VIEW_OPTION = typer.Option(
     False, "--view", help="Also show the session on the participant's screen: serves the participant view on this "
@@ -58,6 +59,8 @@ JSON_OPTION = typer.Option(False, "--json", help="Print the result as one JSON o
 
 
 def _summary(result, opened: OpenStudy, as_json: bool = False) -> None:
+    from studyctl.store.anchor import audit_head  # noqa: PLC0415
+
     if as_json:
         head = audit_head(opened.store.db)
         typer.echo(json.dumps({**dataclasses.asdict(result), "audit_head": head.text()}, default=str))
@@ -83,11 +86,23 @@ def _live(db: str | None, workspace: Path | None, study: str | None, view: bool,
           bar_when: Callable[[OpenStudy], bool], quiet: bool = False) -> Iterator[tuple[OpenStudy, dict[str, Any]]]:
     """The open study and the keyword arguments run/resume share: progress bar, log to stderr, view front end
     (its address on stderr when ``quiet``: stdout then holds only the JSON result)."""
+    from studyctl.store.workspace import open_study  # noqa: PLC0415
+    from studyctl.view import open_view  # noqa: PLC0415
+
     announce = (lambda m: typer.echo(m, err=True)) if quiet else typer.echo
     with open_study(db, workspace_arg(workspace), study) as opened, \
             open_view(view, port=view_port, announce=announce) as pv, _Bar(bar_when(opened)) as bar:
         yield opened, {"progress": bar, "log": lambda m: typer.echo(m, err=True),
                        "frontend": pv.attach if pv else None}
+
+
+def _script(path: Path | None) -> Script | None:
+    """The --input file read and checked before anything heavy is imported or any database opened."""
+    if path is None:
+        return None
+    from studyctl.engine.ui import Script  # noqa: PLC0415
+
+    return Script.load(path)
 
 
 INPUT_HELP = (
@@ -124,12 +139,15 @@ def register(app: typer.Typer) -> None:
         study: str = STUDY_OPTION,
     ) -> None:
         """Run a participant's session: instructions, practice, trials, breaks and questionnaires."""
+        script = _script(input_file)
+        from studyctl.engine.api import run_session  # noqa: PLC0415
+
         unattended = virtual or input_file is not None
         with _live(db, workspace, study, view, view_port, lambda _: unattended, as_json) as (opened, hooks):
             # a virtual rehearsal rehearses with a person of the protocol's population, as `simulate` draws them
             population = _shipped_population(opened, hooks["log"]) if rehearse and virtual else None
             result = run_session(opened.store, participant, study=opened.study.name, virtual=virtual, seed=seed,
-                                 script=input_file, speed=speed, rehearse=rehearse, lsl=lsl, population=population,
+                                 script=script, speed=speed, rehearse=rehearse, lsl=lsl, population=population,
                                  **hooks)
             _summary(result, opened, as_json)
 
@@ -153,9 +171,12 @@ def register(app: typer.Typer) -> None:
         study: str = STUDY_OPTION,
     ) -> None:
         """Continue an interrupted session from its stored plan (crash, kill, Ctrl-C or device fault)."""
+        script = _script(input_file)
+        from studyctl.engine.api import resume_session, session_is_virtual  # noqa: PLC0415
+
         bar_when = lambda opened: input_file is not None or session_is_virtual(opened.store, session)  # noqa: E731
         with _live(db, workspace, study, view, view_port, bar_when, as_json) as (opened, hooks):
-            result = resume_session(opened.store, session, script=input_file, speed=speed, take_over=take_over,
+            result = resume_session(opened.store, session, script=script, speed=speed, take_over=take_over,
                                     lsl=lsl, **hooks)
             _summary(result, opened, as_json)
 
@@ -174,6 +195,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Export trials, events, responses, reports and samples as tidy tables with a data dictionary and a
         Frictionless data package."""
+        from studyctl.engine.export import export_study  # noqa: PLC0415
+        from studyctl.store.workspace import open_study  # noqa: PLC0415
+
         with open_study(db, workspace_arg(workspace), study) as opened:
             result = export_study(opened.store, folder, study=opened.study.name, samples=samples,
                                   process_info=process_info, format=fmt)
