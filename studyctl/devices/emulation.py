@@ -60,7 +60,7 @@ def has_world(cls: type) -> bool:
     import inspect  # noqa: PLC0415
 
     emulate = getattr(cls, "emulate", None)
-    return callable(emulate) and "world" in inspect.signature(emulate).parameters
+    return callable(emulate) and "world" in inspect.signature(emulate).parameters and getattr(cls, "WORLD", True)
 
 
 @contextlib.contextmanager

@@ -45,6 +45,7 @@ class Omega6Device(ForceAdapter):
 
     name = "omega6"
     EMULATED_MODEL, EMULATED_WHAT = "omega6", "omega.6"
+    WORLD = True  # a virtual participant can rehearse on its emulator (run --rehearse --virtual)
     load_sdk = staticmethod(load_sdk)
     PARAMS = (
         Param("max_force_n", 12.0, 1e-3, 12.0, unit="N", source="omega.6 peak force (CHAI3D driver spec)"),

@@ -80,6 +80,9 @@ class ForceAdapter(ParamDevice):
     simulated = False
     EMULATED_MODEL: ClassVar[str]  # shm_device --model
     EMULATED_WHAT: ClassVar[str]  # how the emulator's errors name the device
+    # whether the emulator's world (a virtual participant's hand, studyctl.devices.world) fits this adapter's frames:
+    # position, pen axis (a column of the wrist rotation) and button as this adapter reads them
+    WORLD: ClassVar[bool] = False
 
     @staticmethod
     def load_sdk(emulator: str = "") -> Any:
@@ -92,12 +95,21 @@ class ForceAdapter(ParamDevice):
 
     @classmethod
     @contextlib.contextmanager
-    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None) -> Iterator[dict[str, Any]]:
+    def emulate(cls, params: Mapping[str, Any], hang_after_s: float | None = None,
+                world: bool = False) -> Iterator[dict[str, Any]]:
         """Start this model's emulator (its own process) and yield the params that drive it through the SDK's own
-        API (a rehearsal's device)."""
-        with run_emulator("studyctl.devices.emulators.shm_device", ["--model", cls.EMULATED_MODEL],
-                          what=cls.EMULATED_WHAT, hang_after_s=hang_after_s) as name:
-            yield {**dict(params), "emulator": name}
+        API (a rehearsal's device). ``world`` (adapters with :attr:`WORLD`): also the emulator's world block for a
+        virtual participant's hand, yielded as ``world: {kind, block}`` (:mod:`studyctl.devices.world`)."""
+        if world and not cls.WORLD:
+            raise DeviceError(f"the {cls.EMULATED_WHAT} emulator has no world for a virtual participant's hand")
+        args = ["--model", cls.EMULATED_MODEL, *(["--world"] if world else [])]
+        with run_emulator("studyctl.devices.emulators.shm_device", args, what=cls.EMULATED_WHAT,
+                          hang_after_s=hang_after_s) as handle:
+            name, _, block = handle.partition(" ")
+            out: dict[str, Any] = {**dict(params), "emulator": name}
+            if world:
+                out["world"] = {"kind": "force3d", "block": block}
+            yield out
 
     def force_limits(
         self, p: Mapping[str, Any], *, sensor_stale_s: float, max_rate_per_s: float | None = None

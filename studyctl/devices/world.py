@@ -106,7 +106,97 @@ class PalpationBoardWorld:
         self._shm.close()
 
 
-WORLDS = {PalpationBoardWorld.kind: PalpationBoardWorld}
+# Layout of a 3-DoF force device's world block (float64 slots; emulators/shm_device --world): written by the emulator …
+F_HEARTBEAT, F_FORCE, F_POS = 0, 1, 4  # the force the device applied (N), the handle's position (m), device frame
+# … and by the hand: ATTACHED = 1 while it holds the handle, where it pulls the handle (m), the wrist's rotation
+# (row-major 3 × 3) and the button
+F_ATTACHED, F_TARGET, F_ROT, F_BUTTON = 7, 8, 11, 20
+FORCE_WORLD_SLOTS = 24
+
+
+class ForceDeviceWorld:
+    """A hand holding a 3-DoF force device's handle (omega.6 class), on its emulator's world block.
+
+    :meth:`touch` takes the virtual participant's inputs as it gives them to the simulated device (``x_mm``…: where
+    the hand wants the handle, in scene mm; the pen axis ``dir_x``…; ``button``) and turns them into the device's
+    frame with the adapter's own ``scale``, ``offset_mm`` and ``pen_axis``: the emulator's modelled hand pulls the
+    handle there, against the force the controller renders through the SDK. :meth:`feel` is that force as the device
+    applied it (after its own clamp and watchdog) and where the handle is, in scene mm. Nothing here reaches the
+    controller: it reads the encoders through the SDK, as with a person.
+    """
+
+    kind = "force3d"
+
+    def __init__(self, block: str, scene: Scene | None, params: Mapping[str, Any] | None = None) -> None:
+        p = dict(params or {})
+        self.scale = float(p.get("scale", 1.0))
+        self.offset = tuple(float(v) for v in p.get("offset_mm", (0.0, 0.0, 0.0)))
+        axis = str(p.get("pen_axis", "-x"))
+        self.col = "xyz".index(axis[-1])
+        self.sign = -1.0 if axis.startswith("-") else 1.0
+        self.scene = scene
+        self._shm, self.block = attach_block(block, FORCE_WORLD_SLOTS)
+        self._feel = {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0, "x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0}
+
+    def touch(self, inputs: Channels) -> None:
+        b, k, o = self.block, 1.0 / (1000.0 * self.scale), self.offset
+        x = inputs.get("x_mm")
+        if x is not None:
+            b[F_TARGET] = (float(x) - o[0]) * k
+            b[F_TARGET + 1] = (float(inputs.get("y_mm", o[1])) - o[1]) * k
+            b[F_TARGET + 2] = (float(inputs.get("z_mm", o[2])) - o[2]) * k
+            b[F_ATTACHED] = 1.0
+        d = inputs.get("dir_x")
+        if d is not None:
+            b[F_ROT:F_ROT + 9] = self._frame((float(d), float(inputs.get("dir_y", 0.0)),
+                                              float(inputs.get("dir_z", 0.0))))
+        button = inputs.get("button")
+        if button is not None:
+            b[F_BUTTON] = 1.0 if button >= 0.5 else 0.0
+
+    def _frame(self, d: tuple[float, float, float]) -> np.ndarray:
+        """A wrist rotation whose ``pen_axis`` column (with its sign) is the pen direction ``d``."""
+        v = np.asarray(d, dtype=float)
+        n = float(np.linalg.norm(v))
+        v = v / n if n > 0 and np.isfinite(n) else np.array([0.0, 0.0, -1.0])
+        helper = np.array([0.0, 0.0, 1.0]) if abs(v[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        a = np.cross(v, helper)
+        a /= np.linalg.norm(a)
+        c = np.cross(v, a)
+        cols = [a, c]
+        rot = np.empty((3, 3))
+        rot[:, self.col] = self.sign * v
+        for j in range(3):
+            if j != self.col:
+                rot[:, j] = cols.pop(0)
+        if np.linalg.det(rot) < 0:  # a proper rotation
+            j = next(j for j in range(3) if j != self.col)
+            rot[:, j] *= -1.0
+        return rot.reshape(9)
+
+    def pose(self) -> dict[str, float]:
+        return {}  # the encoders report the handle's pose through the SDK
+
+    def feel(self) -> dict[str, float]:
+        b, k, o, f = self.block, 1000.0 * self.scale, self.offset, self._feel
+        f["fx_n"], f["fy_n"], f["fz_n"] = float(b[F_FORCE]), float(b[F_FORCE + 1]), float(b[F_FORCE + 2])
+        f["x_mm"] = o[0] + k * float(b[F_POS])
+        f["y_mm"] = o[1] + k * float(b[F_POS + 1])
+        f["z_mm"] = o[2] + k * float(b[F_POS + 2])
+        return f
+
+    def release(self) -> None:
+        """The hand lets go: the emulator's own modelled hand holds the handle again."""
+        self.block[F_ATTACHED] = 0.0
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.release()
+        self.block = np.zeros(FORCE_WORLD_SLOTS)
+        self._shm.close()
+
+
+WORLDS = {PalpationBoardWorld.kind: PalpationBoardWorld, ForceDeviceWorld.kind: ForceDeviceWorld}
 
 
 class EmbodiedDevice(Device):
@@ -160,4 +250,6 @@ def embody(device: Device, world_ref: Mapping[str, Any], scene: Scene | None) ->
     kind = str(world_ref.get("kind"))
     if kind not in WORLDS:
         raise DeviceError(f"unknown emulator world {kind!r}; known: {', '.join(sorted(WORLDS))}")
-    return EmbodiedDevice(device, WORLDS[kind](str(world_ref["block"]), scene, world_ref.get("params")))
+    # the world reads the adapter's own frame parameters (scale, offset, pen axis) beside its own
+    params = {**dict(getattr(device, "params", None) or {}), **dict(world_ref.get("params") or {})}
+    return EmbodiedDevice(device, WORLDS[kind](str(world_ref["block"]), scene, params))

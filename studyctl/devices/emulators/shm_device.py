@@ -10,8 +10,11 @@ held by a modelled hand (a spring-damper to a slowly moving target), so the forc
 it.
 
 Run: ``python -m studyctl.devices.emulators.shm_device --model omega6 --port 0`` prints ``READY <id>`` where
-``<id>`` names the shared block; ``--hang-after S`` stops the loop after S seconds (a device that stops
-answering), ``--exit-with-parent`` ends it with the process that started it.
+``<id>`` names the shared block; ``--world`` also opens a world block for a virtual participant's hand (its name
+follows on the READY line; :class:`studyctl.devices.world.ForceDeviceWorld`): while a hand holds the handle, the
+modelled hand pulls towards where that hand wants it and its pen orientation and button are the wrist's, and the
+force the device applies and where the handle is go back to the hand. ``--hang-after S`` stops the loop after
+S seconds (a device that stops answering), ``--exit-with-parent`` ends it with the process that started it.
 """
 
 from __future__ import annotations
@@ -89,8 +92,14 @@ def hand_target(t: float) -> tuple[float, float, float]:
     return 0.02 * math.sin(0.5 * t), 0.015 * math.sin(0.7 * t), 0.01 * math.sin(0.3 * t)
 
 
-def run(model: Model, name: str | None, hang_after: float | None, exit_with_parent: bool) -> int:
+def run(model: Model, name: str | None, hang_after: float | None, exit_with_parent: bool, world: bool = False) -> int:
     shm = shared_memory.SharedMemory(create=True, size=SLOTS * 8, name=name)
+    wshm = w = None
+    if world:
+        from studyctl.devices import world as _world  # noqa: PLC0415
+
+        wshm, w = _world.create_block(_world.FORCE_WORLD_SLOTS)
+        w[_world.F_ROT:_world.F_ROT + 9] = (1, 0, 0, 0, 1, 0, 0, 0, 1)
     s = np.ndarray((SLOTS,), dtype=np.float64, buffer=shm.buf)
     s[:] = 0.0
     s[ROT:ROT + 9] = (1, 0, 0, 0, 1, 0, 0, 0, 1)
@@ -107,7 +116,7 @@ def run(model: Model, name: str | None, hang_after: float | None, exit_with_pare
     except (OSError, AttributeError):
         with contextlib.suppress(OSError):
             os.nice(-5)
-    print(f"READY {shm.name}", flush=True)
+    print(f"READY {shm.name}" + (f" {wshm.name}" if wshm is not None else ""), flush=True)
     parent = os.getppid() if exit_with_parent else None
     period = 1.0 / model.rate_hz
     k_hand, b_hand = 300.0, 8.0  # N/m, N·s/m: a relaxed grip
@@ -147,7 +156,12 @@ def run(model: Model, name: str | None, hang_after: float | None, exit_with_pare
                     if norm > limit:
                         force *= limit / norm
             s[APPLIED:APPLIED + 3] = force
-            target = np.array(hand_target(t))
+            if w is not None and w[_world.F_ATTACHED] > 0:  # a virtual participant's hand holds the handle
+                target = np.array(w[_world.F_TARGET:_world.F_TARGET + 3])
+                s[ROT:ROT + 9] = w[_world.F_ROT:_world.F_ROT + 9]  # the passive wrist's encoders
+                s[BUTTON] = w[_world.F_BUTTON]
+            else:
+                target = np.array(hand_target(t))
             braked = s[ENABLED] == 2.0
             acc = (force - k_hand * (pos - target) - (b_hand + (30.0 if braked else 0.0)) * vel) / model.mass_kg
             vel += acc * period
@@ -165,6 +179,10 @@ def run(model: Model, name: str | None, hang_after: float | None, exit_with_pare
             s[TIME] = t
             n += 1
             s[HEARTBEAT] = n
+            if w is not None:  # what the hand feels: the force really applied, where the handle really is
+                w[_world.F_FORCE:_world.F_FORCE + 3] = force
+                w[_world.F_POS:_world.F_POS + 3] = pos
+                w[_world.F_HEARTBEAT] = n
             next_t += period
             delay = next_t - time.perf_counter()
             if delay > 0:
@@ -174,6 +192,9 @@ def run(model: Model, name: str | None, hang_after: float | None, exit_with_pare
     finally:
         shm.close()
         shm.unlink()
+        if wshm is not None:
+            wshm.close()
+            wshm.unlink()
     return 0
 
 
@@ -184,9 +205,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--port", default="0", help="the shared block's name (0: a new unique name)")
     parser.add_argument("--hang-after", type=float, help="stop answering after S seconds")
     parser.add_argument("--exit-with-parent", action="store_true")
+    parser.add_argument("--world", action="store_true", help="also open a world block for a virtual hand")
     args = parser.parse_args(argv)
     name = None if args.port in ("0", "") else args.port
-    return run(MODELS[args.model], name, args.hang_after, args.exit_with_parent)
+    return run(MODELS[args.model], name, args.hang_after, args.exit_with_parent, args.world)
 
 
 if __name__ == "__main__":
