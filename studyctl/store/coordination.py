@@ -155,21 +155,24 @@ def add_note(store: Any, text: str, *, session: int | None = None, trial: int | 
     with store.in_transaction() as tx:
         entity, entity_id, details = "study", target.id, {"text": body}
         if trial is not None:
-            row = tx.scalar(select(Trial).join(Participant, Trial.participant_id == Participant.id)
-                            .where(Trial.id == trial, Participant.study_id == target.id))
-            if row is None:
-                raise NotFoundError(f"no trial {trial} in study {target.name!r}; `studyctl export` lists trial ids")
+            row = _of_study(tx, Trial, trial, target, "`studyctl export` lists trial ids")
             entity, entity_id = "trial", trial
             details.update(trial_id=trial, session_id=row.session_id)
         elif session is not None:
-            row = tx.scalar(select(Session).join(Participant, Session.participant_id == Participant.id)
-                            .where(Session.id == session, Participant.study_id == target.id))
-            if row is None:
-                raise NotFoundError(f"no session {session} in study {target.name!r}; `studyctl status` lists them")
+            _of_study(tx, Session, session, target, "`studyctl status` lists them")
             entity, entity_id = "session", session
             details["session_id"] = session
         append_audit(tx, "note", entity=entity, entity_id=entity_id, details=details)
     return details
+
+
+def _of_study(tx: Any, model: Any, key: int, target: Any, hint: str) -> Any:
+    """The trial or session ``key`` if one of ``target``'s participants has it, else NotFoundError with ``hint``."""
+    row = tx.scalar(select(model).join(Participant, model.participant_id == Participant.id)
+                    .where(model.id == key, Participant.study_id == target.id))
+    if row is None:
+        raise NotFoundError(f"no {model.__tablename__} {key} in study {target.name!r}; {hint}")
+    return row
 
 
 RECORD_COLUMNS = {

@@ -122,13 +122,11 @@ def test_a_population_for_unknown_strata_is_refused(tmp_path):
         check_population_for(pop, load_protocol(MINI_PROTOCOL))
 
 
-def test_simulated_sessions_store_population_and_traits_and_pass_them_to_the_participant(tmp_path, monkeypatch,
-                                                                                       population):
-    from studyctl.engine.seeding import population_rng, session_seed
+def _params_seen(monkeypatch) -> list[dict]:
+    """The parameters each VirtualPalpator is built with from now on (the test's own list)."""
     from studyctl.participants.palpator import VirtualPalpator
-    from studyctl.workflows.simulate import simulate_study
 
-    seen = []
+    seen: list[dict] = []
     real_init = VirtualPalpator.__init__
 
     def spy(self, params=None):
@@ -136,6 +134,15 @@ def test_simulated_sessions_store_population_and_traits_and_pass_them_to_the_par
         real_init(self, params)
 
     monkeypatch.setattr(VirtualPalpator, "__init__", spy)
+    return seen
+
+
+def test_simulated_sessions_store_population_and_traits_and_pass_them_to_the_participant(tmp_path, monkeypatch,
+                                                                                       population):
+    from studyctl.engine.seeding import population_rng, session_seed
+    from studyctl.workflows.simulate import simulate_study
+
+    seen = _params_seen(monkeypatch)
     result = simulate_study(MINI_PROTOCOL, 2, 31, tmp_path / "ws", population=POPULATION)
     assert result.population == "palpator_small v1" and result.population_sha256 == population.sha256
     con = sqlite3.connect(tmp_path / "ws" / "study.db")
@@ -221,19 +228,11 @@ def test_cli_simulate_names_the_population(tmp_path, capsys):
 def test_a_resumed_session_rebuilds_the_same_person(tmp_path, monkeypatch, population):
     from studyctl.engine.api import resume_session, run_session, stored_population
     from studyctl.errors import SessionInterrupted
-    from studyctl.participants.palpator import VirtualPalpator
     from studyctl.store.workspace import open_study
     from studyctl.workflows.simulate import create_cohort
 
     cohort = create_cohort(MINI_PROTOCOL, 2, 9, tmp_path / "ws", population=population)
-    seen = []
-    real_init = VirtualPalpator.__init__
-
-    def spy(self, params=None):
-        seen.append(dict(params or {}))
-        real_init(self, params)
-
-    monkeypatch.setattr(VirtualPalpator, "__init__", spy)
+    seen = _params_seen(monkeypatch)
 
     def stop(participant, ui, rec):  # the session is stored (with its population event), then interrupted
         raise SessionInterrupted("stopped by the test")
