@@ -171,6 +171,11 @@ def register(app: typer.Typer) -> None:
                                        check_replicates=check_replicates, boot_pools=pool_bootstrap,
                                        scheduler=scheduler, workers=workers,
                                        on_stage=on_stage)
+            except KeyboardInterrupt:
+                progress.stop()
+                raise SessionInterrupted(
+                    f"interrupted: the pool in {pool_dir} keeps every chunk finished so far and {out} every stage-2 "
+                    "replicate; nothing half-written is kept; run the same command again to continue") from None
             finally:
                 progress.stop()
             _done(console, result, show_posthoc, as_json)

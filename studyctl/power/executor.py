@@ -54,6 +54,9 @@ class SerialBackend:
     def close(self) -> None:
         return None
 
+    def abort(self) -> None:
+        return None
+
     def run(self, spec: PowerSpec, tasks: Iterable[tuple[int, int]], on_result: ResultFn) -> None:
         self.map(simulate_replicate, spec, tasks, on_result)
 
@@ -163,6 +166,22 @@ class DaskBackend:
                     f"Dask worker {addr} runs studyctl {rep.get('version')}, this is {__version__}; "
                     "results would not be comparable: install the same version on every worker"
                 )
+
+    def abort(self) -> None:
+        """Stop at once (Ctrl-C): a local cluster's worker processes are this process's children, killed rather
+        than asked to finish the task they are in (a pool chunk or replicate can take minutes under load; what
+        they were computing is not kept, everything committed before is)."""
+        if self.cluster is not None:
+            import multiprocessing
+
+            for child in multiprocessing.active_children():
+                with contextlib.suppress(Exception):
+                    child.kill()
+        with contextlib.suppress(Exception):
+            self.client.close(timeout=2)
+        if self.cluster is not None:
+            with contextlib.suppress(Exception):
+                self.cluster.close(timeout=2)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

@@ -126,6 +126,10 @@ def run_power(
                 backend.run(spec, todo, keep)
             rows = results.rows(tasks)
             reps = results.replicates(tasks)
+    except KeyboardInterrupt:
+        if backend is not None:
+            backend.abort()
+        raise
     finally:
         if backend is not None:
             backend.close()

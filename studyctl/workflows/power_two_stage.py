@@ -117,6 +117,9 @@ def run_two_stage(
                             keep, tag="stage2")
             rows, reps = results.rows(tasks), results.replicates(tasks)
         stage2_wall = time.perf_counter() - s0
+    except KeyboardInterrupt:
+        backend.abort()
+        raise
     finally:
         backend.close()
     per_size = {n: int((reps["participants"] == n).sum()) for n in spec.sizes}

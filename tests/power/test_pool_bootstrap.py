@@ -92,3 +92,34 @@ def test_compare_puts_the_pool_error_in_the_se():
     assert s["chi2"] == pytest.approx(100 / (binom + 64))
     assert s["pool_people_for_2pp_se"] == 160 * 16  # (8 / 2)² times the pool
     assert np.isnan(without.summary()["pool_se_pp_max"])
+
+
+def test_ctrl_c_in_the_pool_build_aborts_the_workers_and_writes_nothing(tmp_path, monkeypatch):
+    """Ctrl-C while pool chunks run: the workers are killed at once (not waited for), no report is written."""
+    from studyctl.workflows import power_two_stage as wf
+
+    calls = []
+
+    class Interrupted:
+        class info:  # noqa: N801 - stands in for BackendInfo
+            workers = 2
+
+            @staticmethod
+            def describe():
+                return "fake"
+
+        def map(self, *a, **k):
+            raise KeyboardInterrupt
+
+        def abort(self):
+            calls.append("abort")
+
+        def close(self):
+            calls.append("close")
+
+    monkeypatch.setattr(wf, "open_backend", lambda *a: Interrupted())
+    spec = prepare_power(PROTOCOL, PLAN, sizes="4", replicates=3, seed=SEED)
+    with pytest.raises(KeyboardInterrupt):
+        wf.run_two_stage(spec, tmp_path / "out", pool_dir=tmp_path / "pools")
+    assert calls == ["abort", "close"]
+    assert not (tmp_path / "out").exists()
