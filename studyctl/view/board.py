@@ -285,7 +285,8 @@ class CoordinatorBoard:
         if trial is None:
             self._ticks.clear()
             return out
-        out["scans"], out["reports"] = self.trial_counts["scans"], self.trial_counts["reports"]
+        counts = self.trial_counts
+        out["scans"], out["reports"] = counts.get("scans", 0), counts.get("reports", 0)
         limit = self.progress["step"]["time_limit_s"] if self.progress and self.progress.get("step") else None
         out["time_limit_s"] = limit
         if tick is None:
@@ -331,8 +332,10 @@ class CoordinatorBoard:
             "progress": self.progress,
             "loop": self._loop(now),
             "device": {"fault_active": self.fault_active,
-                       "trial": {k: n for k, n in self.trial_counts.items() if k not in ("scans", "reports")},
-                       "session": dict(self.session_counts), "events": list(self.events),
+                       # dict() copies in one step (the engine thread adds keys meanwhile); a loop over
+                       # .items() could see the dict change under it
+                       "trial": {k: n for k, n in dict(self.trial_counts).items() if k not in ("scans", "reports")},
+                       "session": dict(self.session_counts), "events": _copy(self.events),
                        **((self.progress or {}).get("device") or {})},
             "participant_screen": {"screen": screen, "prompt": prompt, "screens": clients,
                                    "refused_requests": hub.refusals,
