@@ -39,6 +39,7 @@ def test_unknown_benchmark_is_one_line_error(capsys):
     assert "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_console_script_runs():
     out = subprocess.run([sys.executable, "-m", "studyctl", "--help"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr

@@ -68,6 +68,7 @@ def test_a_slower_loop_keeps_the_device_velocity_window_in_time():
     assert speeds[4] == pytest.approx(speeds[1], rel=1e-3)
 
 
+@pytest.mark.slow
 def test_a_cohort_at_a_reduced_rate_runs_and_records_it(tmp_path):
     cohort = create_cohort("data_driven_palpation", 1, 3, tmp_path / "ws", sim_rate_hz=250.0)
     assert run_participant(cohort, cohort.codes[0]) == "completed"

@@ -71,6 +71,7 @@ def test_detection_emerges_from_the_feedback():
     assert hard == 3
 
 
+@pytest.mark.slow
 def test_noisier_perception_finds_less():
     precise = sum(sum(found(*trial(LinearController, s, seed=k)[:2]).values()) for k, s in enumerate(SITES))
     numb = {"balloon_weber": 1.5, "vibration_weber": 1.5, "guesses": 0}

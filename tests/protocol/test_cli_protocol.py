@@ -87,6 +87,7 @@ def test_unknown_protocol_name(capsys):
     assert err.startswith("Error: no file 'no_such_protocol' and no shipped protocol of that name; shipped: ")
 
 
+@pytest.mark.slow
 def test_bench_schedule_quick_reports_figures():
     result = bench_run(quick=True)
     assert result.name == "schedule"

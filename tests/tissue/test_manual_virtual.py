@@ -44,6 +44,7 @@ def _touch(device: DirectTouchDevice, t: float, x: float, y: float, z: float) ->
 # ------------------------------------------------------------------------------------------ the device
 
 
+@pytest.mark.slow
 def test_the_finger_feels_the_ff_force_model_without_the_device_clamp():
     """Same physical model as the FF controller, but no 3.3 N clamp and the tissue pushes back on retraction."""
     scene = _scene(tissue_kpa=60.0)  # a stiffer block, so deep presses exceed an Omni's 3.3 N
