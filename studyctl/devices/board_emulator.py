@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 from studyctl.devices import board_protocol as bp
 from studyctl.devices import world as w
+from studyctl.devices.emulators import firmware_priority
 from studyctl.errors import DatagramError
 from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
 
@@ -245,6 +246,7 @@ def serve(args: argparse.Namespace) -> int:
         def force_fn(t: float) -> float:
             return const
 
+    firmware_priority()
     world_shm = world = None
     if args.world:
         world_shm, world = w.create_block()

@@ -31,6 +31,8 @@ from multiprocessing import resource_tracker, shared_memory
 
 import numpy as np
 
+from studyctl.devices.emulators import firmware_priority
+
 # Layout of the shared block (float64 slots).
 HEARTBEAT, TIME, POS, VEL, ROT, BUTTON = 0, 1, 2, 5, 8, 17
 CMD, CMD_SEQ, ENABLED, MAX_FORCE, WATCHDOG, APPLIED, OPENED, SATURATED, WD_TRIPS, RATE, MAX_NOMINAL = (
@@ -109,13 +111,7 @@ def run(model: Model, name: str | None, hang_after: float | None, exit_with_pare
     stop = {"flag": False}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(flag=True))
     signal.signal(signal.SIGINT, lambda *_: stop.update(flag=True))
-    # A device's firmware does not wait for the host's scheduler: run above normal processes when permitted
-    # (below the servo loop's priority 80), else as nicely as allowed
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(70))
-    except (OSError, AttributeError):
-        with contextlib.suppress(OSError):
-            os.nice(-5)
+    firmware_priority()
     print(f"READY {shm.name}" + (f" {wshm.name}" if wshm is not None else ""), flush=True)
     parent = os.getppid() if exit_with_parent else None
     period = 1.0 / model.rate_hz
