@@ -47,6 +47,8 @@ def _closed_port() -> int:
         (["--target", "0"], "--target 0"),
         (["--target", "0.8", "--participants", "4,6"], "--participants 6"),
         (["--two-stage", "--pool", "10"], "the pool must hold at least 20 × the largest sample size"),
+        (["--two-stage", "--pool-bootstrap", "1"], "--pool-bootstrap 1 with 50 replicates each"),
+        (["--target", "1.5"], "strictly between 0 and 1"),
         (["--two-stage", "--scheduler", f"127.0.0.1:{_closed_port()}"], "cannot reach the Dask scheduler"),
     ],
 )
