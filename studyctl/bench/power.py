@@ -13,7 +13,9 @@ participants through the real engine into an in-memory database, then the shippe
   20 × n people simulated through the engine, in this process), ``two_stage_replicates_per_s_stage2_N`` (replicate
   studies drawn from it per second) beside ``two_stage_exact_replicates_per_s_N`` (full-engine replicates of
   the same size, its peer), and ``power_error_pp`` (max |two-stage − full-engine power| over the plan's tests at
-  that size) with the Monte-Carlo standard errors of both (``mc_se_*_pp_max``).
+  that size) with the Monte-Carlo standard errors of both (``mc_se_*_pp_max``);
+* the issue's power curve from stored pools (:mod:`studyctl.bench.power_curve`): ``curve_s_bio``/``curve_s_needle``
+  and their CPU seconds.
 
 Worker start-up and module imports are excluded (workers and this process are warmed first). The
 machine is shared: ``load_1min_start/end`` (``os.getloadavg``) say how busy it was, and
@@ -216,6 +218,14 @@ def run(quick: bool = False) -> BenchResult:
     # the full-engine replicates of the same size, same run, are the stage-2 rate's peer
     peers[f"two_stage_replicates_per_s_stage2_{TWO_STAGE_N}"] = ts_figures[
         f"two_stage_exact_replicates_per_s_{TWO_STAGE_N}"]
+    # the curve (5 sizes × 1,000 stage-2 replicates per protocol) from the stored pools, same run
+    from studyctl.bench.power_curve import run as curve_run
+
+    curve = curve_run(quick)
+    figures.update({k: v for k, v in curve.figures.items() if not k.startswith("load_")})
+    peers.update(curve.peers)
+    rows += curve.tables.get("runs", [])
+    notes += curve.notes
     figures["load_1min_end"] = os.getloadavg()[0]
     if quick:
         notes.append("--quick: 4 participants (the 4 counterbalancing sequences) instead of 25; a smoke run")
