@@ -123,3 +123,20 @@ def test_ctrl_c_in_the_pool_build_aborts_the_workers_and_writes_nothing(tmp_path
         wf.run_two_stage(spec, tmp_path / "out", pool_dir=tmp_path / "pools")
     assert calls == ["abort", "close"]
     assert not (tmp_path / "out").exists()
+
+
+def test_curve_bench_picks_the_largest_complete_pool(tmp_path):
+    import json
+    import sqlite3
+
+    from studyctl.bench.power_curve import _largest_pool
+    from studyctl.power.pool import _SCHEMA
+
+    assert _largest_pool(tmp_path, "p") is None
+    for name, chunks in (("p-a", [0, 1]), ("p-b", [0, 1, 2]), ("p-c", [0, 2, 3, 4])):  # c has a hole: not a prefix
+        with sqlite3.connect(tmp_path / f"{name}.sqlite") as c:
+            c.executescript(_SCHEMA)
+            c.execute("INSERT INTO meta VALUES ('key', ?)", (json.dumps({"chunk_size": 10, "seed": 1}),))
+            c.executemany("INSERT INTO chunks VALUES (?, 1, 1, 'w')", [(k,) for k in chunks])
+    path, chunks, size, _ = _largest_pool(tmp_path, "p")
+    assert path.name == "p-b.sqlite" and chunks == 3 and size == 10
