@@ -184,10 +184,13 @@ def _higher(metrics: pd.DataFrame, t: Target, compare: str) -> str:
     test measures; for 0/1 data the larger proportion). '' when tied or without data."""
     if metrics.empty or "metric" not in metrics:
         return ""
-    col = factor_column(compare or "condition")
     f = _filter(metrics, t)
-    if col not in f:
+    # the compared factor's column (a row may not name it): the first that holds both levels
+    cols = [c for c in dict.fromkeys([factor_column(compare or "condition"), "condition", "group", "level"])
+            if c in f and set(t.pair) <= set(f[c].astype(str))]
+    if not cols:
         return ""
+    col = cols[0]
     values = []
     for level in t.pair:
         pp = _per_person(f[f[col].astype(str) == level], "proportion")

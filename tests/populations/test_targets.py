@@ -331,3 +331,20 @@ targets:
     sim = simulated_values(ts.targets, pd.DataFrame(columns=["metric"]), significant, alpha=0.05,
                            rng=np.random.default_rng(0))
     assert math.isnan(sim.get("force_linear_vs_bio").value)
+
+
+def test_the_simulated_direction_of_a_pair_of_tumour_classes():
+    """A pair of a metric's own levels (tumour classes) is read from the level column, per person."""
+    from studyctl.calibration.simulated import _higher
+    from studyctl.populations.targets import Target
+
+    t = Target("c", "detection", "verdict", True, "validation", {"condition": "no_feedback"}, test="tumour_class",
+               pair=("soft", "hard"), higher="hard")
+    rows = [{"participant": f"P{i}", "group": "novice", "condition": cond, "trial": 1, "metric": "detection",
+             "level": lv, "value": float(v), "denominator": 1.0}
+            for i in range(5) for cond, soft in (("no_feedback", 0), ("linear", 1))
+            for lv, v in (("soft", soft), ("hard", 1 - soft if cond == "linear" else 1))]
+    frame = pd.DataFrame(rows)
+    assert _higher(frame, t, "tumour_class") == "hard"  # only the target's condition counts
+    assert _higher(frame, t, "") == "hard"  # a row that does not name its factor: the column holding both levels
+    assert _higher(frame.assign(value=1.0), t, "tumour_class") == ""  # tied
