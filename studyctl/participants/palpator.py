@@ -12,8 +12,13 @@ as quickly as possible):
 
 1. **Sweep**: for every cell in raster order, move above the cell (aim noise), press towards the intended
    depth at the person's speed (depth noise: the participant believes it pressed to the intended depth),
-   hold, release. A press stops early when a haptic cue becomes strong (``stop_balloon_psi``,
-   ``stop_vibration_ms2``: "least force" — a strong sensation means something hard is under the probe).
+   hold, release. A press stops early when a haptic cue feels firm enough (``stop_balloon_psi``,
+   ``stop_vibration_ms2``, felt with the person's Weber noise each press: "least force"), so how hard a person
+   presses follows from what each controller delivers, not from the condition: the bio-inspired balloon gives
+   10-16 psi from 0.3-0.6 N, the linear one reaches 13 psi near 1.6 N, the piecewise one tops out at 11 psi.
+   How far the hand went before the cue said enough is itself noted (less travel over stiffer tissue: with a
+   force target the travel is the stiffness cue, ``travel_weber``). What the person does with the time a stopped
+   press saved is ``after_stop``: release and go on, hold, or tap the same spot again (``max_taps``).
    What the balloon and the motor deliver is noted when the believed depth passes each checkpoint and at
    its strongest; the camera's tip depth is noted at the bottom of the press as the ratio of the hand's
    (believed) depth to the seen depth (the instrument yields more on stiffer tissue). Each note is one
@@ -21,7 +26,7 @@ as quickly as possible):
 2. **Screen**: for each note the reference is the median over all cells (normal tissue); a cell whose mean
    log-percept exceeds it by ``screen_z`` noise SDs of the mean (or, where normal tissue is mostly not felt,
    that is felt — or stopped on — more often than the base rate allows, as a z-score) is re-probed
-   ``confirm_presses`` times.
+   ``confirm_presses`` times; cells still undecided are probed again, up to ``confirm_rounds`` rounds.
 3. **Report**: cells whose evidence stays above ``report_z``, keeping only the strongest of neighbouring
    cells; then ``finish``. When nothing stood out, it guesses ``guesses`` distinct random cells.
 
@@ -47,6 +52,8 @@ from studyctl.plugins.params import Param, validate_params
 CHANNELS = ("balloon_psi", "vibration_ms2")
 VISUAL = ("view", "yield")  # the note key of the camera cue: hand depth / seen tip depth at the bottom
 STOP = ("stop", "early")  # the note key of a press stopped by a strong sensation
+NEVER = 30.0  # a stop level this high is never reached (the regulator gives ≤ 20 psi, the motor ≤ 12 m/s²)
+TRAVEL = ("travel", "stop")  # the note key of how far the hand went before the feedback said enough (log 1/depth)
 
 
 @dataclass
@@ -60,6 +67,8 @@ class _Segment:
     intended: float = 0.0  # the depth the participant means to reach
     scale: float = 1.0  # actual / intended depth (motor error)
     stopped: bool = False  # ended early by a strong sensation
+    stop_gain: float = 1.0  # this press's felt-strength noise on the stop levels (Weber noise of the magnitude)
+    retap: bool = False  # an extra tap after a stopped press (it makes no taps of its own)
     looked: bool = False  # the dwell to judge by eye has been decided
 
 
@@ -89,13 +98,21 @@ class VirtualPalpator(Participant):
         Param("hold_s", 0.4, 0.0, 5.0, unit="s", source="FITTED: dwell at the bottom of a press"),
         Param("move_s", 0.3, 0.02, 5.0, unit="s", source="FITTED: time to move to the next 20 mm cell "
               "(Fitts-type pointing with a robot master, ~0.3-1 s)"),
-        Param("stop_balloon_psi", 30.0, 0.0, 30.0, unit="psi", source="FITTED: a balloon pressure felt as strong "
-              "ends the press (instruction: least force); 30 = never (the regulator gives ≤ 20)"),
+        Param("stop_balloon_psi", 30.0, 0.0, 30.0, unit="psi", source="FITTED: a balloon pressure felt as firm "
+              "enough ends the descent (instruction: least force; a person presses until the feedback says enough, "
+              "so a cue that grows early, as the bio-inspired balloon does, ends presses at a lower force); felt "
+              "with the person's balloon Weber noise per press; 30 = never (the regulator gives ≤ 20)"),
         Param("stop_vibration_ms2", 30.0, 0.0, 30.0, unit="m/s²", source="FITTED: as stop_balloon_psi for "
               "vibration; 30 = never (the motor gives ≤ 12)"),
         Param("stop_ratio", 0.0, 0.0, 10.0, source="FITTED: a press also stops when a cue exceeds this multiple of "
               "what normal tissue gave at its strongest (the running median of earlier presses; 0 = never): "
               "something under the probe already feels different, so pressing on only adds force"),
+        Param("after_stop", "release", kind=str, source="CHOSEN: what a person does with the rest of a press's "
+              "planned time when a strong cue ended the descent early: release (go on), hold (stay at that depth) "
+              "or tap (re-probe the same spot, each tap ending where the cue says enough: feedback felt during "
+              "the dynamic phase invites probing, paper §IV; people palpate at a steady rhythm, and the paper "
+              "found no effect of the feedback on completion time, p = 0.684)"),
+        Param("max_taps", 2, 0, 10, kind=int, source="CHOSEN: most extra taps after one stopped press"),
         Param("look_s", 0.0, 0.0, 5.0, unit="s", source="FITTED: extra dwell to judge the instrument's yield by eye "
               "when a press gave no haptic sensation (visual judgement of deformation takes time)"),
         # -- perception -----------------------------------------------------------------------------------
@@ -110,6 +127,10 @@ class VirtualPalpator(Participant):
         Param("visual_weber", 0.10, 0.01, 2.0,
               source="CITED: visual speed Weber ≈ 7 % (Vision Res 1988), pseudo-haptic stiffness JND 6-13.4 % "
                      "(Lécuyer); fractions vary considerably between people (J Vis 2018)"),
+        Param("travel_weber", 0.22, 0.01, 2.0,
+              source="CITED: compliance resolution 22 % once work and terminal-force cues are separated (Tan, "
+                     "Durlach, Beauregard & Srinivasan 1995, Percept Psychophys 57:495): with a force target the "
+                     "hand's travel is the stiffness cue (Fu, van Paassen & Mulder 2017)"),
         Param("visual_trust", 1.0, 0.0, 1.0, source="FITTED: weight a person gives the camera cue (0 ignores it)"),
         Param("learning", 0.0, 0.0, 0.8, source="CITED: most practice gain in lump detection comes within 1-2 "
               "sessions (Adams et al.); fraction of perceptual noise lost by the 4th trial"),
@@ -117,6 +138,9 @@ class VirtualPalpator(Participant):
         Param("screen_z", 2.0, 0.0, 10.0, source="FITTED: re-probe a cell whose evidence exceeds this"),
         Param("report_z", 3.5, 0.0, 10.0, source="FITTED: confidence needed to report a cell"),
         Param("confirm_presses", 2, 0, 10, kind=int, source="CHOSEN: re-probes of a candidate cell"),
+        Param("confirm_rounds", 1, 1, 10, kind=int, source="CHOSEN: a candidate whose evidence is still between "
+              "screen_z and report_z after a round of re-probes is probed again, up to this many rounds "
+              "(sequential sampling: weak cues are checked more often, Wald 1947); 1 = one round"),
         Param("max_reports", 0, 0, 49, kind=int, source="CHOSEN: at most this many cells are reported, the strongest "
               "first (0 = no limit); the example phantom shows 3 tumours, so people expect about that many"),
         Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "
@@ -134,6 +158,7 @@ class VirtualPalpator(Participant):
             "balloon_psi": Sense("balloon pressure", p["balloon_threshold_psi"], p["balloon_weber"], "psi"),
             "vibration_ms2": Sense("vibration", p["vibration_threshold_ms2"], p["vibration_weber"], "m/s²"),
             "view": Sense("tip depth", 0.0, p["visual_weber"], "mm"),
+            "travel": Sense("hand travel", 0.0, p["travel_weber"], "mm"),
         }
         self.senses = dict(self.base_senses)
         cps = tuple(checked["checkpoints"])
@@ -148,9 +173,13 @@ class VirtualPalpator(Participant):
         # every (channel, note) a cell is scored on: the checkpoints of each channel, the peaks, the camera
         self._keys = tuple((ch, f"{c:g}") for ch in CHANNELS for c in self.checkpoints) + tuple(
             (ch, "peak") for ch in CHANNELS
-        ) + (VISUAL, STOP)
+        ) + (VISUAL, STOP, TRAVEL)
         self._stop = {"balloon_psi": p["stop_balloon_psi"], "vibration_ms2": p["stop_vibration_ms2"]}
         self._stop_ratio = float(p["stop_ratio"])
+        self._stop_levels = any(v < NEVER for v in self._stop.values())  # an absolute "enough" level is in use
+        if p["after_stop"] not in ("release", "hold", "tap"):
+            raise ModelParameterError(f"virtual_palpator participant: after_stop {p['after_stop']!r} must be "
+                                      "release, hold or tap")
         self._rng: np.random.Generator | None = None
         self.trials_done = 0
 
@@ -185,6 +214,7 @@ class VirtualPalpator(Participant):
         self._peaks: dict[str, list[float]] = {ch: [] for ch in CHANNELS}  # strongest feel of each press so far
         self._usual: dict[str, float] = {}  # their running median: what pressing normal tissue feels like
         self._finished = False
+        self._rounds = 0  # rounds of re-probing done
         for row in range(1, self.rows + 1):
             cols = range(1, self.columns + 1) if row % 2 else range(self.columns, 0, -1)  # boustrophedon
             for col in cols:
@@ -201,9 +231,12 @@ class VirtualPalpator(Participant):
             return self._decide_and_finish()
         while True:
             if self._seg_index >= len(self._plan):
-                if self._phase == "sweep":
+                more = self._phase == "confirm" and self._rounds < self.params["confirm_rounds"]
+                if self._phase == "sweep" or more:
+                    first = self._phase == "sweep"
                     self._phase = "confirm"
-                    self._queue_confirmations()
+                    self._rounds += 1
+                    self._queue_confirmations(first)
                     self._seg_t0 = t
                     if self._seg_index < len(self._plan):
                         continue
@@ -216,8 +249,11 @@ class VirtualPalpator(Participant):
             self._seg_t0 += seg.duration
             self._seg_index += 1
         if seg.kind == "press":
-            if not seg.stopped and elapsed < seg.ramp and self._strong(percept):
-                _stop_press(seg, elapsed)
+            if not seg.stopped and elapsed < seg.ramp and self._strong(percept, seg.stop_gain):
+                planned = seg.duration
+                _stop_press(seg, elapsed, keep_tempo=self.params["after_stop"] == "hold")
+                if self.params["after_stop"] == "tap" and not seg.retap:
+                    self._queue_taps(seg, planned - seg.duration)
             elif self.params["look_s"] > 0 and not seg.looked and elapsed >= seg.duration - seg.ramp:
                 # about to release: with nothing felt, look at the instrument a little longer
                 seg.looked = True
@@ -243,18 +279,37 @@ class VirtualPalpator(Participant):
         above = (cx, cy, -2.0)
         self._plan.append(_Segment("move", p["move_s"] / self._pace, (last[0], last[1], -2.0), above))
         ramp = depth / (p["press_speed_mm_s"] * self._pace)
+        # how strong "enough" feels this time: the stop levels through the person's Weber noise of magnitude
+        gain = math.exp(self.senses["balloon_psi"].sigma * rng.standard_normal()) if self._stop_levels else 1.0
         self._plan.append(
-            _Segment("press", 2 * ramp + p["hold_s"], above, (cx, cy, depth), cell, ramp, p["depth_mm"], scale)
+            _Segment("press", 2 * ramp + p["hold_s"], above, (cx, cy, depth), cell, ramp, p["depth_mm"], scale,
+                     stop_gain=gain)
         )
 
-    def _strong(self, percept: Mapping[str, Any]) -> bool:
-        """A haptic cue strong enough to stop pressing: above an absolute level, or well above what normal tissue
-        usually gives (felt as is: these are large differences, far above the Weber noise)."""
+    def _queue_taps(self, seg: _Segment, spare_s: float) -> None:
+        """Fill the time a stopped press saved with taps on the same spot, right after it (each to the depth the
+        person means to reach, stopped again where the cue says enough)."""
+        rng = self._rng
+        p = self.params
+        taps = min(round(spare_s / max(seg.duration, 1e-3)), p["max_taps"])  # as many as fit, to the nearest one
+        above = (seg.end[0], seg.end[1], -2.0)
+        for k in range(taps):
+            scale = max(1.0 + p["depth_cv"] * rng.standard_normal(), 0.05)
+            depth = p["depth_mm"] * scale
+            ramp = depth / (p["press_speed_mm_s"] * self._pace)
+            gain = math.exp(self.senses["balloon_psi"].sigma * rng.standard_normal())
+            self._plan.insert(self._seg_index + 1 + k, _Segment(
+                "press", 2 * ramp + p["hold_s"], above, (seg.end[0], seg.end[1], depth), seg.cell, ramp,
+                p["depth_mm"], scale, stop_gain=gain, retap=True))
+
+    def _strong(self, percept: Mapping[str, Any], gain: float = 1.0) -> bool:
+        """A haptic cue strong enough to stop pressing: above an absolute level (as felt this press: ``gain``), or
+        well above what normal tissue usually gives (felt as is: large differences, far above the Weber noise)."""
         ratio = self._stop_ratio
         usual = self._usual
         for ch, level in self._stop.items():
             v = percept.get(ch)
-            if isinstance(v, int | float) and (v >= level or (ratio and usual.get(ch, 0.0) > 0
+            if isinstance(v, int | float) and (v * gain >= level or (ratio and usual.get(ch, 0.0) > 0
                                                               and v >= ratio * usual[ch])):
                 return True
         return False
@@ -303,6 +358,11 @@ class VirtualPalpator(Participant):
             ev.felt[VISUAL] = ev.felt.get(VISUAL, 0) + 1
         if seg.stopped:
             ev.felt[STOP] = ev.felt.get(STOP, 0) + 1
+            # how far the hand had gone when the feedback said enough: less travel over stiffer tissue
+            travel = self.senses["travel"].observe(max(seg.end[2] / seg.scale, 1e-3), rng)
+            if travel > 0:
+                ev.logs.setdefault(TRAVEL, []).append(-math.log(travel))
+                ev.felt[TRAVEL] = ev.felt.get(TRAVEL, 0) + 1
         elif self._stop_ratio:
             for ch in CHANNELS:  # only unstopped presses show what pressing all the way usually feels like
                 peaks = self._peaks[ch]
@@ -352,10 +412,15 @@ class VirtualPalpator(Participant):
             best = max(best, z)
         return best
 
-    def _queue_confirmations(self) -> None:
-        ref = self._reference()
-        self._ref = ref
-        candidates = [cell for cell, ev in self.evidence.items() if self._score(ev, ref) > self.params["screen_z"]]
+    def _queue_confirmations(self, first: bool = True) -> None:
+        """Re-probe the cells that stood out; after the first round only those still undecided (evidence between
+        screen_z and report_z)."""
+        if first:
+            self._ref = self._reference()
+        ref = self._ref
+        p = self.params
+        candidates = [cell for cell, ev in self.evidence.items()
+                      if p["screen_z"] < self._score(ev, ref) and (first or self._score(ev, ref) <= p["report_z"])]
         for cell in candidates:
             for _ in range(self.params["confirm_presses"]):
                 self._queue_probe(cell)
@@ -390,10 +455,13 @@ def _lerp(a, b, f):
     return tuple(x + (y - x) * f for x, y in zip(a, b, strict=True))
 
 
-def _stop_press(seg: _Segment, elapsed: float) -> None:
-    """End the descent now: the press holds at the depth reached, then releases at the same speed."""
+def _stop_press(seg: _Segment, elapsed: float, keep_tempo: bool = False) -> None:
+    """End the descent now: the press holds at the depth reached, then releases at the same speed (with
+    ``keep_tempo`` it holds for the rest of the press's planned time: the press keeps the person's rhythm)."""
     reached = seg.end[2] * elapsed / seg.ramp if seg.ramp > 0 else seg.end[2]
     hold = seg.duration - 2 * seg.ramp
+    if keep_tempo:
+        hold = seg.duration - 2 * elapsed
     seg.end = (seg.end[0], seg.end[1], reached)
     seg.ramp = elapsed
     seg.duration = 2 * elapsed + hold

@@ -213,3 +213,52 @@ def test_at_most_max_reports_cells_are_reported_strongest_first():
                                                                          "max_reports": 2})
     assert len(many.reports) > 2 and len(capped.reports) == 2
     assert [(r["column"], r["row"]) for r in capped.reports] == [(r["column"], r["row"]) for r in many.reports[:2]]
+
+
+def _pressing(controller_cls, params, sites=None, seed=4):
+    """One trial through the real device and controller; the participant and the force samples."""
+    sites = sites or SITES[0]
+    scene = SpongePhantomScene.build({}, {"sites": sites}, frozenset(), np.random.default_rng(seed))
+    device = SimulatedPalpationDevice({}, scene, np.random.default_rng(seed + 1))
+    device.open()
+    person = VirtualPalpator(params)
+    samples = []
+    out = run_trial(info=TrialInfo(controller_cls.name, 600.0, 50.0, public=dict(scene.public())),
+                    controller=controller_cls({}, scene), device=device, participant=person, clock=SimulatedClock(),
+                    rng=np.random.default_rng(seed + 2), on_sample=lambda t, s: samples.append(s["force_n"]))
+    device.close()
+    return person, np.array(samples), out
+
+
+@pytest.mark.slow
+def test_the_cue_decides_how_hard_a_person_presses():
+    """The same person ("enough" at 13 psi) presses more lightly with the bio-inspired balloon, which gives 10-16
+    psi from 0.3-0.6 N, than with the linear one (13 psi near 1.6 N, so most presses go on to the intended depth,
+    as with no feedback). The force comes from acting through the device, not from the condition's name."""
+    from studyctl.controllers.bio_inspired import BioInspiredController
+
+    params = {"stop_balloon_psi": 13.0, "depth_mm": 5.3, "press_speed_mm_s": 12.0, "hold_s": 0.1}
+    peaks = {}
+    for cls in (BioInspiredController, LinearController, NoFeedback):
+        _, force, out = _pressing(cls, params)
+        assert out.ended_by == "finish"
+        peaks[cls.name] = np.percentile(force, 95)
+    assert peaks["bio_inspired"] < 0.8 * peaks["linear"] and peaks["linear"] <= peaks["none"]
+
+
+@pytest.mark.slow
+def test_taps_fill_the_time_a_stopped_press_saved():
+    from studyctl.controllers.bio_inspired import BioInspiredController
+
+    params = {"stop_balloon_psi": 13.0, "depth_mm": 5.3, "press_speed_mm_s": 12.0, "hold_s": 0.1}
+    release, _, out_r = _pressing(BioInspiredController, params)
+    tap, _, out_t = _pressing(BioInspiredController, {**params, "after_stop": "tap", "max_taps": 2})
+    presses = lambda p: sum(ev.presses for ev in p.evidence.values())  # noqa: E731
+    assert presses(tap) > presses(release) + 49  # most sweep presses were stopped and followed by taps
+    assert out_t.duration_s > out_r.duration_s
+    # each tap is noted: how far the hand went before the cue said enough (the stiffness cue with a force target)
+    from studyctl.participants.palpator import TRAVEL
+
+    assert sum(len(ev.logs.get(TRAVEL, [])) for ev in tap.evidence.values()) >= presses(release)
+    with pytest.raises(ModelParameterError, match="after_stop 'wait' must be release, hold or tap"):
+        VirtualPalpator({"after_stop": "wait"})
