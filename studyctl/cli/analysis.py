@@ -144,9 +144,10 @@ def register_sim(app: typer.Typer) -> None:
         from studyctl.protocol import load_protocol
         from studyctl.workflows.simulate import check_simulation, choose_population, simulate_study
 
-        proto = load_protocol(check_simulation(protocol, participants, sim_rate_hz))
-        pop = choose_population(proto, population, say=lambda line: typer.echo(line, err=True))
         folder = out or Path(f"{Path(protocol).stem}-sim")
+        # Every input checked before the progress bar starts: a mistake is one Error line, nothing else.
+        proto = load_protocol(check_simulation(protocol, participants, sim_rate_hz, out_dir=folder, db=db))
+        pop = choose_population(proto, population, say=lambda line: typer.echo(line, err=True))
         with Progress(
             TextColumn("{task.description}"),
             BarColumn(),

@@ -175,6 +175,29 @@ def _link_new(src: Path, dst: Path) -> None:
     src.unlink()
 
 
+def check_new_workspace(folder: Path, db: str | None) -> URL | None:
+    """Check that ``folder`` can hold a new study and ``db`` is a usable ``--db``; return the parsed URL or None.
+
+    Callers that show progress (``simulate``) call it first, so a bad folder or ``--db`` is one Error line
+    before anything is displayed or written.
+    """
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(f"{folder} is a file, not a folder; choose a folder for the workspace")
+    for marker in (WORKSPACE_FILE, DB_FILE):
+        if (folder / marker).exists():
+            raise UsageError(f"{folder} already holds a study ({marker} exists); choose an empty or new folder, "
+                             "or work in the existing study")
+    if db is not None and not str(db).strip():
+        raise ConfigError("--db is empty; give a PostgreSQL URL (postgresql://USER@HOST:PORT/DBNAME), or leave --db "
+                          "out for a SQLite study.db in the workspace")
+    url = parse_url(db) if db else None
+    if url is not None and url.get_backend_name() == "sqlite":
+        # A SQLite study always lives in the workspace folder (the audit head file and the locks sit beside it).
+        raise UsageError(f"--db {db}: --db takes a PostgreSQL URL (postgresql://USER@HOST:PORT/DBNAME); a SQLite "
+                         f"study lives in the workspace as {DB_FILE}: leave --db out")
+    return url
+
+
 def init_workspace(
     root: str | os.PathLike[str],
     *,
@@ -201,25 +224,12 @@ def init_workspace(
     Nothing is left behind when it fails: the temporary database and any folder it created are removed.
     """
     folder = Path(root).expanduser()
-    if folder.exists() and not folder.is_dir():
-        raise UsageError(f"{folder} is a file, not a folder; choose a folder for the workspace")
-    for marker in (WORKSPACE_FILE, DB_FILE):
-        if (folder / marker).exists():
-            raise UsageError(f"{folder} already holds a study ({marker} exists); choose an empty or new folder, "
-                             "or work in the existing study")
+    url = check_new_workspace(folder, db)
     text = proto_name = proto_study = None
     proto_seed = None
     if protocol is not None:
         text, proto_name, proto_study, proto_seed = _load_protocol(protocol)
     study_name = check_text(name or proto_study or folder.resolve().name or "study", "study name")
-    if db is not None and not str(db).strip():
-        raise ConfigError("--db is empty; give a PostgreSQL URL (postgresql://USER@HOST:PORT/DBNAME), or leave --db "
-                          "out for a SQLite study.db in the workspace")
-    url = parse_url(db) if db else None
-    if url is not None and url.get_backend_name() == "sqlite":
-        # A SQLite study always lives in the workspace folder (the audit head file and the locks sit beside it).
-        raise UsageError(f"--db {db}: --db takes a PostgreSQL URL (postgresql://USER@HOST:PORT/DBNAME); a SQLite "
-                         f"study lives in the workspace as {DB_FILE}: leave --db out")
 
     created_dir = False
     temps: list[Path] = []

@@ -77,14 +77,20 @@ class SimulationResult:
         return pd.DataFrame([asdict(self)], columns=list(self.COLUMNS))
 
 
-def check_simulation(protocol: str | Path, participants: int, sim_rate_hz: float | None = None) -> Path:
-    """The protocol file a simulation would use; raises for an unknown protocol, a bad participant count or a
-    bad loop-rate cap."""
+def check_simulation(protocol: str | Path, participants: int, sim_rate_hz: float | None = None, *,
+                     out_dir: str | Path | None = None, db: str | None = None) -> Path:
+    """The protocol file a simulation would use; raises for an unknown protocol, a bad participant count, a
+    bad loop-rate cap, or (when ``out_dir`` is given) a workspace folder or ``--db`` that cannot hold the study."""
     if participants < 1:
         raise UsageError(f"--participants must be at least 1, got {participants}")
     if sim_rate_hz is not None:
         check_sim_rate(sim_rate_hz)
-    return resolve_protocol(protocol)
+    path = resolve_protocol(protocol)
+    if out_dir is not None:
+        from studyctl.store.workspace import check_new_workspace
+
+        check_new_workspace(Path(out_dir).expanduser(), db)
+    return path
 
 
 @dataclass(frozen=True)
