@@ -49,3 +49,18 @@ def find_shipped(kind: str, name_or_path: str | Path) -> Path:
         f"no file {str(name_or_path)!r} and no shipped {kind[:-1] if kind != 'analysis' else 'analysis plan'}"
         f" of that name; shipped: {names}"
     )
+
+
+def shipped_plan_for(protocol_path: str | Path) -> Path | None:
+    """The shipped analysis plan of a shipped protocol file (the plan of the same name), or None.
+
+    Only a protocol that is itself shipped gets a default plan: a user's own protocol file may share a
+    name with a shipped one and still measure different things.
+    """
+    path = Path(protocol_path)
+    try:
+        shipped = path.resolve().parent == resource_dir("protocols").resolve()
+    except OSError:
+        return None
+    plan = resource_dir("analysis") / f"{path.stem}.yaml"
+    return plan if shipped and plan.is_file() else None

@@ -31,3 +31,30 @@ def test_simulate_into_an_existing_study_is_refused_before_the_progress_bar(tmp_
     lines = _error_only(err)
     assert lines == [lines[-1]], err
     assert "already holds a study" in lines[-1]
+
+
+def test_power_defaults_to_the_shipped_plan_of_a_shipped_protocol():
+    from studyctl.analysis import load_plan
+    from studyctl.power import prepare_power
+
+    spec = prepare_power("needle_insertion", sizes="5", replicates=1)
+    assert spec.plan == load_plan("needle_insertion")
+
+
+def test_power_without_plan_for_an_own_protocol_file_names_the_fix(tmp_path, capsys):
+    import shutil
+
+    from studyctl.protocol import resolve_protocol
+
+    own = tmp_path / "needle_insertion.yaml"  # same name as a shipped protocol, but the user's own file
+    shutil.copy(resolve_protocol("needle_insertion"), own)
+    assert main(["power", str(own), "-n", "5", "-r", "1", "-o", str(tmp_path / "pw")]) != 0
+    lines = _error_only(capsys.readouterr().err)
+    assert "--plan is needed" in lines[-1] and "give --plan FILE" in lines[-1] and "needle_insertion" in lines[-1]
+    assert not (tmp_path / "pw").exists()
+
+
+def test_power_help_says_the_plan_default(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "400")  # one line per option: the phrase is not cut by the help box
+    assert main(["power", "--help"]) == 0
+    assert "the shipped plan of the same name" in " ".join(capsys.readouterr().out.split())

@@ -47,7 +47,8 @@ def register(app: typer.Typer) -> None:
     @app.command("power")
     def power(
         protocol: str = typer.Argument(..., help="Protocol file, or a shipped protocol name (bio_inspired_palpation)."),
-        plan: str = typer.Option(..., "--plan", help="Analysis plan (file or shipped name) for that protocol."),
+        plan: str = typer.Option(None, "--plan", help="Analysis plan (file or shipped name) for that protocol "
+                                 "(default for a shipped protocol: the shipped plan of the same name)."),
         participants: str = typer.Option("8,12,16,20,25", "--participants", "-n",
                                          help="Sample sizes, comma-separated (each ≥ the counterbalancing sequences)."),
         replicates: int = typer.Option(500, "--replicates", "-r", help="Simulated studies per sample size."),
@@ -132,6 +133,9 @@ def register(app: typer.Typer) -> None:
                              population=pop, memory_limit=memory_limit,
                              traits=population if trait_file else "shipped", target=target)
         console.print(describe_choice(spec.traits, spec.study_id, trait_file), markup=False)
+        if plan is None:
+            console.print(f"plan: the shipped analysis plan {spec.protocol_name!r} (the default for the shipped "
+                          "protocol; --plan to choose another)", markup=False)
         sizes = ", ".join(map(str, spec.sizes))
         console.print(f"power: {spec.study_id}, plan {spec.plan.title!r}; participants {sizes}; "
                       f"{spec.replicates} replicates each; seed {spec.seed}", markup=False)

@@ -26,6 +26,7 @@ from studyctl.power.population import Population, population_model
 from studyctl.power.seeds import check_master_seed
 from studyctl.power.target import check_complete_blocks, check_target
 from studyctl.protocol import Planner, load_protocol, resolve_protocol
+from studyctl.resources import shipped_names, shipped_plan_for
 
 #: Row kinds of a plan's result that are hypothesis tests (intervals and descriptives are not).
 TEST_KINDS = ("omnibus", "two_sample", "pairwise", "posthoc")
@@ -189,7 +190,7 @@ def _preflight(protocol: Any) -> None:
 
 def prepare_power(
     protocol: str | Path,
-    plan: str | Path,
+    plan: str | Path | None = None,
     *,
     sizes: str | tuple[int, ...] | list[int],
     replicates: int,
@@ -206,7 +207,8 @@ def prepare_power(
     protocol
         A shipped protocol name or a protocol file.
     plan
-        A shipped plan name or a plan file; it must analyse that protocol from its database.
+        A shipped plan name or a plan file; it must analyse that protocol from its database. None: the
+        shipped plan of the same name as a shipped protocol (UsageError when the protocol has none).
     sizes
         Sample sizes (``"8,12,16"`` or a sequence); each at least the number of counterbalancing
         sequences, so every sequence is used.
@@ -232,6 +234,12 @@ def prepare_power(
     """
     path = resolve_protocol(protocol)
     proto = load_protocol(path)
+    if plan is None:
+        plan = shipped_plan_for(path)
+        if plan is None:
+            raise UsageError(f"--plan is needed: {protocol} is not a shipped protocol with a shipped analysis plan "
+                             f"of the same name; give --plan FILE (an analysis plan for this protocol) or a shipped "
+                             f"plan name ({', '.join(shipped_names('analysis'))})")
     loaded = load_plan(plan)
     label = f"{protocol}" if str(protocol) == proto.study.id else f"{protocol} ({path})"
     check_plan_matches(loaded, proto, label)
