@@ -25,7 +25,8 @@ PARAMS = (
     Param("insert_speed_mm_s", 7.0, 1.0, 40.0, unit="mm/s",
           source="FITTED: a person's steady needle advance in liver (between-person trait; ~5–20 mm/s)"),
     Param("approach_speed_ratio", 2.5, 1.0, 8.0, unit="×",
-          source="CHOSEN: free-space reaches are faster than advancing through tissue"),
+          source="CHOSEN: free-space reaches are faster than advancing through tissue; also the fastest it advances "
+                 "inside a guidance channel it trusts (then the advance is a reach along the line)"),
     Param("final_speed_ratio", 0.55, 0.05, 1.0, unit="×",
           source="CHOSEN: corrections near the target are slower than the insertion"),
     Param("speed_trial_cv", 0.1, 0.0, 0.6, unit="log-SD",
