@@ -58,3 +58,52 @@ def test_power_help_says_the_plan_default(capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "400")  # one line per option: the phrase is not cut by the help box
     assert main(["power", "--help"]) == 0
     assert "the shipped plan of the same name" in " ".join(capsys.readouterr().out.split())
+
+
+NEGATIVE_SCANS = """\
+format: studyctl-targets/1
+protocol: needle_insertion
+source: "a typo"
+targets:
+  - id: scans_bl_mean
+    metric: scans
+    where: {condition: BL}
+    statistic: {stat}
+    value: -3
+    role: fit
+  - id: scans_verdict
+    metric: scans
+    statistic: verdict
+    test: scans_anova
+    value: true
+    role: validation
+"""
+
+
+def test_targets_refuse_a_negative_mean_of_a_count_but_not_a_negative_change(tmp_path):
+    import pytest
+
+    from studyctl.errors import PopulationError
+    from studyctl.populations.targets import load_targets_file
+
+    bad = tmp_path / "neg.targets.yaml"
+    bad.write_text(NEGATIVE_SCANS.replace("{stat}", "mean"))
+    with pytest.raises(PopulationError) as exc:
+        load_targets_file(bad)
+    assert str(exc.value).startswith(f"{bad}:9:") and "'scans'" in str(exc.value)
+    assert "cannot be below 0, got -3" in str(exc.value)
+    ok = tmp_path / "change.targets.yaml"  # a percent change of a count may well be negative
+    ok.write_text(NEGATIVE_SCANS.replace("{stat}", "pct_change_vs_baseline").replace("{condition: BL}",
+                                                                                      "{condition: ES}"))
+    assert load_targets_file(ok).get("scans_bl_mean").value == -3
+
+
+def test_calibrate_refuses_a_negative_duration_before_any_fit(tmp_path, capsys):
+    bad = tmp_path / "neg.targets.yaml"
+    bad.write_text(NEGATIVE_SCANS.replace("{stat}", "median").replace("metric: scans\n    where",
+                                                                      "metric: duration\n    where", 1))
+    out = tmp_path / "cal.yaml"
+    assert main(["calibrate", "needle_insertion", "--targets", str(bad), "-o", str(out)]) != 0
+    lines = _error_only(capsys.readouterr().err)
+    assert lines == [lines[-1]] and "'duration' (Duration, s) cannot be below 0" in lines[-1]
+    assert list(tmp_path.iterdir()) == [bad]  # no journal, no population written

@@ -43,6 +43,9 @@ class MetricDef:
     level: str | None = None
     params: Mapping[str, float | str] = field(default_factory=dict)
     studies: tuple[str, ...] = ()
+    #: The least value the metric can take by its definition (0 for counts, times, distances, forces and
+    #: fractions); None where the definition sets no bound. Published targets below it are refused.
+    minimum: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
@@ -60,6 +63,7 @@ BUILTIN: dict[str, MetricDef] = {
             "(Chebyshev distance) of a tumour not already claimed",
             params={"tolerance_cells": 1},
             studies=("bio_inspired_palpation",),
+            minimum=0.0,
         ),
         MetricDef(
             "mean_contact_force",
@@ -69,6 +73,7 @@ BUILTIN: dict[str, MetricDef] = {
             "mean sensor force over the samples in which the probe presses on a tumour above `threshold_n`",
             params={"threshold_n": 0.5},
             studies=("bio_inspired_palpation",),
+            minimum=0.0,
         ),
         MetricDef(
             "tumour_contact_time",
@@ -78,6 +83,7 @@ BUILTIN: dict[str, MetricDef] = {
             "time the probe presses on a tumour with force above `threshold_n`",
             params={"threshold_n": 0.5},
             studies=("bio_inspired_palpation",),
+            minimum=0.0,
         ),
         MetricDef(
             "completion_time",
@@ -86,6 +92,7 @@ BUILTIN: dict[str, MetricDef] = {
             CONTINUOUS,
             "time from trial start to the participant's finish (or the time limit)",
             studies=("bio_inspired_palpation", "data_driven_palpation"),
+            minimum=0.0,
         ),
         MetricDef(
             "detection",
@@ -96,6 +103,7 @@ BUILTIN: dict[str, MetricDef] = {
             level="tumour_class",
             params={"tolerance_cells": 1},
             studies=("bio_inspired_palpation",),
+            minimum=0.0,
         ),
         MetricDef(
             "scans",
@@ -104,6 +112,7 @@ BUILTIN: dict[str, MetricDef] = {
             CONTINUOUS,
             "CT scans the participant requested in the trial (0 where the view is real-time)",
             studies=("needle_insertion",),
+            minimum=0.0,
         ),
         MetricDef(
             "duration",
@@ -112,6 +121,7 @@ BUILTIN: dict[str, MetricDef] = {
             CONTINUOUS,
             "time to finish the insertion, capped at the trial's time limit",
             studies=("needle_insertion",),
+            minimum=0.0,
         ),
         MetricDef(
             "tracking_error",
@@ -120,6 +130,7 @@ BUILTIN: dict[str, MetricDef] = {
             CONTINUOUS,
             "mean distance of the needle tip from the planned straight path over the insertion",
             studies=("needle_insertion",),
+            minimum=0.0,
         ),
         MetricDef(
             "targeting_error",
@@ -128,6 +139,7 @@ BUILTIN: dict[str, MetricDef] = {
             CONTINUOUS,
             "final distance of the needle tip from the tumour centroid",
             studies=("needle_insertion",),
+            minimum=0.0,
         ),
         MetricDef(
             "nodules_found",
@@ -136,6 +148,7 @@ BUILTIN: dict[str, MetricDef] = {
             CONTINUOUS,
             "distinct nodules with a report within the hit radius",
             studies=("data_driven_palpation", "pseudo_haptic_palpation"),
+            minimum=0.0,
         ),
         MetricDef(
             "false_reports",
@@ -144,6 +157,7 @@ BUILTIN: dict[str, MetricDef] = {
             CONTINUOUS,
             "reports farther than the hit radius from every nodule (or repeating a found one)",
             studies=("data_driven_palpation", "pseudo_haptic_palpation"),
+            minimum=0.0,
         ),
         MetricDef(
             "sensitivity",
@@ -153,6 +167,7 @@ BUILTIN: dict[str, MetricDef] = {
             "per nodule: 1 if found, out of 1; pooled over participants (and nodules) it is Se = TP / nodules",
             level="nodule",
             studies=("pseudo_haptic_palpation", "data_driven_palpation"),
+            minimum=0.0,
         ),
         MetricDef(
             "ppv",
@@ -161,6 +176,7 @@ BUILTIN: dict[str, MetricDef] = {
             PROPORTION,
             "true-positive reports out of all reports; pooled over participants it is PPV = TP / (TP + FP)",
             studies=("pseudo_haptic_palpation", "data_driven_palpation"),
+            minimum=0.0,
         ),
         MetricDef(
             "detection_time",
@@ -169,6 +185,7 @@ BUILTIN: dict[str, MetricDef] = {
             CONTINUOUS,
             "time from trial start until the participant declared the search finished",
             studies=("pseudo_haptic_palpation",),
+            minimum=0.0,
         ),
         MetricDef(
             "likert",

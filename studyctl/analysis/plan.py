@@ -223,6 +223,12 @@ class AnalysisPlan(_Strict):
         builtin = BUILTIN.get(self.metric_name(metric_id))
         return builtin.unit if builtin else ""
 
+    def metric_minimum(self, metric_id: str) -> float | None:
+        """The least value plan metric ``metric_id`` can take by its built-in definition (None: unbounded or
+        not a built-in metric)."""
+        builtin = BUILTIN.get(self.metric_name(metric_id))
+        return builtin.minimum if builtin else None
+
     def metric_params(self, metric_id: str) -> dict[str, float | int | str]:
         builtin = BUILTIN.get(self.metric_name(metric_id))
         return {**(dict(builtin.params) if builtin else {}), **self.metrics[metric_id].params}

@@ -290,6 +290,12 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
             value = float(value)
             if stat in ("sd", "cv", "iqr", "count_total") and value < 0:
                 raise _fail(m, label, (*p, "value"), f"a {stat} cannot be negative ({value:g})")
+            least = plan.metric_minimum(t["metric"]) if stat in ("mean", "median") else None
+            if least is not None and value < least:
+                unit = plan.metric_unit(t["metric"])
+                raise _fail(m, label, (*p, "value"), f"a {stat} of {t['metric']!r} ({plan.metric_label(t['metric'])}"
+                            f"{', ' + unit if unit else ''}) cannot be below {least:g}, got {value:g}; write the "
+                            "value the paper prints (a change or difference is statistic: pct_change_vs_baseline)")
             if stat in ("proportion", "test_p") and not 0 <= value <= 1:
                 raise _fail(m, label, (*p, "value"), f"a {'p-value' if stat == 'test_p' else 'proportion'} lies in "
                             f"[0, 1], got {value:g} (write 83 % as 0.83)")
