@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from studyctl.participants.tissue_palpator import VirtualTissuePalpator, _depth_matched
+from studyctl.participants.tissue_palpator import VirtualTissuePalpator
+from studyctl.participants.tissue_perception import _depth_matched
 from studyctl.plugins.interfaces import TrialInfo
 
 

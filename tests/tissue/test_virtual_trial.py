@@ -13,15 +13,22 @@ from studyctl.devices.force3d import SimulatedForceDevice
 from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import run_trial
 from studyctl.models.palpation_metrics import chance_hit_probability, score_trial
-from studyctl.participants import tissue_palpator
+from studyctl.participants import (
+    tissue_decision,
+    tissue_palpator,
+    tissue_params,
+    tissue_perception,
+    tissue_questionnaire,
+)
 from studyctl.participants.tissue_palpator import VirtualTissuePalpator
 from studyctl.plugins.interfaces import TrialInfo
 from studyctl.scenes.tissue import StiffnessTissueScene
 
 
 def test_the_palpator_never_sees_the_truth():
-    source = inspect.getsource(tissue_palpator)
-    assert "truth" not in source.replace("Never the scene's truth", "")
+    for module in (tissue_palpator, tissue_perception, tissue_decision, tissue_questionnaire, tissue_params):
+        source = inspect.getsource(module)
+        assert "truth" not in source.replace("Never the scene's truth", ""), module.__name__
     assert "scene" not in inspect.signature(VirtualTissuePalpator).parameters
 
 

@@ -1,0 +1,207 @@
+"""How the virtual tissue palpator decides from its presses (:mod:`studyctl.participants.tissue_palpator`).
+
+:class:`SpotDecision`: per press a stiffness contrast fused over the cues perceived (inverse-variance
+weighting), spots whose averaged contrast stands out, the survey's early end for a targeted searcher, the
+sequential re-palpation of suspicious spots (Wald's SPRT) and the final reports.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from studyctl.participants.tissue_perception import _depth_matched
+
+
+class SpotDecision:
+    """Mixin of :class:`~studyctl.participants.tissue_palpator.VirtualTissuePalpator`: spots and reports."""
+
+    def _found_enough(self) -> bool:
+        """A targeted searcher ends its survey once it has felt as many clear spots as it expects nodules (known
+        from the practice run): ``expect_spots`` spots each above ``stop_z`` SDs. Checked every third press."""
+        p = self.params
+        if p["expect_spots"] <= 0 or len(self._presses) < p["stop_min_presses"] or len(self._presses) % 3:
+            return False
+        ev = self._evidence()
+        if ev is None:
+            return False
+        spots = self._clusters(*ev, threshold=p["stop_z"], limit=p["expect_spots"])
+        return len(spots) >= p["expect_spots"]
+
+    def _evidence(self, follow_up: bool = False) -> tuple[np.ndarray, ...] | None:
+        """Per press: position, combined stiffness contrast and its noise (inverse-variance cue fusion).
+
+        Baselines (local medians) and noise levels (robust SDs) come from the survey presses only, so that
+        the follow-up presses around a suspicious spot do not raise their own baseline. With ``follow_up`` a
+        fourth array says which of the returned presses are re-palpation presses.
+        """
+        p = self.params
+        rows = self._presses
+        if len(rows) < 5:
+            return None
+        pts = np.array([[r["x"], r["y"]] for r in rows])
+        survey = np.array([r["stage"] == "survey" for r in rows])
+        cues: list[tuple[np.ndarray, str]] = []
+        force = np.array([r["force"] for r in rows])
+        if np.isfinite(force[survey]).sum() >= 5 and np.nanmedian(force[survey]) > 0.02:
+            felt = np.array([r.get("felt", math.nan) for r in rows])
+            seen = np.array([r.get("seen", math.nan) for r in rows])
+            cues.append((_depth_matched(felt, seen, survey), "force"))
+        ratio = np.array([r["ratio"] for r in rows])
+        if np.isfinite(ratio[survey]).sum() >= 5:
+            visual_force = self._r0() * ratio - 1.0
+            if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
+                # the slowing grows with depth as the force does: compared at like depths, as the push is
+                seen = np.array([r.get("ratio_seen", math.nan) for r in rows])
+                cues.append((_depth_matched(visual_force, seen, survey), "cursor"))
+        self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum()),
+                          "survey_stopped_early": self._stopped_early}
+        if not cues:
+            return None
+        d2 = ((pts[:, None, :] - pts[None, survey, :]) ** 2).sum(axis=2)
+        near = d2 <= p["baseline_radius_mm"] ** 2
+        num = np.zeros(len(pts))
+        den = np.zeros(len(pts))
+        trust = {"force": p["force_trust"], "cursor": p["cursor_trust"]}
+        for values, name in cues:
+            sv = values[survey]
+            base = np.array([np.nanmedian(np.where(near[i], sv, np.nan)) for i in range(len(pts))])
+            contrast = values / base - 1.0
+            ok = np.isfinite(contrast)
+            cs = contrast[survey & ok]
+            if cs.size < 5:
+                continue
+            sigma = max(1.4826 * float(np.median(np.abs(cs - np.median(cs)))), 1e-3)
+            w = trust[name] / sigma**2  # a cue believed less weighs less, and its evidence counts less
+            if w <= 0:
+                continue
+            num += np.where(ok, contrast * w, 0.0)
+            den += np.where(ok, w, 0.0)
+        keep = den > 0
+        if keep.sum() < 5:
+            return None
+        if follow_up:
+            return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep]), ~survey[keep]
+        return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep])
+
+    def _clusters(self, pts: np.ndarray, contrast: np.ndarray, sigma: np.ndarray, threshold: float, limit: int):
+        """Spots whose averaged contrast (presses within half a cluster radius) exceeds ``threshold`` SDs."""
+        p = self.params
+        rc = p["cluster_radius_mm"]
+        d2 = ((pts[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2)
+        local = d2 <= (rc / 2.0) ** 2
+        w = 1.0 / sigma**2
+        mean = (local * (w * contrast)[None, :]).sum(axis=1) / (local * w[None, :]).sum(axis=1)
+        z = mean * np.sqrt((local * w[None, :]).sum(axis=1))
+        self.perceived["z_max"] = float(np.max(z)) if z.size else math.nan
+        out: list[tuple[float, float, float, float]] = []  # x, y, z, the stiffest press's contrast
+        taken = np.zeros(len(pts), dtype=bool)
+        for i in np.argsort(-z):
+            if len(out) >= limit or z[i] < threshold:
+                break
+            if taken[i]:
+                continue
+            members = d2[i] <= rc * rc
+            # where it felt stiffest: the presses at least half as stiff as the stiffest one near this spot
+            # (all positive contrasts pulled the spot towards the survey grid around a nodule)
+            peak = float(np.max(np.where(members, contrast, -np.inf)))
+            members &= (contrast > 0) & (contrast >= 0.5 * peak)
+            weights = np.where(members, contrast * w, 0.0)
+            if weights.sum() <= 0:
+                continue
+            cx, cy = (weights[:, None] * pts).sum(axis=0) / weights.sum()
+            out.append((float(cx), float(cy), float(z[i]), peak))
+            taken |= d2[i] <= 4.0 * rc * rc
+        return out
+
+    def _follow_up_spots(self) -> list[dict[str, Any]]:
+        """Suspicious spots of the survey, each with its 3 × 3 re-palpation grid (centre first) and the contrast
+        the survey suggested there (the alternative of the spot's sequential test)."""
+        p = self.params
+        ev = self._evidence()
+        if ev is None or p["follow_up_count"] == 0:
+            return []
+        pts, contrast, sigma = ev
+        spots = self._clusters(pts, contrast, sigma, threshold=p["follow_up_z"], limit=p["follow_up_count"])
+        s = p["follow_up_spacing_mm"]
+        out = []
+        half = p["cluster_radius_mm"] / 2.0
+        for cx, cy, _z, _mean in spots:
+            grid = [(cx + ox, cy + oy) for ox in (0.0, -s, s) for oy in (0.0, -s, s)]
+            near = ((pts - (cx, cy)) ** 2).sum(axis=1) <= half * half
+            w = 1.0 / sigma[near] ** 2
+            mu = float((w * contrast[near]).sum() / w.sum()) if near.any() else 0.0
+            todo = [g for g in grid if math.isfinite(self._height(*g))]
+            # the spot was picked for being the most suspicious: its survey contrast overstates what re-palpation
+            # will feel (regression to the mean), so the alternative is shrunk
+            mu *= p["follow_up_shrink"]
+            out.append({"x": cx, "y": cy, "mu": max(mu, 1e-3), "todo": todo, "presses": 0})
+        self._follow_up = {"follow_up_spots": [(sp["x"], sp["y"]) for sp in out], "follow_up_decisions": []}
+        return out
+
+    def _spot_llr(self, spot: dict[str, Any]) -> float:
+        """Log-likelihood ratio, nodule (mean contrast ``mu``, what the survey suggested) against none (0), of the
+        re-palpation presses within half a cluster radius of the spot (Gaussian contrasts with each press's own
+        noise). Only presses made after the survey count: the survey's own presses chose ``mu``."""
+        ev = self._evidence(follow_up=True)
+        if ev is None:
+            return 0.0
+        pts, contrast, sigma, fresh = ev
+        half = self.params["cluster_radius_mm"] / 2.0
+        near = fresh & (((pts - (spot["x"], spot["y"])) ** 2).sum(axis=1) <= half * half)
+        mu = spot["mu"]
+        return float((mu * (contrast[near] - mu / 2.0) / sigma[near] ** 2).sum())
+
+    def _next_follow_up(self) -> list[tuple[float, float]]:
+        """The next re-palpation press: of the first spot still undecided by its sequential test, else none."""
+        a = self.params["follow_up_error"]
+        bound = math.log((1.0 - a) / a)  # Wald's bounds with α = β
+        while self._spots:
+            spot = self._spots[0]
+            llr = self._spot_llr(spot)
+            undecided = -bound < llr < bound or (llr <= -bound and spot["presses"] < self.params["follow_up_min"])
+            if spot["todo"] and undecided:
+                spot["presses"] += 1
+                return [spot["todo"].pop(0)]
+            verdict = "nodule" if llr >= bound else ("none" if llr <= -bound else "undecided")
+            self._follow_up["follow_up_decisions"].append((spot["x"], spot["y"], verdict, spot["presses"]))
+            self._spots.pop(0)
+        return []
+
+    def _decide(self) -> list[tuple[float, float]]:
+        p = self.params
+        ev = self._evidence()
+        self.perceived.update(self._follow_up)
+        if ev is None:
+            return []
+        count = self.info.public.get("nodule_count")
+        limit = int(count) if count is not None else p["max_reports"]
+        if count is not None:
+            # told how many nodules there are, the person names that many spots
+            spots = self._clusters(*ev, threshold=-math.inf, limit=limit)
+        else:
+            # It reports what feels like a nodule: a spot it re-palpated and found to be one, or one clear enough
+            # on its own (z_threshold); not what it re-palpated and found like its surroundings; and only spots
+            # nearly as stiff as the clearest one felt (report_fraction).
+            reach = p["cluster_radius_mm"] / 2.0
+            verdicts = self._follow_up.get("follow_up_decisions", ())
+            confirmed = [(x, y) for x, y, v, _n in verdicts if v == "nodule"]
+            dismissed = [(x, y) for x, y, v, _n in verdicts if v == "none"]
+
+            def near(sp, places) -> bool:
+                return any(math.hypot(sp[0] - x, sp[1] - y) <= reach for x, y in places)
+
+            spots = [
+                sp for sp in self._clusters(*ev, threshold=0.0, limit=2 * limit)
+                if (sp[2] >= p["z_threshold"] or near(sp, confirmed)) and not near(sp, dismissed)
+            ]
+            if spots and p["report_fraction"] > 0:
+                clearest = max(peak for *_, peak in spots)
+                spots = [sp for sp in spots if sp[3] >= p["report_fraction"] * clearest]
+            spots = spots[:limit]
+        self.perceived["reports"] = spots
+        self.experience.append({"condition": self.info.condition, "cues": list(self.perceived.get("cues", [])),
+                                "z_max": self.perceived.get("z_max", math.nan), "direct": self._direct})
+        return [(x, y) for x, y, *_ in spots]

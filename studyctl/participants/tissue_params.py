@@ -1,0 +1,116 @@
+"""The virtual tissue palpator's parameters (:mod:`studyctl.participants.tissue_palpator`): every perception and
+behaviour parameter with its unit, range and source (CITED, CHOSEN or FITTED), as the populations declare them."""
+
+from __future__ import annotations
+
+from studyctl.plugins.params import Param
+
+PARAMS = (
+    # ---- search strategy (between-subject traits: how densely a person surveys)
+    Param("line_spacing_mm", 8.0, low=1.0, high=50.0, unit="mm",
+          source="CHOSEN: survey lines closer than a nodule's reach; spread between people is the systematic "
+          "(dense) vs quick (sparse) survey (Saunders et al. 1986: coverage differed with the search pattern)"),
+    Param("press_spacing_mm", 8.0, low=1.0, high=50.0, unit="mm",
+          source="CHOSEN: every other line shifted by half this (a staggered lattice)"),
+    Param("margin_mm", 6.0, low=0.0, high=50.0, unit="mm", source="CHOSEN: stay off the tissue's edge"),
+    # ---- motor behaviour
+    Param("press_depth_mm", 5.0, low=0.5, high=15.0, unit="mm", source="CHOSEN: inside the 2-7 mm maps"),
+    Param("depth_noise_mm", 0.2, low=0.0, high=5.0, unit="mm", source="CHOSEN: press-to-press depth scatter"),
+    Param("hover_mm", 2.0, low=0.5, high=30.0, unit="mm", source="CHOSEN: lift just clear of the surface"),
+    Param("move_speed_mm_s", 60.0, low=1.0, high=500.0, unit="mm/s",
+          source="CHOSEN: hand transport between presses, before tempo"),
+    Param("press_speed_mm_s", 40.0, low=1.0, high=500.0, unit="mm/s",
+          source="CHOSEN: indentation speed before tempo (seed 003 scanned at 30 mm/s)"),
+    Param("gain_per_s", 8.0, low=0.5, high=200.0, unit="1/s",
+          source="CHOSEN: 125 ms hand-eye time constant at tempo 1, stable with the device's spring-held hand (4 Hz)"),
+    Param("tempo", 1.0, low=0.1, high=10.0,
+          source="FITTED: a person's motor tempo (between-subject trait): multiplies the move and press speeds and "
+          "divides the settle time and the shortest dwell"),
+    Param("tempo_trial_cv", 0.0, low=0.0, high=1.0,
+          source="CHOSEN: trial-to-trial (within-person) variation of the tempo, log-normal with this CV, drawn "
+          "from the trial's stream"),
+    Param("practice_gain", 0.0, low=0.0, high=2.0,
+          source="CHOSEN: learning: the tempo grows by this fraction over a session's trials, half of it by the "
+          "second trial (Adams et al.: most of the practice gain in lump detection came within 1-2 sessions)"),
+    Param("hold_gain_ratio", 0.25, low=0.0, high=1.0,
+          source="CHOSEN: while holding a press the depth is corrected this much more slowly than while pressing "
+          "(a 4/s loop at tempo 2 stays clear of the 4-5 Hz resonance of a spring-held hand on the tissue)"),
+    Param("tolerance_mm", 0.3, low=0.01, high=5.0, unit="mm", source="CHOSEN: depth accuracy at the press bottom"),
+    Param("settle_s", 0.05, low=0.0, high=5.0, unit="s", source="CHOSEN: a pause before pressing, at tempo 1"),
+    Param("phase_timeout_s", 1.5, low=0.1, high=30.0, unit="s", source="CHOSEN: a stuck movement is abandoned"),
+    Param("dwell_s", 0.08, low=0.0, high=5.0, unit="s",
+          source="CHOSEN: the shortest hold at a press bottom (a clear cue is judged at once), at tempo 1"),
+    # ---- perception (Weber fractions are the SD of one judgement made over judge_time_s)
+    Param("force_weber", 0.06, low=0.0, high=1.0,
+          source="CITED: force JND 7 % (Pang, Tan & Durlach 1991) to 10 % on a force-feedback device (Allin et "
+          "al. 2002); σ of one judgement = JND/(√2·0.954) at 75 % correct, 8 % → 0.06"),
+    Param("depth_weber", 0.05, low=0.0, high=1.0,
+          source="CHOSEN: reading the indentation depth (seen on screen, or felt by the hand's position)"),
+    Param("visual_weber", 0.074, low=0.0, high=1.0,
+          source="CITED: visual speed Weber fraction ≈ 7 % at 4-64 deg/s (Vision Res 1988;28:1323), varying "
+          "considerably between people (J Vis 2018;18(6):15); 10 % JND → σ 0.074"),
+    Param("hand_weber", 0.0, low=0.0, high=1.0,
+          source="CHOSEN: the hand's own travel, judged by proprioception, against which the cursor's slowing is "
+          "seen (the cursor cue compares the two; 0: the hand's travel is known exactly)"),
+    Param("judge_time_s", 0.3, low=0.01, high=10.0, unit="s",
+          source="CHOSEN: the hold over which one judgement has the Weber fractions above; a longer hold averages "
+          "the sensory noise down as 1/√time (evidence accumulation, Ratcliff & McKoon 2008)"),
+    Param("press_precision", 0.0, low=0.0, high=1.0,
+          source="FITTED: decision criterion per press: the person holds a press until its stiffness judgement "
+          "(all cues fused) has this SD or less, at most max_dwell_s (0: always the shortest dwell)"),
+    Param("steady_rate_n_s", 2.0, low=0.01, high=100.0, unit="N/s",
+          source="CHOSEN: a push whose average changes faster than this is felt as still settling (0.1 N in 50 ms, "
+          "about a force JND at 1 N); the judgement starts once it is steady"),
+    Param("steady_window_s", 0.2, low=0.01, high=2.0, unit="s",
+          source="CHOSEN: steadiness is judged by comparing the push averaged over the last half of this window "
+          "with the half before; 0.1 s halves span three cycles of the ~30 Hz on/off push that seed 003's "
+          "release-on-retract rendering gives a held stylus, and people cannot modulate a force faster than "
+          "5-10 Hz (Brooks 1990, telerobotic response requirements), so a judgement of 'steady' takes this long"),
+    Param("max_dwell_s", 2.0, low=0.0, high=30.0, unit="s", source="CHOSEN: nobody holds one press longer"),
+    Param("force_trust", 1.0, low=0.0, high=1.0,
+          source="CHOSEN: the share of the force cue's information a person uses (1: statistically optimal "
+          "fusion, Ernst & Banks 2002)"),
+    Param("cursor_trust", 1.0, low=0.0, high=1.0,
+          source="FITTED: the share of the cursor cue's information a person uses: a visual-only stiffness cue "
+          "is believed less than a felt one (the pseudo-haptic illusion weakens with exposure, Front VR 2024)"),
+    Param("ratio_window_mm", 2.0, low=0.2, high=20.0, unit="mm",
+          source="CHOSEN: the cursor's slowing is judged over the last part of its travel"),
+    Param("max_press_force_n", 3.0, low=0.1, high=20.0, unit="N", source="CHOSEN: below the Omni's 3.3 N"),
+    # ---- decision
+    Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm",
+          source="CHOSEN: a spot is compared with the tissue around it"),
+    Param("cluster_radius_mm", 10.0, low=1.0, high=100.0, unit="mm", source="CHOSEN: a nodule's reach"),
+    Param("z_threshold", 3.0, low=0.5, high=50.0,
+          source="FITTED: confidence to report: a spot's averaged contrast in SDs of the press noise"),
+    Param("report_fraction", 0.0, low=0.0, high=1.0,
+          source="FITTED: a spot is reported only if it feels at least this fraction as stiff (contrast) as the "
+          "clearest one: what a nodule feels like is known from the practice run with visible nodules"),
+    Param("expect_spots", 0, low=0, high=20, kind=int,
+          source="CHOSEN: how many nodules a person expects (seen in the practice run with visible nodules); a "
+          "targeted searcher stops surveying once it has felt that many clear spots (0: it surveys everything)"),
+    Param("stop_z", 8.0, low=1.0, high=1000.0,
+          source="FITTED: how clear (SDs of the press noise) each expected spot must feel before the survey stops; "
+          "very high for a systematic searcher who covers the whole surface anyway"),
+    Param("stop_min_presses", 10, low=5, high=500, kind=int,
+          source="CHOSEN: survey presses a targeted searcher makes before it may end its survey: it first learns what "
+          "the tissue around feels like (the noise its spots stand out of is estimated from these presses)"),
+    Param("follow_up_z", 1.5, low=0.0, high=50.0,
+          source="CHOSEN: survey presses this suspicious are re-palpated"),
+    Param("follow_up_shrink", 0.5, low=0.05, high=1.0,
+          source="CHOSEN: the nodule contrast a re-palpated spot is tested for, as a share of its survey contrast "
+          "(the most suspicious survey presses overstate it)"),
+    Param("follow_up_min", 2, low=1, high=9, kind=int,
+          source="CHOSEN: presses a person makes at a suspicious spot before dismissing it"),
+    Param("follow_up_count", 5, low=0, high=50, kind=int, source="CHOSEN: spots re-palpated at most"),
+    Param("follow_up_spacing_mm", 4.0, low=0.5, high=20.0, unit="mm", source="CHOSEN: a 3 × 3 local grid"),
+    Param("max_reports", 6, low=1, high=100, kind=int, source="CHOSEN: nobody marks more spots"),
+    Param("follow_up_error", 0.05, low=1e-4, high=0.5,
+          source="CHOSEN: confidence to settle a re-palpated spot: Wald's SPRT error rates (α = β)"),
+    Param("cutaneous_ratio", 0.354, low=0.01, high=10.0,
+          source="CITED: Bergmann Tiest & Kappers 2009 (IEEE ToH 2:189): compliance Weber fraction 15 % by direct "
+          "touch, more than trebled without the finger's surface-deformation cue; optimal cue combination then "
+          "gives the skin cue σ = 1/√8 of the force/displacement cue's"),
+    Param("search_weber", 0.15, low=0.01, high=1.0,
+          source="CHOSEN: a search rate (spots found per time) this much higher is noticed; judgements of how "
+          "long a minutes-long search took are coarser than the 8-10 % of force and speed"),
+)
