@@ -4,7 +4,6 @@ pseudo-haptic tissue in real time) whose records are then read back from the stu
 from __future__ import annotations
 
 import re
-import time
 import urllib.request
 
 import pytest
@@ -24,9 +23,24 @@ def wait_screen(driver, name: str, timeout: float = 10.0) -> None:
     wait_for(lambda: screen_of(driver) == name, timeout, f"screen {name!r} (showing {screen_of(driver)!r})")
 
 
+def laid_out(driver, el) -> bool:
+    """The element has a box after the next two frames' layout (under load a just-shown element, or one in a
+    viewport being resized, can still measure 0 × 0, and chromedriver refuses to click it: 'element has zero
+    size')."""
+    return bool(driver.execute_async_script("""const el = arguments[0], done = arguments[arguments.length - 1];
+        requestAnimationFrame(() => requestAnimationFrame(() => {
+          const r = el.getBoundingClientRect(); done(r.width > 0 && r.height > 0); }));""", el))
+
+
+def viewport(driver) -> list[int]:
+    """The page's viewport once a layout has run at it (two animation frames after a resize)."""
+    return driver.execute_async_script("""const done = arguments[arguments.length - 1];
+        requestAnimationFrame(() => requestAnimationFrame(() => done([innerWidth, innerHeight])));""")
+
+
 def click(driver, css: str) -> None:
     el = driver.find_element(By.CSS_SELECTOR, css)
-    wait_for(lambda: el.is_enabled() and el.is_displayed(), 5, f"{css} enabled")
+    wait_for(lambda: el.is_enabled() and el.is_displayed() and laid_out(driver, el), 10, f"{css} enabled, laid out")
     el.click()
 
 
@@ -55,11 +69,12 @@ def assert_blind(driver, plan) -> None:
 
 def at_sizes(driver, shots, name: str) -> None:
     """Screenshots at 1920×1080 and 1280×720; the visual and the controls lie fully inside the window."""
+    before = viewport(driver)
     for w, h in ((1920, 1080), (1280, 720)):
         # the page's own viewport at exactly w × h (a window size would include the browser's frame)
         driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
                                {"width": w, "height": h, "deviceScaleFactor": 1, "mobile": False})
-        time.sleep(0.3)
+        wait_for(lambda w=w, h=h: viewport(driver) == [w, h], 10, f"the page laid out at {w}x{h}")
         boxes = driver.execute_script("""const out = {}, vw = innerWidth, vh = innerHeight;
             for (const id of ['cv-tissue', 'ct', 'btn-finish', 'btn-scan', 'report', 'heading', 'countdown']) {
               const el = document.getElementById(id); if (!el || el.offsetWidth === 0) continue;
@@ -69,6 +84,7 @@ def at_sizes(driver, shots, name: str) -> None:
         assert boxes and all(inside for inside, *_ in boxes.values()), (w, h, boxes)
         shots(driver, f"{name}_{w}x{h}")
     driver.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
+    wait_for(lambda: viewport(driver) == before, 10, f"the page laid out again at {before}")
 
 
 def test_needle_session_scans_likert_reload_and_records(store, browser, new_browser, shots):
