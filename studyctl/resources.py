@@ -44,6 +44,13 @@ def find_shipped(kind: str, name_or_path: str | Path) -> Path:
     shipped = resource_dir(kind) / f"{name_or_path}.yaml"
     if shipped.is_file():
         return shipped
+    what = "protocol" if kind == "protocols" else "analysis plan" if kind == "analysis" else kind
+    if candidate.is_dir():
+        raise NotFoundError(f"{str(name_or_path)!r} is a folder, not a file; give the {what}'s YAML file "
+                            f"(e.g. {candidate / 'my_study.yaml'}) or a shipped {what} name")
+    if candidate.exists():
+        raise NotFoundError(f"{str(name_or_path)!r} is not a regular file (a device, pipe or socket); give the "
+                            f"{what}'s YAML file or a shipped {what} name")
     names = ", ".join(shipped_names(kind)) or "none"
     raise NotFoundError(
         f"no file {str(name_or_path)!r} and no shipped {kind[:-1] if kind != 'analysis' else 'analysis plan'}"

@@ -107,3 +107,12 @@ def test_calibrate_refuses_a_negative_duration_before_any_fit(tmp_path, capsys):
     lines = _error_only(capsys.readouterr().err)
     assert lines == [lines[-1]] and "'duration' (Duration, s) cannot be below 0" in lines[-1]
     assert list(tmp_path.iterdir()) == [bad]  # no journal, no population written
+
+
+def test_a_folder_or_device_given_as_protocol_says_so(tmp_path, capsys):
+    assert main(["protocol", "check", str(tmp_path)]) != 0
+    line = _error_only(capsys.readouterr().err)[-1]
+    assert "is a folder, not a file" in line and "YAML file" in line  # was: "no file ... and no shipped protocol"
+    assert main(["init", str(tmp_path / "ws"), "--protocol", "/dev/null"]) != 0
+    line = _error_only(capsys.readouterr().err)[-1]
+    assert "not a regular file" in line and not (tmp_path / "ws").exists()
