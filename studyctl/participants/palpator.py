@@ -16,6 +16,9 @@ as quickly as possible):
    ``stop_vibration_ms2``, felt with the person's Weber noise each press: "least force"), so how hard a person
    presses follows from what each controller delivers, not from the condition: the bio-inspired balloon gives
    10-16 psi from 0.3-0.6 N, the linear one reaches 13 psi near 1.6 N, the piecewise one tops out at 11 psi.
+   With ``stop_min_seen_mm`` a cue only ends a press once the endoscope shows the tip has dented the sponge
+   that deep (seen with the person's visual Weber noise): a balloon already strong at touch-down then no longer
+   ends presses at contact.
    How far the hand went before the cue said enough is itself noted (less travel over stiffer tissue: with a
    force target the travel is the stiffness cue, ``travel_weber``). What the person does with the time a stopped
    press saved is ``after_stop``: release and go on, hold, or tap the same spot again (``max_taps``).
@@ -68,6 +71,7 @@ class _Segment:
     scale: float = 1.0  # actual / intended depth (motor error)
     stopped: bool = False  # ended early by a strong sensation
     stop_gain: float = 1.0  # this press's felt-strength noise on the stop levels (Weber noise of the magnitude)
+    seen_gain: float = 1.0  # this press's visual noise on the minimum dent seen before a stop (stop_min_seen_mm)
     retap: bool = False  # an extra tap after a stopped press (it makes no taps of its own)
     looked: bool = False  # the dwell to judge by eye has been decided
 
@@ -104,6 +108,12 @@ class VirtualPalpator(Participant):
               "with the person's balloon Weber noise per press; 30 = never (the regulator gives ≤ 20)"),
         Param("stop_vibration_ms2", 30.0, 0.0, 30.0, unit="m/s²", source="FITTED: as stop_balloon_psi for "
               "vibration; 30 = never (the motor gives ≤ 12)"),
+        Param("stop_min_seen_mm", 0.0, 0.0, 10.0, unit="mm", source="CHOSEN: a haptic cue only ends a press once "
+              "the endoscope shows the tip has dented the sponge at least this deep (felt with the person's visual "
+              "Weber noise each press): people press until they see contact, then stop where the feedback says "
+              "enough, so a cue that is already strong at touch-down does not end a press before the tissue "
+              "under the probe has been deformed (0 = no visual minimum; without a view the hand's believed depth "
+              "is used)"),
         Param("stop_ratio", 0.0, 0.0, 10.0, source="FITTED: a press also stops when a cue exceeds this multiple of "
               "what normal tissue gave at its strongest (the running median of earlier presses; 0 = never): "
               "something under the probe already feels different, so pressing on only adds force"),
@@ -249,7 +259,8 @@ class VirtualPalpator(Participant):
             self._seg_t0 += seg.duration
             self._seg_index += 1
         if seg.kind == "press":
-            if not seg.stopped and elapsed < seg.ramp and self._strong(percept, seg.stop_gain):
+            if (not seg.stopped and elapsed < seg.ramp and self._dented(percept, seg)
+                    and self._strong(percept, seg.stop_gain)):
                 planned = seg.duration
                 _stop_press(seg, elapsed, keep_tempo=self.params["after_stop"] == "hold")
                 if self.params["after_stop"] == "tap" and not seg.retap:
@@ -283,7 +294,7 @@ class VirtualPalpator(Participant):
         gain = math.exp(self.senses["balloon_psi"].sigma * rng.standard_normal()) if self._stop_levels else 1.0
         self._plan.append(
             _Segment("press", 2 * ramp + p["hold_s"], above, (cx, cy, depth), cell, ramp, p["depth_mm"], scale,
-                     stop_gain=gain)
+                     stop_gain=gain, seen_gain=self._seen_gain())
         )
 
     def _queue_taps(self, seg: _Segment, spare_s: float) -> None:
@@ -300,7 +311,25 @@ class VirtualPalpator(Participant):
             gain = math.exp(self.senses["balloon_psi"].sigma * rng.standard_normal())
             self._plan.insert(self._seg_index + 1 + k, _Segment(
                 "press", 2 * ramp + p["hold_s"], above, (seg.end[0], seg.end[1], depth), seg.cell, ramp,
-                p["depth_mm"], scale, stop_gain=gain, retap=True))
+                p["depth_mm"], scale, stop_gain=gain, retap=True, seen_gain=self._seen_gain()))
+
+    def _seen_gain(self) -> float:
+        """This press's visual noise on the minimum dent (drawn only when a minimum is in use: the default
+        person's random stream is unchanged)."""
+        if self.params["stop_min_seen_mm"] <= 0:
+            return 1.0
+        return math.exp(self.senses["view"].sigma * self._rng.standard_normal())
+
+    def _dented(self, percept: Mapping[str, Any], seg: _Segment) -> bool:
+        """Has the tip visibly dented the sponge enough for a haptic cue to end the press? The camera's tip depth
+        (the hand's believed depth when there is no view) against the minimum, as seen this press."""
+        need = self.params["stop_min_seen_mm"]
+        if need <= 0:
+            return True
+        view = percept.get("view")
+        seen = view.get("depth_mm") if isinstance(view, Mapping) else None
+        depth = float(seen) if isinstance(seen, int | float) else self._belief_depth
+        return depth * seg.seen_gain >= need
 
     def _strong(self, percept: Mapping[str, Any], gain: float = 1.0) -> bool:
         """A haptic cue strong enough to stop pressing: above an absolute level (as felt this press: ``gain``), or

@@ -166,6 +166,29 @@ def test_a_strong_sensation_ends_the_press_early():
     assert max(s["force_n"] for s in light) < 0.85 * max(s["force_n"] for s in deep)
 
 
+def test_a_press_stops_only_after_the_camera_shows_a_dent():
+    """With a minimum dent seen on the endoscope, a balloon that is already strong at touch-down (bio-inspired)
+    no longer ends presses at contact: the same person presses deeper, so harder, than without the minimum."""
+    from studyctl.controllers.bio_inspired import BioInspiredController
+
+    def mean_force(extra):
+        scene = SpongePhantomScene.build({}, {"sites": SITES[0]}, frozenset({"view"}), np.random.default_rng(4))
+        device = SimulatedPalpationDevice({}, scene, np.random.default_rng(5))
+        device.open()
+        forces = []
+        person = VirtualPalpator({"depth_mm": 5.0, "stop_balloon_psi": 8.0, "rows": 2, **extra})
+        run_trial(info=TrialInfo("bio_inspired", 600.0, 50.0, public={**scene.public(), "grid": {
+                      **scene.public()["grid"], "rows": 2}}, visual="realtime"),
+                  controller=BioInspiredController({}, scene), device=device, participant=person,
+                  clock=SimulatedClock(), rng=np.random.default_rng(6), view=scene.view,
+                  on_sample=lambda t, s: forces.append(s["force_n"]))
+        pressed = np.array(forces)
+        return float(np.mean(pressed[pressed > 0.01]))
+
+    light, dented = mean_force({}), mean_force({"stop_min_seen_mm": 3.5})
+    assert dented > 1.3 * light
+
+
 def test_practice_sharpens_perception_and_is_remembered():
     p = VirtualPalpator({"learning": 0.3, "balloon_weber": 0.2})
     info = TrialInfo("x", 60, 50, public={"grid": {"columns": 2, "rows": 1, "cell_mm": 20}})
