@@ -178,6 +178,8 @@ class ServoProcess:
 
     def _discard(self, timeout_s: float = 2.0) -> None:
         proc, self._proc = self._proc, None
+        if proc is not None and proc.is_alive():
+            self._send(("quit",))  # it ends between trials; a child stuck in a trial is terminated below
         if proc is not None:
             proc.join(timeout=timeout_s)
             if proc.is_alive():
@@ -191,12 +193,7 @@ class ServoProcess:
 
     def close(self) -> None:
         """End the servo process (it finishes nothing: call between trials)."""
-        if self._proc is not None and self._proc.is_alive():
-            with contextlib.suppress(OSError, ValueError):
-                self._to_child.send(("quit",))
-            self._discard(timeout_s=5.0)
-        else:
-            self._discard(timeout_s=0.0)
+        self._discard(timeout_s=5.0 if self._proc is not None and self._proc.is_alive() else 0.0)
 
     def _send(self, msg: tuple) -> None:
         with contextlib.suppress(OSError, ValueError):  # a dead child: noticed by the receiving side

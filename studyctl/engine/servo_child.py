@@ -224,16 +224,21 @@ def run_one(spec: ServoSpec, n: int, inbox: Any, outbox: Any, parent_pid: int, s
             return remote.stop_reason
 
         clock = TimedClock(capacity=int(spec.info.time_limit_s * spec.info.rate_hz) + 16)
-        device.open()
-        identity = getattr(device, "identity", None)
-        if callable(identity):  # what the device says it is (model, serial, firmware): for the record
-            send((n, "event", 0.0, "device_identity", plain(dict(identity()))))
+        # before the device opens: locking memory and collecting garbage take long on a loaded machine (measured in
+        # setup_ms), and an open device's own watchdog expects the loop's first command soon (the driver board's:
+        # 250 ms after HELLO)
+        t_setup = time.perf_counter()
         rt: dict[str, Any] = realtime_setup(spec.cpu, spec.nice) if spec.realtime else {}
-        rt["pid"], rt["trial_in_process"], rt["pipe_kib"] = os.getpid(), served, pipe_kib
-        cpu0 = time.process_time()
-        # trial time 0 on the monotonic clock (LSL's local_clock), so the parent can place batched samples in time
-        send((n, "event", 0.0, "servo_clock", {"monotonic_zero": time.monotonic()}))
+        rt["setup_ms"] = (time.perf_counter() - t_setup) * 1e3
         try:
+            device.open()
+            identity = getattr(device, "identity", None)
+            if callable(identity):  # what the device says it is (model, serial, firmware): for the record
+                send((n, "event", 0.0, "device_identity", plain(dict(identity()))))
+            rt["pid"], rt["trial_in_process"], rt["pipe_kib"] = os.getpid(), served, pipe_kib
+            cpu0 = time.process_time()
+            # trial time 0 on the monotonic clock (LSL's local_clock), so the parent can place batched samples in time
+            send((n, "event", 0.0, "servo_clock", {"monotonic_zero": time.monotonic()}))
             outcome = run_trial(
                 info=spec.info,
                 controller=controller,
