@@ -176,11 +176,17 @@ def _test_rows_table(entry: PlanTest, rows: pd.DataFrame, result: AnalysisResult
     return tidy(head, body, keep=("metric", "comparison"))
 
 
+def _label_unit(plan: object, metric_id: str) -> str:
+    """A metric's label with its unit, for tables whose numbers are in that unit ("Completion time (s)")."""
+    unit = plan.metric_unit(metric_id)
+    return f"{plan.metric_label(metric_id)} ({unit})" if unit else plan.metric_label(metric_id)
+
+
 def _descriptive_table(frame: pd.DataFrame, result: AnalysisResult, level_name: str) -> tuple[list[str], list, str]:
     head = ["metric", "split", level_name, "n", "mean", "SD", "SE", "median", "IQR", "min – max"]
     body = [
         [
-            result.plan.metric_label(r["metric"]),
+            _label_unit(result.plan, r["metric"]),
             r["split"],
             r["level"],
             str(int(r["n"])),
@@ -237,7 +243,7 @@ def _entry_blocks(entry: PlanTest, result: AnalysisResult) -> list[Block]:
                     for lv in levels
                     if lv != entry.reference
                 ]
-                body.append([result.plan.metric_label(mid), *means, *pcts])
+                body.append([_label_unit(result.plan, mid), *means, *pcts])
             blocks.append(("table", head, body, ""))
     elif name == "likert_table":
         for mid in entry.metrics:
@@ -315,7 +321,7 @@ def _cells_table(result: AnalysisResult) -> tuple[list[str], list, str]:
     head = ["metric", "condition", "group", "level", "n", "mean", "SD", "median", "IQR", "successes / chances"]
     body = [
         [
-            plan.metric_label(r["metric"]),
+            _label_unit(plan, r["metric"]),
             r["condition"],
             "" if _isnan(r["group"]) else r["group"],
             "" if _isnan(r["level"]) else r["level"],

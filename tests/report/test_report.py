@@ -380,3 +380,13 @@ def test_headlines_of_pairwise_only_entries_and_of_intervals(result):
     from studyctl.report import apa
 
     assert apa.line(row) == "W = 0, W_crit = 52, n = 20, p < .001"
+
+
+def test_tables_of_values_name_the_unit(written):
+    """Means, SDs and medians of a metric with a unit say it (a new user read '35.4' without knowing s or ms)."""
+    import re
+
+    rows = re.findall(r"<tr><td>(.*?)</td>", written.html.read_text())
+    assert "Completion time (s)" in rows  # descriptives per condition and group
+    assert "Sensitivity" in rows  # a proportion has no unit: no empty "()"
+    assert not [r for r in rows if r.endswith("()")]
