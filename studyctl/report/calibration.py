@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import pandas as pd
@@ -52,7 +53,12 @@ def summary_rows(summary: dict[str, dict[str, Any]]) -> tuple[list[str], list[li
     return head, body
 
 
-def agreement_table(frame: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
+# Statistics reported in the metric's own unit (a proportion, a % change, a p-value or a verdict has none).
+_IN_UNIT = ("mean", "sd", "median", "iqr")
+
+
+def agreement_table(frame: pd.DataFrame, units: Mapping[str, str] | None = None) -> tuple[list[str], list[list[str]]]:
+    """One row per target; ``units`` (plan metric id -> unit) labels the metric of values in that unit."""
     head = ["target", "role", "metric", "where", "statistic", "published", "published band", "simulated",
             "simulated 95% interval", "same direction", "within band", "same verdict", "agrees"]
     body = []
@@ -67,15 +73,18 @@ def agreement_table(frame: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
         if r["statistic"] == "verdict" and isinstance(note, str) and note and not note.startswith(
                 ("no ", "test status")):
             simulated = f"{simulated} ({note})"
-        body.append([r["target"], r["role"], r["metric"], r["where"] or "all", r["statistic"], _val(r["published"]),
+        unit = (units or {}).get(r["metric"], "") if r["statistic"] in _IN_UNIT else ""
+        body.append([r["target"], r["role"], f"{r['metric']} ({unit})" if unit else r["metric"], r["where"] or "all", r["statistic"], _val(r["published"]),
                      f"{band} {r['band']}".strip(), simulated,
                      _band(r["simulated_low"], r["simulated_high"]), _yn(r["same_direction"]), within,
                      _yn(r["same_verdict"]), _yn(r["agrees"])])
     return head, body
 
 
-def agreement_blocks(frame: pd.DataFrame | None, info: pd.DataFrame | None, level: int = 2) -> list[Block]:
-    """The "Simulated vs published" section: which population and targets, the fractions, every target."""
+def agreement_blocks(frame: pd.DataFrame | None, info: pd.DataFrame | None, level: int = 2,
+                     units: Mapping[str, str] | None = None) -> list[Block]:
+    """The "Simulated vs published" section: which population and targets, the fractions, every target
+    (``units``: plan metric id -> unit, shown beside the metric of means, SDs, medians and IQRs)."""
     out: list[Block] = [("h", level, "Simulated vs published")]
     lines = [] if info is None else [f"{k}: {v}" for k, v in zip(info["item"], info["value"], strict=True)
                                      if k != "summary"]
@@ -92,7 +101,7 @@ def agreement_blocks(frame: pd.DataFrame | None, info: pd.DataFrame | None, leve
                 "paper, or CHOSEN; a CHOSEN band is a tolerance picked by hand (the targets file's note says why), "
                 "not a confidence interval. An SD or CV agrees when simulated/published lies within 1/1.5 … 1.5. "
                 "Fit targets were used to calibrate the population; validation targets never were."))
-    out.append(("table", *agreement_table(frame)))
+    out.append(("table", *agreement_table(frame, units)))
     return out
 
 
@@ -140,7 +149,8 @@ def _fit_blocks(result: Any, pop: Any) -> list[Block]:
     out.append(("table", head, body))
     out.append(("p", "SE from the curvature of the distance along each parameter (others at their estimate); "
                 "the distance is a χ²-like sum, so SE = √(2 / second derivative)."))
-    out.extend(agreement_blocks(result.agreement.to_frame(), None))
+    out.extend(agreement_blocks(result.agreement.to_frame(), None,
+                                units={m: spec.plan.metric_unit(m) for m in spec.plan.metrics}))
     return out
 
 

@@ -394,7 +394,8 @@ def blocks(
     if "agreement_info" in result.tables:  # a simulated study: how it compares with the paper
         from studyctl.report.calibration import agreement_blocks
 
-        out.extend(agreement_blocks(result.tables.get("agreement"), result.tables["agreement_info"]))
+        out.extend(agreement_blocks(result.tables.get("agreement"), result.tables["agreement_info"],
+                                    units={m: result.plan.metric_unit(m) for m in result.plan.metrics}))
     out.append(("h", 2, "Missing data", "missing"))
     if problems:
         out.append(("list", list(problems)))

@@ -390,3 +390,17 @@ def test_tables_of_values_name_the_unit(written):
     assert "Completion time (s)" in rows  # descriptives per condition and group
     assert "Sensitivity" in rows  # a proportion has no unit: no empty "()"
     assert not [r for r in rows if r.endswith("()")]
+
+
+def test_agreement_table_names_the_unit_of_values_in_it():
+    from studyctl.report.calibration import agreement_table
+
+    base = {"role": "fit", "where": "", "published": 29.1, "published_low": 24.2, "published_high": 34.1,
+            "band": "", "simulated": 35.4, "simulated_low": 17.6, "simulated_high": 53.3, "same_direction": None,
+            "within": False, "same_verdict": None, "agrees": False, "sd_ratio": float("nan"), "note": ""}
+    frame = pd.DataFrame([{**base, "target": "t_mean", "metric": "time", "statistic": "mean"},
+                          {**base, "target": "t_pct", "metric": "time", "statistic": "pct_change_vs_baseline"},
+                          {**base, "target": "f_prop", "metric": "found", "statistic": "proportion"}])
+    head, body = agreement_table(frame, {"time": "s", "found": ""})
+    metric = {row[0]: row[head.index("metric")] for row in body}
+    assert metric == {"t_mean": "time (s)", "t_pct": "time", "f_prop": "found"}  # a % change is not in seconds
