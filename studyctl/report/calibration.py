@@ -74,7 +74,8 @@ def agreement_table(frame: pd.DataFrame, units: Mapping[str, str] | None = None)
                 ("no ", "test status")):
             simulated = f"{simulated} ({note})"
         unit = (units or {}).get(r["metric"], "") if r["statistic"] in _IN_UNIT else ""
-        body.append([r["target"], r["role"], f"{r['metric']} ({unit})" if unit else r["metric"], r["where"] or "all", r["statistic"], _val(r["published"]),
+        metric = f"{r['metric']} ({unit})" if unit else r["metric"]
+        body.append([r["target"], r["role"], metric, r["where"] or "all", r["statistic"], _val(r["published"]),
                      f"{band} {r['band']}".strip(), simulated,
                      _band(r["simulated_low"], r["simulated_high"]), _yn(r["same_direction"]), within,
                      _yn(r["same_verdict"]), _yn(r["agrees"])])
