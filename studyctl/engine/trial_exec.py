@@ -189,6 +189,7 @@ class TrialExecutor:
                 rng=streams.participant,
                 on_event=on_event,
                 on_sample=sink.write if sink is not None else None,
+                on_sample_parts=getattr(sink, "write_parts", None),
                 view=scene.view if scene is not None else None,
                 should_stop=should_stop,
             )

@@ -49,6 +49,8 @@ def run_trial(
     on_sample: SampleSink | None = None,
     view: Callable[[Mapping[str, float]], Mapping[str, Any] | None] | None = None,
     should_stop: Callable[[], str | None] | None = None,
+    on_sample_parts: Callable[[float, Mapping[str, float], Mapping[str, float], Mapping[str, float]], None]
+    | None = None,
 ) -> TrialOutcome:
     """Run one trial to its end: the participant finishes, the time limit passes, or it is stopped.
 
@@ -61,6 +63,9 @@ def run_trial(
     with every sample and passed to ``view``; an ``events`` list of ``{"kind": …, …}`` dicts (puncture,
     contact …) is drained into the event log each tick. ``view`` receives the participant's inputs
     overlaid with the device's observation (the real pose, also with hardware) and the diagnostics.
+    ``on_sample_parts(t, values, written, diagnostics)``, when given instead of ``on_sample``, takes the
+    sample's three parts unmerged (the same sample as ``{**values, **written, **diagnostics}``) so that a
+    sink that keeps fixed channels need not build a dict every tick.
     """
     events: list[dict[str, Any]] = []
 
@@ -166,7 +171,9 @@ def run_trial(
                     finished = True
             if realtime:
                 percept["view"] = view({**last_inputs, **values, **diagnostics})
-            if on_sample is not None:
+            if on_sample_parts is not None:
+                on_sample_parts(t, values, written, diagnostics)
+            elif on_sample is not None:
                 on_sample(t, {**values, **written, **diagnostics})
             ticks += 1
             if finished:
