@@ -314,9 +314,10 @@ class VirtualPalpator(Participant):
                 p["depth_mm"], scale, stop_gain=gain, retap=True, seen_gain=self._seen_gain()))
 
     def _seen_gain(self) -> float:
-        """This press's visual noise on the minimum dent (drawn only when a minimum is in use: the default
-        person's random stream is unchanged)."""
-        if self.params["stop_min_seen_mm"] <= 0:
+        """This press's visual noise on the minimum dent. Drawn whenever a stop level is in use, whatever the
+        minimum (0 included), so people who differ only in the minimum share their random numbers (a fit compares
+        like with like); a person who never stops on a level draws nothing (the default stream is unchanged)."""
+        if not self._stop_levels:
             return 1.0
         return math.exp(self.senses["view"].sigma * self._rng.standard_normal())
 
