@@ -72,6 +72,7 @@ def analyze(
     table: MetricTable | None = None,
     figures: bool = False,
     on_step: Callable[[str], None] | None = None,
+    stored: StoredStudy | None = None,
 ) -> AnalysisResult:
     """Run an analysis plan end to end.
 
@@ -88,6 +89,9 @@ def analyze(
         (``result.figures``), from the same open study.
     on_step
         Progress callback with the name of each step.
+    stored
+        The plan's study, already open (:func:`open_stored_study`; the caller closes it), so that a workflow
+        reading more of the study opens it once; ``db``, ``workspace`` and ``study`` are then not used.
 
     Returns
     -------
@@ -104,8 +108,7 @@ def analyze(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
-        stored = None
-        if plan.data.source == "database" and (table is None or want_figures):
+        if stored is None and plan.data.source == "database" and (table is None or want_figures):
             stored = stack.enter_context(open_stored_study(plan, db=db, workspace=workspace, study=study))
         if table is None:
             if on_step:

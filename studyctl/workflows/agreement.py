@@ -11,20 +11,18 @@ import numpy as np
 import pandas as pd
 
 
-def simulated_vs_published(plan: Any, result: Any, *, db: str | None = None, workspace: str | Path | None = None,
-                           study: str | None = None, targets: str | Path | None = None
+def simulated_vs_published(plan: Any, result: Any, reader: Any, *, targets: str | Path | None = None
                            ) -> tuple[pd.DataFrame | None, pd.DataFrame] | None:
     """(agreement table, info lines) for a simulated study, or None for a study of people.
 
+    ``reader``: the study's open :class:`~studyctl.store.reader.StudyReader` (the one its analysis read).
     ``targets``: a targets file (default: ``studyctl/populations/<protocol>.targets.yaml`` when shipped).
     """
     from studyctl.calibration import agreement, simulated_values
     from studyctl.populations.targets import load_targets_file, shipped_targets_path
-    from studyctl.store.reader import StudyReader
 
-    with StudyReader.open(db, workspace, study) as reader:
-        events = reader.session_events(("session_plan", "population"))
-        seed = reader.study.seed
+    events = reader.session_events(("session_plan", "population"))
+    seed = reader.study.seed
     plans = [e.payload for e in events if e.kind == "session_plan"]
     pops = [dict(e.payload) for e in events if e.kind == "population" and e.payload]
     sessions, virtual = len(plans), sum(bool((p or {}).get("virtual")) for p in plans)

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from studyctl.analysis.plan import AnalysisPlan
+from studyctl.analysis.plan import AnalysisPlan, load_plan
 from studyctl.analysis.results import AnalysisResult
-from studyctl.analysis.run import analyze
+from studyctl.analysis.run import analyze, open_stored_study
 from studyctl.report.build import ReportFiles, check_figure_formats, ensure_writable, write_report
+from studyctl.workflows.agreement import simulated_vs_published
 
 
 @dataclass(frozen=True)
@@ -37,7 +39,7 @@ def build_report(
     """Analyse ``plan`` (database or CSV data) and write its report into ``out_dir``.
 
     The output folder is checked for writability before anything is computed. The plan is loaded and
-    the study opened once, by :func:`studyctl.analysis.analyze`, for the tests and the figures' data. A simulated
+    the study opened once, here, for the tests, the figures' data and the comparison with the paper. A simulated
     study's report gets a "simulated vs published" section and ``agreement.csv`` (``targets``: a targets file;
     default: the protocol's shipped one). ``effect_size_ci``: bootstrap intervals of the effect sizes
     (:mod:`studyctl.analysis.effect_ci`, ``effect_sizes.csv``) and the model tests' coefficients with Wald
@@ -46,27 +48,25 @@ def build_report(
     ensure_writable(out_dir)
     check_figure_formats(figure_formats)
     t0 = time.perf_counter()
-    result = analyze(plan, db=db, workspace=workspace, study=study, figures=True, on_step=on_step)
-    if result.plan.data.source == "database":
-        from dataclasses import replace
-
-        from studyctl.workflows.agreement import simulated_vs_published
-
-        compared = simulated_vs_published(result.plan, result, db=db, workspace=workspace, study=study,
-                                          targets=targets)
-        if compared is not None:  # a simulated study: its report compares it with the paper
-            frame, info = compared
-            extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
-            result = replace(result, tables={**result.tables, **extra})
+    if not isinstance(plan, AnalysisPlan):
+        plan = load_plan(plan)
+    with contextlib.ExitStack() as stack:
+        stored = None
+        if plan.data.source == "database":  # opened once: the tests, the figures' data and the comparison
+            stored = stack.enter_context(open_stored_study(plan, db=db, workspace=workspace, study=study))
+        result = analyze(plan, db=db, figures=True, on_step=on_step, stored=stored)
+        if stored is not None:
+            compared = simulated_vs_published(plan, result, stored.reader, targets=targets)
+            if compared is not None:  # a simulated study: its report compares it with the paper
+                frame, info = compared
+                extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
+                result = replace(result, tables={**result.tables, **extra})
     if effect_size_ci:
-        from dataclasses import replace
-
         from studyctl.analysis.effect_ci import effect_size_intervals
+        from studyctl.analysis.model_ci import model_coefficient_intervals
 
         if on_step:
             on_step("effect-size intervals")
-        from studyctl.analysis.model_ci import model_coefficient_intervals
-
         result = replace(result, tables={**result.tables, "effect_sizes": effect_size_intervals(result),
                                          "model_coefficients": model_coefficient_intervals(result)})
     t2 = time.perf_counter()
