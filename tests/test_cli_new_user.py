@@ -116,3 +116,33 @@ def test_a_folder_or_device_given_as_protocol_says_so(tmp_path, capsys):
     assert main(["init", str(tmp_path / "ws"), "--protocol", "/dev/null"]) != 0
     line = _error_only(capsys.readouterr().err)[-1]
     assert "not a regular file" in line and not (tmp_path / "ws").exists()
+
+
+def test_report_with_a_plan_that_is_not_yaml_leaves_no_folder(tmp_path, capsys):
+    plan = tmp_path / "plan.yaml"
+    plan.write_text("a: [\n")
+    out = tmp_path / "rep"
+    assert main(["report", str(plan), "-o", str(out), "--db", str(tmp_path / "none.db")]) != 0
+    line = _error_only(capsys.readouterr().err)[-1]
+    assert "plan.yaml:2:1: YAML syntax error" in line
+    assert not out.exists()
+
+
+def test_targets_file_that_is_binary_or_a_folder_is_one_error(tmp_path, capsys):
+    binary = tmp_path / "t.yaml"
+    binary.write_bytes(b"format: x\n\xd0\xff\n")
+    for bad, says in ((binary, "t.yaml:2: targets file"), (tmp_path, "is a folder")):
+        assert main(["calibrate", "data_driven_palpation", "--targets", str(bad), "-o", str(tmp_path / "c.yaml")]) != 0
+        line = _error_only(capsys.readouterr().err)[-1]
+        assert says in line, line
+    assert not (tmp_path / "c.yaml").exists() and not (tmp_path / "c.yaml.journal").exists()
+
+
+def test_answers_file_that_is_a_folder_says_so(tmp_path):
+    import pytest
+
+    from studyctl.engine.ui import Script
+    from studyctl.errors import UsageError
+
+    with pytest.raises(UsageError, match="is a folder"):
+        Script.load(tmp_path)

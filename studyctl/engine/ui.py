@@ -215,6 +215,8 @@ class Script:
     @classmethod
     def load(cls, path: str | Path) -> Script:
         p = Path(path)
+        if p.is_dir():
+            raise UsageError(f"input file {p} is a folder; pass a YAML or JSON answers file to --input")
         if not p.is_file():
             raise UsageError(f"input file {p} does not exist; pass a YAML or JSON answers file to --input")
         text = read_text(p, "answers file (--input)")

@@ -174,13 +174,16 @@ class TargetSet:
 def load_targets_file(path: str | Path, *, plan: Any | None = None, protocol: Any | None = None) -> TargetSet:
     """Read and check a targets file against the protocol's analysis plan (the plan named in the file, else the
     shipped plan of its protocol) and the protocol's strata."""
+    from studyctl.inputs import read_text
+
     file = Path(path)
-    if not file.is_file():
+    if not file.exists():
         raise NotFoundError(f"targets file {str(path)!r} does not exist; give a studyctl-targets/1 YAML file "
                             "(shipped ones: studyctl/populations/<protocol>.targets.yaml)")
-    raw = file.read_bytes()
-    return parse_targets(raw.decode("utf-8"), str(file), plan=plan, protocol=protocol,
-                         sha256=hashlib.sha256(raw).hexdigest())
+    # A folder, a binary or an oversized file is one error naming it (read_text), not a traceback.
+    text = read_text(file, "targets file (studyctl-targets/1 YAML)", error=PopulationError)
+    return parse_targets(text, str(file), plan=plan, protocol=protocol,
+                         sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
 
 
 def _fail(m: Any, label: str, path: tuple[Any, ...], message: str, *, value: bool = True) -> PopulationError:

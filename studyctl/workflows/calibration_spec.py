@@ -177,8 +177,8 @@ def _plan_ref(targets: str | Path | None, pid: str) -> str:
 
     try:
         data = yaml.safe_load(Path(targets).read_text(encoding="utf-8"))
-    except yaml.YAMLError:
-        return pid  # the targets loader reports the syntax error with its position
+    except (yaml.YAMLError, UnicodeDecodeError, OSError):
+        return pid  # the targets loader reports the syntax error (or the unreadable file) with its position
     ref = data.get("plan") if isinstance(data, dict) else None
     if not isinstance(ref, str) or not ref:
         return pid

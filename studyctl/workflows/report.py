@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -45,33 +46,40 @@ def build_report(
     (:mod:`studyctl.analysis.effect_ci`, ``effect_sizes.csv``) and the model tests' coefficients with Wald
     intervals (:mod:`studyctl.analysis.model_ci`, ``model_coefficients.csv``).
     """
+    created = not Path(out_dir).exists()
     ensure_writable(out_dir)
-    check_figure_formats(figure_formats)
-    t0 = time.perf_counter()
-    if not isinstance(plan, AnalysisPlan):
-        plan = load_plan(plan)
-    with contextlib.ExitStack() as stack:
-        stored = None
-        if plan.data.source == "database":  # opened once: the tests, the figures' data and the comparison
-            stored = stack.enter_context(open_stored_study(plan, db=db, workspace=workspace, study=study))
-        result = analyze(plan, db=db, figures=True, on_step=on_step, stored=stored)
-        if stored is not None:
-            compared = simulated_vs_published(plan, result, stored.reader, targets=targets)
-            if compared is not None:  # a simulated study: its report compares it with the paper
-                frame, info = compared
-                extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
-                result = replace(result, tables={**result.tables, **extra})
-    if effect_size_ci:
-        from studyctl.analysis.effect_ci import effect_size_intervals
-        from studyctl.analysis.model_ci import model_coefficient_intervals
+    try:
+        check_figure_formats(figure_formats)
+        t0 = time.perf_counter()
+        if not isinstance(plan, AnalysisPlan):
+            plan = load_plan(plan)
+        with contextlib.ExitStack() as stack:
+            stored = None
+            if plan.data.source == "database":  # opened once: the tests, the figures' data and the comparison
+                stored = stack.enter_context(open_stored_study(plan, db=db, workspace=workspace, study=study))
+            result = analyze(plan, db=db, figures=True, on_step=on_step, stored=stored)
+            if stored is not None:
+                compared = simulated_vs_published(plan, result, stored.reader, targets=targets)
+                if compared is not None:  # a simulated study: its report compares it with the paper
+                    frame, info = compared
+                    extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
+                    result = replace(result, tables={**result.tables, **extra})
+        if effect_size_ci:
+            from studyctl.analysis.effect_ci import effect_size_intervals
+            from studyctl.analysis.model_ci import model_coefficient_intervals
 
-        if on_step:
-            on_step("effect-size intervals")
-        result = replace(result, tables={**result.tables, "effect_sizes": effect_size_intervals(result),
-                                         "model_coefficients": model_coefficient_intervals(result)})
-    t2 = time.perf_counter()
-    files = write_report(result, out_dir, on_step=on_step, figure_formats=figure_formats)
-    t3 = time.perf_counter()
+            if on_step:
+                on_step("effect-size intervals")
+            result = replace(result, tables={**result.tables, "effect_sizes": effect_size_intervals(result),
+                                             "model_coefficients": model_coefficient_intervals(result)})
+        t2 = time.perf_counter()
+        files = write_report(result, out_dir, on_step=on_step, figure_formats=figure_formats)
+        t3 = time.perf_counter()
+    except BaseException:
+        # A mistake (a plan that is not YAML, no study) leaves no empty or half-written report folder behind.
+        if created:
+            shutil.rmtree(out_dir, ignore_errors=True)
+        raise
     figure_data_s = result.timings.get("figure_data_s", 0.0)
     timings = {
         "analyze_s": t2 - t0 - figure_data_s,
