@@ -146,3 +146,9 @@ def test_answers_file_that_is_a_folder_says_so(tmp_path):
 
     with pytest.raises(UsageError, match="is a folder"):
         Script.load(tmp_path)
+
+
+def test_device_check_rate_zero_is_refused_not_the_default(capsys):
+    assert main(["device", "check", "sim_palpation", "--rate", "0"]) != 0
+    lines = _error_only(capsys.readouterr().err)
+    assert lines == [lines[-1]] and "--rate must be between 1 and 10000 Hz, got 0" in lines[-1]

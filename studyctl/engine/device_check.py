@@ -153,7 +153,9 @@ def check_device(
     cls = load_plugin("device", name)
     ref: dict[str, Any] = {"plugin": name, "params": dict(params or {})}
     limits = _limits_of(cls, ref["params"])
-    rate = float(rate_hz or ref["params"].get("rate_hz") or (1000.0 if limits.max_force_n is not None else 50.0))
+    # ``rate_hz`` None means the device's rate; 0 is a value (refused below), not "the default".
+    rate = float(rate_hz if rate_hz is not None else
+                 ref["params"].get("rate_hz") or (1000.0 if limits.max_force_n is not None else 50.0))
     if not (1.0 <= rate <= 10000.0):
         raise UsageError(f"--rate must be between 1 and 10000 Hz, got {rate:g}")
     ctrl_params = {"limits": {c.name: (c.low, c.high, c.safe) for c in limits.outputs}, "duration_s": seconds,
