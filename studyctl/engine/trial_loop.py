@@ -103,6 +103,8 @@ def run_trial(
     time_limit = info.time_limit_s
     on_request = info.visual == "on_request"
     realtime = info.visual == "realtime" and view is not None
+    # a scene's view_parts(inputs, observation, diagnostics) draws the same frame without the merged dict
+    view_parts = getattr(getattr(view, "__self__", None), "view_parts", None) if realtime else None
     now = clock.now
     sleep_until = clock.sleep_until
     act = participant.act
@@ -170,7 +172,10 @@ def run_trial(
                 elif request.kind == "finish":
                     finished = True
             if realtime:
-                percept["view"] = view({**last_inputs, **values, **diagnostics})
+                if view_parts is not None:
+                    percept["view"] = view_parts(last_inputs, values, diagnostics)
+                else:
+                    percept["view"] = view({**last_inputs, **values, **diagnostics})
             if on_sample_parts is not None:
                 on_sample_parts(t, values, written, diagnostics)
             elif on_sample is not None:

@@ -219,6 +219,19 @@ def _measured_nodules(rows: Any) -> tuple[Nodule, ...]:
     return tuple(out)
 
 
+_NONE: Mapping[str, Any] = {}
+_MISSING = object()
+
+
+def _pick(key: str, a: Channels, b: Channels, c: Channels) -> Any:
+    """``{**a, **b, **c}.get(key, _MISSING)`` without building the merged dict."""
+    if key in c:
+        return c[key]
+    if key in b:
+        return b[key]
+    return a[key] if key in a else _MISSING
+
+
 class StiffnessTissueScene(Scene):
     """A stiffness-map tissue on a table, placed in the device frame by the trial's orientation.
 
@@ -321,14 +334,26 @@ class StiffnessTissueScene(Scene):
         ``center_mm`` of the placement) and, in contact, ``deformation``: a
         :class:`~studyctl.models.pseudo_haptics.PendingDeformation` whose ``compute()`` gives the displaced
         display nodes ``(i, j, dz_mm)`` (``to_dict()`` for JSON). Nothing is computed until drawn."""
-        # The avatar when a controller publishes one, else the handle (without the fallback's three lookups
-        # every tick that get(key, default) would pay).
-        cx = inputs["cursor_x_mm"] if "cursor_x_mm" in inputs else inputs.get("x_mm")
-        cy = inputs["cursor_y_mm"] if "cursor_y_mm" in inputs else inputs.get("y_mm")
-        cz = inputs["cursor_z_mm"] if "cursor_z_mm" in inputs else inputs.get("z_mm")
-        if cx is None or cy is None or cz is None:
+        return self.view_parts(inputs, _NONE, _NONE)
+
+    def view_parts(self, a: Channels, b: Channels, c: Channels) -> Mapping[str, Any] | None:
+        """``view({**a, **b, **c})`` without merging the three mappings: the trial loop's real-time view asks
+        this every tick with the participant's inputs, the device's observation and the controller's
+        diagnostics (a channel in a later mapping wins, as in the merged dict)."""
+        # The avatar when a controller publishes one, else the handle.
+        cx = _pick("cursor_x_mm", a, b, c)
+        if cx is _MISSING:
+            cx = _pick("x_mm", a, b, c)
+        cy = _pick("cursor_y_mm", a, b, c)
+        if cy is _MISSING:
+            cy = _pick("y_mm", a, b, c)
+        cz = _pick("cursor_z_mm", a, b, c)
+        if cz is _MISSING:
+            cz = _pick("z_mm", a, b, c)
+        if cx is None or cy is None or cz is None or cx is _MISSING or cy is _MISSING or cz is _MISSING:
             return {"surface": self._surface_world, "cursor_mm": None}
-        depth = float(inputs.get("tissue_depth_mm", 0.0))
+        depth = _pick("tissue_depth_mm", a, b, c)
+        depth = float(0.0 if depth is _MISSING else depth)
         frame: dict[str, Any] = {
             "surface": self._surface_world,
             "cursor_mm": (float(cx), float(cy), float(cz)),
@@ -337,9 +362,9 @@ class StiffnessTissueScene(Scene):
         if self._display is not None:
             frame["display"] = self._display
         if self.deformation is not None and depth > 0.0:
-            qx = inputs.get("contact_x_mm")
-            qy = inputs.get("contact_y_mm")
-            if qx is None or qy is None:
+            qx = _pick("contact_x_mm", a, b, c)
+            qy = _pick("contact_y_mm", a, b, c)
+            if qx is None or qy is None or qx is _MISSING or qy is _MISSING:
                 qx, qy, _ = self.placement.to_local(float(cx), float(cy))
             frame["deformation"] = self.deformation.pending(float(qx), float(qy), depth)
         return frame

@@ -150,3 +150,31 @@ def test_through_the_simulated_device_the_force_reaches_the_hand():
     assert felt[0] == 0.0 and felt[-1] == pytest.approx(c.diagnostics["tissue_normal_n"], rel=1e-6)
     assert max(felt) <= 3.3 + 1e-12
     assert math.isclose(c.diagnostics["tissue_depth_mm"], 5.0, abs_tol=0.02)
+
+
+def _frame_repr(frame):
+    if frame is None:
+        return None
+    out = {k: v for k, v in frame.items() if k not in ("surface", "display", "deformation")}
+    if "deformation" in frame:
+        d = frame["deformation"].compute()
+        out["deformation"] = (d.depth_mm, repr(d.nodes))
+    return repr(out)
+
+
+def test_view_parts_draws_the_frame_of_the_merged_channels():
+    s = _scene(needs=BASE | {"view"})
+    cases = [
+        ({"x_mm": 60.0, "y_mm": 60.0, "z_mm": 30.0}, {}, {}),
+        ({"x_mm": 1.0, "y_mm": 2.0, "z_mm": 3.0}, {"x_mm": 60.0, "y_mm": 61.0, "z_mm": 21.0}, {"tissue_depth_mm": 4.0}),
+        # a later mapping wins: the controller's cursor over the handle, its contact point over the device's
+        ({"x_mm": 1.0, "y_mm": 2.0, "z_mm": 3.0}, {"cursor_x_mm": 5.0, "cursor_y_mm": 5.0, "cursor_z_mm": 5.0,
+                                                 "contact_x_mm": 0.0, "contact_y_mm": 0.0},
+         {"cursor_x_mm": 60.0, "cursor_y_mm": 60.0, "cursor_z_mm": 21.0, "tissue_depth_mm": 3.0,
+          "contact_x_mm": 10.0, "contact_y_mm": 12.0}),
+        ({"x_mm": 60.0, "y_mm": 60.0}, {}, {}),  # no z: no cursor
+        ({"x_mm": 60.0, "y_mm": 60.0, "z_mm": 20.0}, {"cursor_x_mm": None}, {"tissue_depth_mm": 2.0}),
+    ]
+    for a, b, c in cases:
+        assert _frame_repr(s.view_parts(a, b, c)) == _frame_repr(s.view({**a, **b, **c}))
+    assert "deformation" in s.view_parts(*cases[2])
