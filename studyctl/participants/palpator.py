@@ -83,6 +83,12 @@ class _CellEvidence:
     presses: int = 0
 
 
+def _scipy_stats():  # noqa: ANN202 - the scipy.stats module
+    from scipy import stats  # noqa: PLC0415 - about a second to import: see VirtualPalpator.__init__
+
+    return stats
+
+
 class VirtualPalpator(Participant):
     """Virtual participant for the sponge-phantom study: sweeps the grid, feels, re-checks, reports cells."""
 
@@ -161,6 +167,10 @@ class VirtualPalpator(Participant):
     )
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
+        # scipy.stats is imported here, before any trial loop, not at module import (test collection) and not at
+        # the first report mid-trial: that import takes ~1 s, a stall of the real-time loop in a rehearsal on
+        # emulated hardware (the board's output watchdog trips).
+        _scipy_stats()
         checked = validate_params("virtual_palpator participant", params, self.PARAMS)
         super().__init__(checked)
         p = checked
@@ -422,7 +432,7 @@ class VirtualPalpator(Participant):
 
     def _score(self, ev: _CellEvidence, ref: dict[tuple[str, str], float | None]) -> float:
         """Evidence that a cell differs from normal tissue, in noise SDs of its mean (inf: felt only here)."""
-        from scipy import stats  # lazy: importing scipy.stats costs about a second
+        stats = _scipy_stats()
         best = -math.inf
         for key in self._keys:
             logs = ev.logs.get(key)
