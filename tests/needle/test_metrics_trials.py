@@ -183,19 +183,19 @@ def test_realtime_view_needs_no_scans_and_enhanced_sensing_gives_a_cue():
     op = VirtualNeedleOperator({})
     out, m = _trial("RT", op, site=3, seed=5)
     assert m.scans == 0 and out.ended_by == "finish" and m.targeting_error_mm < 3.0
-    # The typical person learns to trust the axial cue over repetitions (population v1), so the enhanced tumour is
-    # noticed in some of 8 ES trials (3 of 8 when written), and the compliant BL tumour in none of the same 8.
-    es = VirtualNeedleOperator({})
-    felt = []
-    for rep in range(8):
-        out, m = _trial("ES", es, site=4 + rep % 3, seed=20 + rep)
-        felt.append(es.history[-1]["cue"])
-        assert out.ended_by == "finish"
-    assert any(felt)  # the magnified tumour force is noticed
-    bl = VirtualNeedleOperator({})
-    for rep in range(8):
-        _trial("BL", bl, site=4 + rep % 3, seed=20 + rep)
-    assert not any(h["cue"] for h in bl.history)  # the compliant tumour is not
+    # The typical person learns to trust the axial cue over repetitions, so the enhanced tumour is noticed in some
+    # of 16 ES trials (5 when written) and the compliant BL tumour in the same 16 placements only as a rare false
+    # alarm (1 when written: since b17a344 the faster hand's wobble can raise the axial force). A controller that
+    # did not magnify the tumour force would make the two rates alike.
+    def cues(condition: str) -> int:
+        person = VirtualNeedleOperator({})
+        for rep in range(16):
+            out, _ = _trial(condition, person, site=4 + rep % 3, seed=20 + rep)
+            assert out.ended_by == "finish"
+        return sum(bool(h["cue"]) for h in person.history)
+
+    es, bl = cues("ES"), cues("BL")
+    assert es >= 4 and bl <= 2 and es >= bl + 3, (es, bl)
 
 
 def test_likert_answers_are_valid_codes():
