@@ -32,6 +32,7 @@ import numpy as np
 
 from studyctl.bench import BenchResult, busy_python
 from studyctl.bench.needle import _Idle, _scenario  # as bench needle: its idle participant, Table 1 params
+from studyctl.errors import BenchmarkError
 from studyctl.plugins.interfaces import TrialInfo
 
 RATE_HZ = 1000.0
@@ -68,7 +69,7 @@ def _servo(seconds: float, cpu: int) -> tuple[dict[str, float], dict[str, Any]]:
         result = servo.run_trial(spec(seconds), on_sample=lambda t, s: None)
         following = servo.run_trial(spec(0.2), on_sample=lambda t, s: None)
     if result.timing is None:
-        raise RuntimeError("the servo process reported no timing")
+        raise BenchmarkError("the servo process reported no timing, so there are no jitter or lateness figures")
     return result.timing.as_dict(), {**result.rt, "start_s": result.start_s, "next_start_s": following.start_s,
                                      "same_process": following.rt.get("pid") == result.rt.get("pid")}
 
