@@ -87,7 +87,15 @@ def run_trial(
     participant.begin_trial(info, rng)
     if controller is not None:
         controller.reset()
+    start = clock.now()  # (read by a watchdog that trips before time 0 below)
+    if watchdog is not None:
+        # Before time 0: starting a thread takes ~0.4 ms (its stack mapped and, in a servo process with locked
+        # memory, faulted in; the new thread runs once at the loop's priority), which inside the first period made
+        # the first tick late by more than 1 ms on a loaded machine (3 of 12 servo runs of the bench loop at load 10-31)
+        watchdog.start()
     start = clock.now()
+    if watchdog is not None:
+        watchdog.kick()
     percept: dict[str, Any] = {}
     scans = 0
     reports: list[dict[str, Any]] = []
@@ -97,8 +105,6 @@ def run_trial(
     diagnostics: Mapping[str, float] = getattr(controller, "diagnostics", None) or {}
     controller_events: list[dict[str, Any]] | None = getattr(controller, "events", None)
     emit(0.0, "trial_loop_start", {"rate_hz": info.rate_hz})
-    if watchdog is not None:
-        watchdog.start()
     # Hot loop: bind what is used every tick to locals (a 1 kHz loop spends its budget on lookups).
     time_limit = info.time_limit_s
     on_request = info.visual == "on_request"
