@@ -141,6 +141,8 @@ def run(quick: bool = False) -> BenchResult:
     # what a session pays before its first hardware trial's loop runs (spawn, imports, plugins built, device opened)
     # and before each following one (plugins built, device opened)
     figures = {**figs(servo), "loop_cpu_s": float(rt.get("cpu_s", float("nan"))),
+               # what the hypervisor took from the loop's CPU meanwhile (/proc/stat steal; NaN where unknown)
+               "loop_cpu_steal_ms": float(rt.get("steal_ms", float("nan"))),
                "servo_start_s": float(rt.pop("start_s", float("nan"))),
                "servo_next_trial_start_s": float(rt.pop("next_start_s", float("nan")))}
     peers = {**figs(inproc), "loop_cpu_s": inproc_cpu}

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from studyctl.engine.realtime import TimedClock, realtime_release, realtime_setup
+from studyctl.engine.realtime import TimedClock, cpu_steal_ms, realtime_release, realtime_setup
 from studyctl.engine.trial_loop import run_trial
 from studyctl.errors import StudyctlError
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
@@ -237,6 +237,8 @@ def run_one(spec: ServoSpec, n: int, inbox: Any, outbox: Any, parent_pid: int, s
                 send((n, "event", 0.0, "device_identity", plain(dict(identity()))))
             rt["pid"], rt["trial_in_process"], rt["pipe_kib"] = os.getpid(), served, pipe_kib
             cpu0 = time.process_time()
+            loop_cpu = rt["cpus"][0] if len(rt.get("cpus", ())) == 1 else None
+            steal0 = cpu_steal_ms(loop_cpu)
             # trial time 0 on the monotonic clock (LSL's local_clock), so the parent can place batched samples in time
             send((n, "event", 0.0, "servo_clock", {"monotonic_zero": time.monotonic()}))
             outcome = run_trial(
@@ -257,6 +259,9 @@ def run_one(spec: ServoSpec, n: int, inbox: Any, outbox: Any, parent_pid: int, s
             device.close()
         flush()
         rt["cpu_s"] = time.process_time() - cpu0
+        steal1 = cpu_steal_ms(loop_cpu)
+        if steal0 is not None and steal1 is not None:  # the hypervisor's share of the loop's CPU during the trial
+            rt["steal_ms"] = steal1 - steal0
         timing = clock.timing(1.0 / spec.info.rate_hz)
         send((n, "event", outcome.duration_s, "servo_timing", {**timing.as_dict(), "rt": rt,
                                                                 "nice": rt.get("nice", 0)}))

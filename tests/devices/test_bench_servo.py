@@ -27,3 +27,18 @@ def test_bench_servo_json_has_both_paths_and_the_realtime_report():
     assert [r["loop"] for r in rows] == ["servo process", "in-process (peer)"]
     assert all(r["ticks"] > 1500 for r in rows)  # 2 s at 1 kHz each
     assert any("sched" in n and "gc" in n for n in data["notes"])
+    if sys.platform.startswith("linux"):  # the hypervisor's share of the pinned loop's CPU, from /proc/stat
+        assert math.isfinite(data["figures"]["loop_cpu_steal_ms"]) and data["figures"]["loop_cpu_steal_ms"] >= 0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/stat")
+def test_cpu_steal_is_read_for_the_loops_cpu_only():
+    import os
+
+    from studyctl.engine.realtime import cpu_steal_ms
+
+    cpu = max(os.sched_getaffinity(0))
+    with open("/proc/stat") as f:
+        field = next(line.split()[8] for line in f if line.startswith(f"cpu{cpu} "))
+    assert cpu_steal_ms(cpu) >= int(field) * 1000.0 / os.sysconf("SC_CLK_TCK")  # never goes back
+    assert cpu_steal_ms(None) is None and cpu_steal_ms(10_000) is None
