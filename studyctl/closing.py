@@ -1,8 +1,9 @@
 """``with thing:`` closes ``thing``: the one context-manager idiom of studyctl's closeable handles (databases,
-stores, opened studies, result files)."""
+stores, opened studies, result files); and the one way a child process (an emulator, a browser) is ended."""
 
 from __future__ import annotations
 
+import subprocess
 from typing import Self
 
 
@@ -17,3 +18,15 @@ class Closeable:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def stop_process(proc: subprocess.Popen, timeout_s: float) -> None:
+    """End a child process: ask it (SIGTERM), kill it when it has not ended after ``timeout_s``, and reap it."""
+    if proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from studyctl.bench import BenchResult
+from studyctl.closing import stop_process
 from studyctl.engine.clock import RealClock, SimulatedClock
 from studyctl.engine.factory import EntryPointFactory, build_controller, build_device, build_scene, controller_needs
 from studyctl.engine.plan import ReportSpec
@@ -198,11 +199,7 @@ def _coordinator_round(exe: str, profile: str, board: Any, view: ParticipantView
         stats["polls_per_s"] = (board.polls - before) / seconds
         return stats
     finally:
-        page.terminate()
-        try:
-            page.wait(10)
-        except subprocess.TimeoutExpired:
-            page.kill()
+        stop_process(page, 10.0)
 
 
 def _stats(clock: _TimedClock, skip: int = 200) -> dict[str, float]:
@@ -263,11 +260,7 @@ def _run(seconds: float, rounds: int) -> BenchResult:
                 coord_rounds.append(_with_coordinator(exe, view, seconds))
                 hub.show("trial", trial=1, condition="RT")
         finally:
-            browser.terminate()
-            try:
-                browser.wait(10)
-            except subprocess.TimeoutExpired:
-                browser.kill()
+            stop_process(browser, 10.0)
         rtts = list(hub.sync_rtt_ms.values())
     if not latencies:
         raise NotFoundError("bench view: the browser drew no frames (is the page blocked?)")

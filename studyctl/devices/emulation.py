@@ -16,6 +16,7 @@ import threading
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
+from studyctl.closing import stop_process
 from studyctl.errors import DeviceError, SessionError
 from studyctl.plugins.registry import load_plugin
 
@@ -40,13 +41,7 @@ def start_emulator(module: str, args: Sequence[str] = (), *, what: str) -> Itera
             raise DeviceError(f"the {what} emulator did not start ({err[-1] if err else 'no output'})")
         yield " ".join(line[0].split()[1:])
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_process(proc, 5.0)
         for stream in (proc.stdout, proc.stderr):
             stream.close()
 
