@@ -34,7 +34,7 @@ from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import run_trial
 from studyctl.errors import BenchmarkError
 from studyctl.participants.needle_operator import VirtualNeedleOperator
-from studyctl.plugins.interfaces import Action, Observation, Participant, TrialInfo
+from studyctl.plugins.interfaces import Action, IdleParticipant, Observation, Participant, TrialInfo
 from studyctl.plugins.safety import SafetyLayer
 from studyctl.protocol import load_protocol, resolve_protocol
 from studyctl.scenes.needle_liver import NeedleLiverScene
@@ -173,8 +173,6 @@ def _virtual_trial(limit_s: float) -> tuple[float, float, int]:
     return time.process_time() - c0, time.perf_counter() - w0, out.ticks
 
 
-
-
 def _jitter_in_process(seconds: float) -> dict[str, float]:
     from studyctl.engine.realtime import TimedClock  # noqa: PLC0415
 
@@ -187,25 +185,12 @@ def _jitter_in_process(seconds: float) -> dict[str, float]:
         info=TrialInfo("ESG", seconds, 1000.0, "none"),
         controller=ctrl,
         device=device,
-        participant=_Idle(),
+        participant=IdleParticipant(),
         clock=clock,
         rng=np.random.default_rng(2),
         on_sample=lambda t, s: None,
     )
     return clock.timing(1e-3).as_dict()
-
-
-class _Idle(Participant):
-    name = "idle"
-
-    def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
-        pass
-
-    def act(self, t: float, percept: Any) -> Action:
-        return _IDLE
-
-
-_IDLE = Action()
 
 
 def _jitter_servo(seconds: float) -> dict[str, float]:

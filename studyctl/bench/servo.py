@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 
 from studyctl.bench import BenchResult, busy_python
-from studyctl.bench.needle import _Idle, _scenario  # as bench needle: its idle participant, Table 1 params
+from studyctl.bench.needle import _scenario  # as bench needle: Table 1 params
 from studyctl.errors import BenchmarkError
-from studyctl.plugins.interfaces import TrialInfo
+from studyctl.plugins.interfaces import IdleParticipant, TrialInfo
 
 RATE_HZ = 1000.0
 
@@ -94,7 +94,7 @@ def _in_process(seconds: float) -> tuple[dict[str, float], float]:
     quiet.setLevel(logging.ERROR)  # its missed deadlines are counted below, not printed one by one
     try:
         run_trial(info=TrialInfo("ESG", seconds, RATE_HZ, "none"), controller=ctrl, device=device,
-                  participant=_Idle(), clock=clock, rng=rng, on_sample=lambda t, s: samples.append(s))
+                  participant=IdleParticipant(), clock=clock, rng=rng, on_sample=lambda t, s: samples.append(s))
     finally:
         quiet.setLevel(level)
         device.close()

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from studyctl.errors import DeviceError, StudyctlError
-from studyctl.plugins.interfaces import Action, DeviceLimits, Observation, Participant, TrialInfo
+from studyctl.plugins.interfaces import DeviceLimits, IdleParticipant, Observation, TrialInfo
 from studyctl.plugins.registry import load_plugin
 
 SceneFactory = Callable[[], Any]
@@ -40,16 +40,6 @@ def _build(cls: type, params: Mapping[str, Any], scene: Any) -> Any:
     from studyctl.engine.factory import _call_with_supported  # noqa: PLC0415
 
     return _call_with_supported(cls, params=dict(params), scene=scene, rng=np.random.default_rng(0))
-
-
-class _Idle(Participant):
-    name = "contract_idle"
-
-    def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
-        pass
-
-    def act(self, t: float, percept: Mapping[str, Any]) -> Action:
-        return Action()
 
 
 def contract_problems(name: str, params: Mapping[str, Any] | None = None, *, scene: SceneFactory | None = None,
@@ -163,7 +153,8 @@ def _hang_problems(cls: type, params: dict[str, Any], hang_after_s: float = 0.5,
         started = time.monotonic()
         try:
             out = run_trial(info=TrialInfo("contract", 30.0, 250.0, "none"), controller=None, device=device,
-                            participant=_Idle(), clock=TimedClock(capacity=10_000), rng=np.random.default_rng(0),
+                            participant=IdleParticipant(), clock=TimedClock(capacity=10_000),
+                            rng=np.random.default_rng(0),
                             on_event=lambda t, k, pl: events.append((k, dict(pl))))
         except DeviceError:
             return []  # the device said so at once: not a hang

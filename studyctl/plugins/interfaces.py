@@ -266,3 +266,17 @@ class Participant(ABC):
 
     def recall(self, memory: Mapping[str, Any]) -> None:  # noqa: B027 - optional hook, nothing to restore by default
         """Restore what :meth:`memory` returned (called on resume, after ``begin_session``)."""
+
+
+class IdleParticipant(Participant):
+    """Nobody at the device: every tick the same empty action. Device contract checks, benchmarks and tests run a
+    trial loop with it where only the device, controller and clock are being looked at."""
+
+    name = "idle"
+    _NOTHING = Action()  # one instance: a benchmark's hot loop should not time an allocation per tick
+
+    def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
+        pass
+
+    def act(self, t: float, percept: Mapping[str, Any]) -> Action:
+        return self._NOTHING

@@ -17,7 +17,7 @@ from studyctl.devices.udp_board import UdpDriverBoard
 from studyctl.engine.clock import RealClock
 from studyctl.engine.trial_loop import run_trial
 from studyctl.errors import DatagramError, DeviceError
-from studyctl.plugins.interfaces import Action, Participant, TrialInfo
+from studyctl.plugins.interfaces import IdleParticipant, TrialInfo
 
 
 class Emulator:
@@ -59,22 +59,12 @@ def emulator(tmp_path):
         emu.stop()
 
 
-class Idle(Participant):
-    name = "idle"
-
-    def begin_trial(self, info, rng):
-        pass
-
-    def act(self, t, percept):
-        return Action()
-
-
 def _trial(device, seconds, controller=None):
     events = []
     device.open()
     try:
         out = run_trial(info=TrialInfo("linear", seconds, 50.0), controller=controller or LinearController({}),
-                        device=device, participant=Idle(), clock=RealClock(), rng=np.random.default_rng(0),
+                        device=device, participant=IdleParticipant(), clock=RealClock(), rng=np.random.default_rng(0),
                         on_event=lambda t, k, p: events.append((t, k, dict(p))))
     finally:
         device.close()

@@ -11,13 +11,12 @@ import pytest
 from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import FAULT_ABORT_S, run_trial
 from studyctl.plugins.interfaces import (
-    Action,
     ChannelLimit,
     Controller,
     Device,
     DeviceLimits,
+    IdleParticipant,
     Observation,
-    Participant,
     TrialInfo,
 )
 from studyctl.plugins.safety import SafetyLayer, Watchdog
@@ -197,20 +196,10 @@ class WildController(Controller):
         return {"balloon_pct": float("nan") if self.k % 7 == 0 else 1e6}
 
 
-class Idle(Participant):
-    name = "idle"
-
-    def begin_trial(self, info, rng):
-        pass
-
-    def act(self, t, percept):
-        return Action()
-
-
 def _run(device, limit_s=3.0):
     events = []
     out = run_trial(
-        info=TrialInfo("c", limit_s, 50.0), controller=WildController({}), device=device, participant=Idle(),
+        info=TrialInfo("c", limit_s, 50.0), controller=WildController({}), device=device, participant=IdleParticipant(),
         clock=SimulatedClock(), rng=np.random.default_rng(0), on_event=lambda t, k, p: events.append((t, k, dict(p))),
     )
     return out, events
