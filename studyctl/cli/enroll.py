@@ -31,11 +31,13 @@ def register(app: typer.Typer) -> None:
                                         over_target=over_target)
         if as_json:
             typer.echo(json.dumps({"code": result.code, "stratum": result.stratum, "slot": result.slot,
-                                   "schedule": result.schedule.to_json()}))
+                                   "over_target": result.over_target, "schedule": result.schedule.to_json()}))
             return
         sequence = "random order" if result.sequence is None else f"sequence {result.sequence + 1}"
         typer.echo(f"Enrolled {result.code} in group {result.stratum}: slot {result.slot + 1}, {sequence}")
         typer.echo(f"  order: {' → '.join(result.order)}")
+        if result.over_target:
+            typer.echo(f"  over the target: {result.over_target}; enrolled on purpose (--over-target), recorded")
         for e in result.schedule.entries:
             extra = []
             if e.placement is not None:

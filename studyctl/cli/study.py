@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.engine.data_gaps import data_gaps, gap_lines, gaps_json
 from studyctl.engine.progress import progress_json, progress_lines, study_progress
 from studyctl.errors import UsageError
 from studyctl.store.status import study_status
@@ -59,19 +60,21 @@ def register(app: typer.Typer) -> None:
         def read() -> tuple:  # noqa: ANN202
             with open_study(db, workspace_arg(workspace), study) as opened:
                 return (study_status(opened.store, opened.study),
-                        study_progress(opened.store, opened.study.name))  # the engine's per-condition view
+                        study_progress(opened.store, opened.study.name),  # the engine's per-condition view
+                        data_gaps(opened.store, opened.study.name))
 
-        info, progress = read()
+        info, progress, gaps = read()
         if as_json:
             typer.echo(json.dumps({
                 "study": info.study, "protocol": info.protocol_name, "protocol_sha256": info.protocol_sha256,
                 "seed": info.seed, "database": info.database, "participants": info.participants,
                 "sessions": info.sessions, "trials": info.trials, "rehearsal_sessions": info.rehearsal_sessions,
                 "rehearsal_trials": info.rehearsal_trials, "progress": progress_json(progress),
+                "data": gaps_json(gaps),
             }))
             return
         if not watch:
-            for line in _status_lines(info, progress):
+            for line in _status_lines(info, progress, gaps):
                 typer.echo(line)
             return
         import time
@@ -81,13 +84,13 @@ def register(app: typer.Typer) -> None:
         from rich.live import Live
         from rich.text import Text
 
-        def view(info, progress) -> Text:  # noqa: ANN001
+        def view(info, progress, gaps) -> Text:  # noqa: ANN001
             # Text, not markup: names are shown verbatim whatever characters they hold
             stamp = datetime.now().strftime("%H:%M:%S")
-            return Text("\n".join([*_status_lines(info, progress),
+            return Text("\n".join([*_status_lines(info, progress, gaps),
                                    f"(read at {stamp}; every {interval:g} s; Ctrl-C to stop)"]))
 
-        with Live(view(info, progress), console=Console(highlight=False), auto_refresh=False) as live:
+        with Live(view(info, progress, gaps), console=Console(highlight=False), auto_refresh=False) as live:
             try:
                 while True:
                     time.sleep(interval)
@@ -96,7 +99,7 @@ def register(app: typer.Typer) -> None:
                 pass
 
 
-def _status_lines(info, progress) -> list[str]:  # noqa: ANN001
+def _status_lines(info, progress, gaps) -> list[str]:  # noqa: ANN001
     """The text of ``studyctl status`` (also the body of ``--watch``)."""
     lines = [f"study:    {info.study}", f"database: {info.database}"]
     proto = f"{info.protocol_name} (sha256 {info.protocol_sha256})" if info.protocol_name else "none"
@@ -109,4 +112,4 @@ def _status_lines(info, progress) -> list[str]:  # noqa: ANN001
         lines.append(f"{'rehearsals:':<13} {sum(info.rehearsal_sessions.values())} sessions, "
                      f"{sum(info.rehearsal_trials.values())} trials "
                      "(run --rehearse; not counted above, never analysed)")
-    return lines + list(progress_lines(progress))
+    return lines + list(progress_lines(progress)) + gap_lines(gaps)

@@ -18,7 +18,7 @@ from sqlalchemy import func, select
 
 from studyctl.errors import NotFoundError, UsageError
 from studyctl.store.audit import append_audit
-from studyctl.store.enrollment import study_protocol
+from studyctl.store.enrollment import OVER_TARGET_ACTION, study_protocol
 from studyctl.store.erasure import ERASE_ACTION, erase_participant_data, has_data
 from studyctl.store.models import AuditLog, Participant, Session, Trial
 from studyctl.store.models import utcnow as _utcnow
@@ -26,7 +26,7 @@ from studyctl.store.records import load_mark, seal_session
 from studyctl.suggest import nearest
 
 MAX_TEXT = 4000
-RECORD_ACTIONS = ("participant.consent", "participant.status", "note", ERASE_ACTION)
+RECORD_ACTIONS = ("participant.consent", "participant.status", "note", ERASE_ACTION, OVER_TARGET_ACTION)
 # sessions a withdrawal ends: they cannot be resumed afterwards
 _OPEN_SESSIONS = ("running", "paused", "interrupted")
 
@@ -178,18 +178,20 @@ def _of_study(tx: Any, model: Any, key: int, target: Any, hint: str) -> Any:
 RECORD_COLUMNS = {
     "at": ("Wall-clock time of the record (UTC, ISO 8601)", "", "datetime"),
     "actor": ("Who recorded it (STUDYCTL_ACTOR or the OS user)", "", "string"),
-    "record": ("consent, withdrawal, erasure (the participant's recorded data deleted at their request) or note",
-               "", "string"),
-    "participant": ("Pseudonymous participant code (consent, withdrawal)", "", "string"),
+    "record": ("consent, withdrawal, erasure (the participant's recorded data deleted at their request), note, or "
+               "over_target (enrolled past the target size on purpose, --over-target)", "", "string"),
+    "participant": ("Pseudonymous participant code (consent, withdrawal, erasure, over_target)", "", "string"),
     "session_id": ("Session the note is about", "", "integer"),
     "trial_id": ("Trial attempt the note is about", "", "integer"),
     "consent_version": ("Consent-form version the participant signed", "", "string"),
-    "text": ("The note, or the withdrawal or erasure reason", "", "string"),
+    "text": ("The note, the withdrawal or erasure reason, or the target an over_target enrollment passed", "",
+             "string"),
 }
 
 
 def coordination_records(tx: Any, study: Any) -> list[list[Any]]:
-    """Consent, withdrawal and note rows of a study (audit-log order), columns as :data:`RECORD_COLUMNS`."""
+    """Consent, withdrawal, erasure, note and over-target rows of a study (audit-log order), columns as
+    :data:`RECORD_COLUMNS`."""
     codes = {pid: code for pid, code in tx.execute(select(Participant.id, Participant.code)
                                                    .where(Participant.study_id == study.id))}
     trials = {tid for (tid,) in tx.execute(select(Trial.id).where(Trial.participant_id.in_(list(codes))))}
@@ -214,6 +216,8 @@ def coordination_records(tx: Any, study: Any) -> list[list[Any]]:
         elif a.entity_id is not None and int(a.entity_id) in codes:
             if a.action == "participant.consent":
                 rows.append([a.at, a.actor, "consent", codes[int(a.entity_id)], None, None, d.get("version"), None])
+            elif a.action == OVER_TARGET_ACTION:
+                rows.append([a.at, a.actor, "over_target", codes[int(a.entity_id)], None, None, None, d.get("target")])
             elif a.action == ERASE_ACTION:
                 rows.append([a.at, a.actor, "erasure", codes[int(a.entity_id)], None, None, None, d.get("reason")])
             elif d.get("to") == "withdrawn":

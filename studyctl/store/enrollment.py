@@ -25,11 +25,13 @@ from studyctl.protocol.loader import load_protocol_text
 from studyctl.protocol.schedule import SCHEDULE_ALGORITHM_VERSION, Planner
 from studyctl.protocol.schema import Protocol
 from studyctl.protocol.stored_plan import Schedule
+from studyctl.store.audit import append_audit
 from studyctl.store.identity import CODE_ALPHABET, random_code
 from studyctl.store.models import Participant, Study
 from studyctl.suggest import nearest
 
 CODE_LENGTH = 5
+OVER_TARGET_ACTION = "participant.over_target"
 _CODE_TRIES = 100
 
 
@@ -42,6 +44,7 @@ class Enrollment:
     stratum: str
     slot: int
     schedule: Schedule
+    over_target: str | None = None  # the target the enrollment went past on purpose (audited), else None
 
     @property
     def order(self) -> tuple[str, ...]:
@@ -149,8 +152,9 @@ def enroll(store: Any, group: str | None = None, *, study: str | None = None, co
             .where(Participant.study_id == target.id)
         ).all()
         existing = {r.code for r in rows}
-        if not over_target:
-            _check_target(protocol, stratum, rows)
+        past = _target_reached(protocol, stratum, rows)
+        if past is not None and not over_target:
+            raise UsageError(f"{past}; add --over-target to enroll one more on purpose")
         domain = [(r.sequence_slot, r.status) for r in rows if not within or r.stratum == stratum]
         slot = next_slot(domain, protocol.participants.replace_withdrawn)
         if code is not None and code in existing:
@@ -168,21 +172,25 @@ def enroll(store: Any, group: str | None = None, *, study: str | None = None, co
             tx=tx,
         )
         participant_id = participant.id
-    return Enrollment(participant_id=participant_id, code=chosen, stratum=stratum, slot=slot, schedule=schedule)
+        if past is not None:  # on purpose: a record of its own (in the export's records), same transaction
+            append_audit(tx, OVER_TARGET_ACTION, entity="participant", entity_id=participant_id,
+                         details={"code": chosen, "stratum": stratum, "target": past})
+    return Enrollment(participant_id=participant_id, code=chosen, stratum=stratum, slot=slot, schedule=schedule,
+                      over_target=past)
 
 
-def _check_target(protocol: Protocol, stratum: str, rows: list) -> None:
-    """Refuse an enrollment past the stratum's or the study's target size (withdrawn people do not count)."""
+def _target_reached(protocol: Protocol, stratum: str, rows: list) -> str | None:
+    """Which target size (the stratum's, else the study's) one more enrollment would pass, or None (withdrawn people
+    do not count)."""
     active = [r for r in rows if r.status != "withdrawn"]
     target = next((s.target_n for s in protocol.participants.strata if s.id == stratum), None)
     in_stratum = sum(1 for r in active if r.stratum == stratum)
     if target is not None and in_stratum >= target:
-        raise UsageError(f"group {stratum} has reached its target of {target} participants ({in_stratum} enrolled, "
-                         "not withdrawn); add --over-target to enroll one more on purpose")
+        return f"group {stratum} has reached its target of {target} participants ({in_stratum} enrolled, not withdrawn)"
     total = protocol.participants.target_n
     if total is not None and len(active) >= total:
-        raise UsageError(f"the study has reached its target of {total} participants ({len(active)} enrolled, not "
-                         "withdrawn); add --over-target to enroll one more on purpose")
+        return f"the study has reached its target of {total} participants ({len(active)} enrolled, not withdrawn)"
+    return None
 
 
 def replan(protocol: Protocol, participant: Any) -> Schedule:

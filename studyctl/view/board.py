@@ -36,6 +36,7 @@ STORE_EVERY_S = 2.0
 # The whole study's progress (every participant) at most this often.
 STUDY_EVERY_S = 6.0
 STUDY_PEOPLE_SHOWN = 200
+GAPS_SHOWN = 8  # dropped samples and missing data listed on the page (the totals count them all)
 # Trial-loop events kept for the page (newest last).
 EVENTS_KEPT = 12
 # A loop tick older than this while a trial runs is shown as a stall.
@@ -234,8 +235,10 @@ class CoordinatorBoard:
                         "error": None, "study": study}
 
     def _read_study(self) -> dict[str, Any] | None:
-        """Every participant's progress by condition and the balance so far (what ``studyctl status`` shows)."""
-        from studyctl.engine.progress import study_progress  # noqa: PLC0415 (only when a store is bound)
+        """Every participant's progress by condition, the balance so far, dropped samples and missing data (what
+        ``studyctl status`` shows)."""
+        from studyctl.engine.data_gaps import data_gaps  # noqa: PLC0415 (only when a store is bound)
+        from studyctl.engine.progress import study_progress  # noqa: PLC0415
         from studyctl.store.models import Participant, Study  # noqa: PLC0415
 
         try:
@@ -248,6 +251,12 @@ class CoordinatorBoard:
             progress = study_progress(self._store, self._study_name)
         except Exception as exc:  # shown on the page; the session is not disturbed
             return {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"}
+        try:
+            found = data_gaps(self._store, self._study_name)
+            gaps = {"totals": found.totals(), "gaps": [g.__dict__ for g in found.gaps[:GAPS_SHOWN]],
+                    "more": max(0, len(found.gaps) - GAPS_SHOWN)}
+        except Exception as exc:  # the progress is still shown
+            gaps = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"}
         people: dict[str, dict[str, Any]] = {}
         conditions: list[str] = []
         for r in progress.rows:
@@ -259,7 +268,7 @@ class CoordinatorBoard:
                 conditions.append(r.condition)
         return {"name": progress.study, "conditions": conditions,
                 "people": list(people.values())[:STUDY_PEOPLE_SHOWN], "participants": len(people),
-                "totals": progress.totals(), "first_condition": progress.first_condition}
+                "totals": progress.totals(), "first_condition": progress.first_condition, "data": gaps}
 
     def _erasures_seen(self, tx: Any, audit_log: Any) -> None:
         """The last erasure that listed this session's id (SQLite reuses an erased session's id): notes before
@@ -281,7 +290,8 @@ class CoordinatorBoard:
         tick = hub.tick
         out: dict[str, Any] = {"running": trial is not None, "t": None, "last_tick_ago_s": None,
                                "rate_hz": None, "target_hz": self.rate_hz, "stalled": False,
-                               "scans": None, "reports": None, "time_limit_s": None}
+                               "scans": None, "reports": None, "time_limit_s": None,
+                               "samples": None, "samples_behind": None}
         if trial is None:
             self._ticks.clear()
             return out
@@ -294,6 +304,11 @@ class CoordinatorBoard:
         out["t"] = round(float(tick[0]), 2)
         out["last_tick_ago_s"] = round(max(0.0, now - tick[1]), 3)
         out["stalled"] = now - tick[1] > STALL_S
+        if len(tick) > 3:
+            # one sample per loop tick: those the loop has not taken yet at its rate (a loaded machine, a stall)
+            out["samples"] = int(tick[3])
+            if self.rate_hz:
+                out["samples_behind"] = max(0, int(float(tick[0]) * self.rate_hz) - int(tick[3]))
         if len(tick) > 2:
             with self._lock:
                 if not self._ticks or tick[1] - self._ticks[-1][0] >= 0.2:

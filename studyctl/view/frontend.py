@@ -148,6 +148,7 @@ class ViewUI:
         if board is not None and recorder is not None:
             board.bind(recorder)
         self._ticks = 0
+        self._trial_tick0 = 0  # the count at the running trial's start (its own ticks: the page's samples behind)
         self.interactive = bool(getattr(inner, "interactive", False))
         self.controls = True  # the view's countdown needs trial_tick every tick
         self._hub = hub
@@ -299,13 +300,14 @@ class ViewUI:
             self.inner.trial_begin(step, time_limit_s)
         finally:
             self._done_prompt("start", step)
+        self._trial_tick0 = self._ticks
         self._publish(step, "practice" if practice else "trial")
         self.hub.show("trial", **self._trial_label)
 
     def trial_tick(self, t: float) -> None:
         self._inner_tick(t)
         self._ticks += 1  # the coordinator's page measures the loop rate from this count
-        self._hub.tick = (t, _perf(), self._ticks)
+        self._hub.tick = (t, _perf(), self._ticks, self._ticks - self._trial_tick0)
 
     def trial_end(self, step: Step, summary: Mapping[str, Any]) -> None:
         trial = self.hub.end_trial()

@@ -106,7 +106,8 @@ class ViewHub:
         self.closed = False
         # -- written by the trial loop only (reference swaps) --------------------------------------
         self.latest: FrameState | None = None
-        self.tick: tuple[float, float] | None = None  # (trial time, perf_counter) of the last loop tick
+        # (trial time, perf_counter, ticks so far, ticks of this trial) of the last loop tick
+        self.tick: tuple[float, ...] | None = None
         self.inbox: collections.deque[Request] = collections.deque()
         # -- screen (engine thread, under lock) -------------------------------------------------------
         self.screen: dict[str, Any] = {"screen": "waiting"}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pandas as pd
@@ -106,7 +107,22 @@ def test_bad_input_is_one_error_line_and_writes_nothing(tmp_path, capsys):
         lines = [x for x in err.splitlines() if x.strip()]
         assert code != 0 and len(lines) == 1 and lines[0].startswith("Error:") and message in lines[0], (args, err)
         assert _audit_rows(ws) == before, args  # nothing written
-    assert _cli(capsys, "enroll", "--code", "PTY-DDDDD", "--over-target", *w)[0] == 0
+    code, out, _ = _cli(capsys, "enroll", "--code", "PTY-DDDDD", "--over-target", *w)
+    assert code == 0 and ("over the target: the study has reached its target of 2 participants (2 enrolled, not "
+                          "withdrawn); enrolled on purpose (--over-target), recorded") in out
+    # on purpose, but not silently: audited in the same transaction and in the export's records
+    assert _audit_rows(ws) == before + 2
+    out_dir = tmp_path / "export"
+    assert main(["export", str(out_dir), "-w", str(ws), "--no-samples"]) == 0
+    records = pd.read_csv(out_dir / "records.csv")
+    assert records.record.tolist() == ["withdrawal", "over_target"]
+    assert records.participant.tolist() == ["PTY-BBBBB", "PTY-DDDDD"]
+    assert "target of 2 participants" in records.text.iloc[1]
+    capsys.readouterr()
+    code, out, _ = _cli(capsys, "enroll", "--code", "PTY-EEEEE", "--over-target", "--json", *w)
+    assert code == 0 and "target of 2" in json.loads(out)["over_target"]
+    with open_study(workspace=ws) as o:
+        assert o.store.verify_audit().ok
 
 
 def test_consent_without_a_declared_version_takes_any(tmp_path, capsys):
@@ -137,3 +153,45 @@ def test_a_note_typed_during_a_trial_is_a_record(tmp_path):
     assert records.record.tolist() == ["note"] and records.text.tolist() == ["probe re-seated"]
     assert records.trial_id.astype(int).tolist() == [first]
     assert main(["audit", "verify", "-w", str(ws)]) == 0
+
+
+def test_status_counts_dropped_samples_and_missing_data(tmp_path, capsys):
+    """Dropped samples (loop ticks without a stored row), trials and answers missing once a session has ended."""
+    import sqlite3
+
+    from studyctl.engine.data_gaps import data_gaps
+
+    ws = _workspace(tmp_path, consent=None, target=None)
+    answers = tmp_path / "answers.yaml"
+    answers.write_text(yaml.safe_dump(SCRIPT))
+    with open_study(workspace=ws) as o:
+        enroll(o.store, code="PTY-AAAAA")
+        enroll(o.store, code="PTY-BBBBB")
+        enroll(o.store, code="PTY-CCCCC")
+        result = run_session(o.store, "PTY-AAAAA", virtual=False, script=answers)
+        assert result.status == "completed"
+        clean = data_gaps(o.store).totals()
+    # every loop tick of both trials is a stored sample row; nobody is missing anything yet (B, C not started)
+    assert clean["trials_checked"] == 2 and clean["ticks"] == clean["samples_stored"] > 100
+    assert (clean["dropped_samples"], clean["trials_missing"], clean["answers_missing"]) == (0, 0, 0)
+    w = ("-w", str(ws))
+    assert _cli(capsys, "withdraw", "PTY-BBBBB", "--reason", "moved away", *w)[0] == 0
+    # 37 rows that never reached the store, one answer lost: edited behind studyctl's back to make the gaps
+    con = sqlite3.connect(ws / "study.db")
+    trial_id, outcome = con.execute("SELECT id, outcome FROM trial WHERE status = 'completed' ORDER BY id").fetchone()
+    outcome = json.loads(outcome)
+    con.execute("UPDATE trial SET outcome = ? WHERE id = ?",
+                (json.dumps({**outcome, "ticks": outcome["ticks"] + 37}), trial_id))
+    con.execute("DELETE FROM questionnaire_response WHERE id = (SELECT max(id) FROM questionnaire_response)")
+    con.commit()
+    con.close()
+    code, out, _ = _cli(capsys, "status", *w)
+    assert code == 0
+    assert (f"data: 2 trials checked: {clean['samples_stored']} of {clean['ticks'] + 37} loop samples stored "
+            "(37 dropped); missing: 2 trials, 1 questionnaire answers") in out
+    assert f"PTY-AAAAA trial {trial_id}" in out and "37 samples dropped" in out
+    assert "PTY-BBBBB no session" in out and "(withdrew)" in out and "PTY-CCCCC" not in out.split("data:")[1]
+    code, out, _ = _cli(capsys, "status", "--json", *w)
+    data = json.loads(out)["data"]
+    assert data["totals"]["dropped_samples"] == 37 and data["totals"]["answers_missing"] == 1
+    assert {g["kind"] for g in data["gaps"]} == {"dropped_samples", "trial_missing", "answers_missing"}

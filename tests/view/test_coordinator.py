@@ -110,8 +110,13 @@ def test_loop_events_and_rate_reach_the_board():
     dev = snap["device"]
     assert dev["fault_active"] is None and dev["trial"] == {"device_fault": 2, "device_recovered": 2, "late_ticks": 7}
     assert [e["rule"] for e in dev["events"]] == ["missed_deadline"] * 2 + ["sensor_stale"] * 2
+    assert loop["samples"] is None  # a tick without the trial's own count (older callers): not guessed
     now[0] += 1.0  # no tick for a second: a stalled loop
     assert board.snapshot()["loop"]["stalled"]
+    # the trial's own tick count against its rate: 4.5 s at 1000 Hz is 4500 samples; 4200 taken
+    hub.tick = (4.5, now[0], 5200, 4200)
+    loop = board.snapshot()["loop"]
+    assert (loop["samples"], loop["samples_behind"]) == (4200, 300) and not loop["stalled"]
 
 
 def test_served_read_only_on_its_own_token():
@@ -187,6 +192,11 @@ def test_coordinator_page_live_beside_the_participant_view(store, browser, new_b
         assert re.fullmatch(r"\d:\d\d", coord.find_element(By.ID, "timer-value").text)
         assert coord.find_element(By.ID, "t-done").text == "0 of 1"
         assert coord.find_element(By.ID, "ps-clients").text.startswith("1")
+        # the running trial's samples against its rate, and the study's dropped samples and missing data
+        assert re.fullmatch(r"\d+ · \d+ behind the rate", coord.find_element(By.ID, "loop-samples").text)
+        assert state["loop"]["samples"] > 0 and state["loop"]["samples_behind"] >= 0
+        assert re.match(r"data: 0 of 0 loop samples stored in 0 ended trials \(0 dropped\) · missing: 0 trials, "
+                        r"0 questionnaire answers", coord.find_element(By.ID, "study-data").text)
         # the participant's page, at the same moment, holds no condition code or name
         assert_blind(browser, plan)
         assert "PHF" not in browser.page_source and view.server.coord_token not in browser.page_source

@@ -79,6 +79,8 @@
     set("dev-trial", (tr.device_fault || 0) + " / " + (tr.device_recovered || 0));
     set("dev-safety", se.safety || 0);
     set("loop-late", (tr.late_ticks || 0) + " / " + (se.late_ticks || 0));
+    set("loop-samples", loop.samples == null ? "–" : loop.samples + (loop.samples_behind == null ? ""
+      : " · " + loop.samples_behind + " behind the rate"));
     list("dev-events", (d.events || []).slice().reverse(), (li, e) => {
       li.append(span("dim", "t=" + e.t.toFixed(2) + " s"), e.kind + " " + e.rule + (e.channel ? " " + e.channel : "") +
         (e.state ? " (" + e.state + ")" : ""));
@@ -114,7 +116,7 @@
     if (!st || st.error) {
       table.replaceChildren();
       set("study-name", st && st.error ? "could not read: " + st.error : "");
-      set("study-totals", ""); set("study-balance", "");
+      set("study-totals", ""); set("study-balance", ""); set("study-data", ""); $("study-gaps").replaceChildren();
       return;
     }
     set("study-name", st.name + " · " + st.participants + " participant" + (st.participants === 1 ? "" : "s"));
@@ -138,6 +140,20 @@
     const balance = Object.entries(st.first_condition).map(([k, v]) =>
       "[" + k + "] " + Object.entries(v).map(([c, n]) => c + " " + n).join(", ")).join("  ");
     set("study-balance", "balance, first condition: " + (balance || "–"));
+    const g = st.data;
+    if (g && g.error) { set("study-data", "data: could not read: " + g.error); $("study-gaps").replaceChildren(); }
+    else if (g) {
+      const n = g.totals;
+      set("study-data", "data: " + n.samples_stored + " of " + n.ticks + " loop samples stored in " + n.trials_checked +
+        " ended trials (" + n.dropped_samples + " dropped) · missing: " + n.trials_missing + " trials, " +
+        n.answers_missing + " questionnaire answers");
+      $("study-data").className = n.dropped_samples || n.trials_missing || n.answers_missing ? "warn" : "dim";
+      const rows = g.gaps.map((x) => x.participant + " " + (x.trial_id != null ? "trial " + x.trial_id
+        : x.session_id != null ? "session " + x.session_id : "no session") + (x.condition ? " " + x.condition : "") +
+        ": " + x.detail);
+      if (g.more) rows.push("… " + g.more + " more (studyctl status lists them all)");
+      list("study-gaps", rows, (li, text) => { li.textContent = text; });
+    }
   }
 
   async function poll() {

@@ -1,0 +1,162 @@
+"""What is missing from a study's data, for the coordinator (``studyctl status`` and the coordinator page).
+
+Three kinds of gap, each counted from the store alone:
+
+* **dropped samples**: a trial's loop ran ``ticks`` iterations (its outcome says so) and each writes one sample row;
+  rows that never reached the store (a crash between flushes, a failed commit) are ``ticks`` minus the rows stored;
+* **trials missing**: planned trials with no completed attempt once the participant's session has ended (completed,
+  aborted, interrupted) or the participant withdrew; a session still running or paused is in progress, not missing;
+* **answers missing**: questionnaire items the plan gives at the start and after each completed trial, without an
+  answer, counted under the same rule.
+
+Rehearsal sessions (``run --rehearse``) are not data and are left out, as in :mod:`studyctl.engine.progress`.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import pandas as pd
+from sqlalchemy import func, select
+
+from studyctl.protocol.stored_plan import Schedule
+from studyctl.store import StudyStore
+from studyctl.store.enrollment import study_protocol
+from studyctl.store.models import Participant, QuestionnaireResponse, SampleChunk, Session, Trial
+from studyctl.store.samples import DEFAULT_STREAM
+from studyctl.store.status import rehearsal_session_ids
+
+# a session in these states is still being run: what it has not done yet is not missing
+_IN_PROGRESS = ("running", "paused")
+
+
+@dataclass(frozen=True)
+class Gap:
+    """One gap: ``kind`` is dropped_samples, trial_missing or answers_missing; ``count`` rows, trials or items."""
+
+    participant: str
+    session_id: int | None
+    trial_id: int | None
+    condition: str | None
+    kind: str
+    count: int
+    detail: str
+
+
+@dataclass(frozen=True)
+class DataGaps:
+    """A study's gaps plus the totals they are measured against."""
+
+    study: str
+    trials_checked: int  # ended trial attempts with a loop (ticks known)
+    ticks: int  # their loop iterations
+    samples_stored: int  # sample rows of those trials in the store
+    gaps: tuple[Gap, ...]
+
+    COLUMNS = ("participant", "session_id", "trial_id", "condition", "kind", "count", "detail")
+
+    def total(self, kind: str) -> int:
+        return int(sum(g.count for g in self.gaps if g.kind == kind))
+
+    def totals(self) -> dict[str, int]:
+        return {"trials_checked": self.trials_checked, "ticks": self.ticks, "samples_stored": self.samples_stored,
+                "dropped_samples": self.total("dropped_samples"), "trials_missing": self.total("trial_missing"),
+                "answers_missing": self.total("answers_missing")}
+
+    def to_frame(self) -> pd.DataFrame:
+        return pd.DataFrame([tuple(getattr(g, c) for c in self.COLUMNS) for g in self.gaps], columns=list(self.COLUMNS))
+
+
+def data_gaps(store: StudyStore, study: str | None = None) -> DataGaps:
+    """Dropped samples, missing trials and missing questionnaire answers of every participant of a study."""
+    target = store.get_study(study)
+    # a study created without a protocol (a bare `init`) has no questionnaires and no manual conditions to know of
+    protocol = study_protocol(target) if target.protocol_text else None
+    items = {i.id: len(i.items) for i in protocol.instruments} if protocol else {}
+    manual = {c.id for c in protocol.conditions if c.manual} if protocol else set()
+    with store.reading() as s:
+        people = list(s.scalars(select(Participant).where(Participant.study_id == target.id).order_by(Participant.id)))
+        ids = [p.id for p in people]
+        sessions = list(s.scalars(select(Session).where(Session.participant_id.in_(ids)).order_by(Session.id)))
+        rehearsals = rehearsal_session_ids(s, [x.id for x in sessions])
+        trials = [t for t in s.scalars(select(Trial).where(Trial.participant_id.in_(ids)).order_by(Trial.id))
+                  if t.session_id not in rehearsals]
+        stored = dict(s.execute(select(SampleChunk.trial_id, func.sum(SampleChunk.n))
+                                .where(SampleChunk.trial_id.in_([t.id for t in trials]),
+                                       SampleChunk.stream == DEFAULT_STREAM)
+                                .group_by(SampleChunk.trial_id)).all())
+        answers = s.execute(select(QuestionnaireResponse.participant_id, QuestionnaireResponse.instrument,
+                                   QuestionnaireResponse.item, QuestionnaireResponse.context)
+                            .where(QuestionnaireResponse.participant_id.in_(ids),
+                                   QuestionnaireResponse.session_id.not_in(rehearsals or {-1}))
+                            .distinct()).all()
+    code = {p.id: p.code for p in people}
+    gaps: list[Gap] = []
+    checked = ticks_total = rows_total = 0
+    for t in trials:
+        ticks = (t.outcome or {}).get("ticks") if isinstance(t.outcome, dict) else None
+        if t.status == "running" or not isinstance(ticks, int) or t.condition in manual:
+            continue
+        rows = int(stored.get(t.id) or 0)
+        checked, ticks_total, rows_total = checked + 1, ticks_total + ticks, rows_total + rows
+        if ticks > rows:
+            gaps.append(Gap(code[t.participant_id], t.session_id, t.id, t.condition, "dropped_samples", ticks - rows,
+                            f"{ticks - rows} samples dropped ({rows} of {ticks} stored)"))
+    latest = {x.participant_id: x for x in sessions if x.id not in rehearsals}
+    given = Counter(pid for pid, *_ in answers)
+    given_by = Counter((pid, inst) for pid, inst, *_ in answers)
+    for p in people:
+        sess = latest.get(p.id)
+        if not p.schedule or (p.status != "withdrawn" and (sess is None or sess.status in _IN_PROGRESS)):
+            continue
+        why = ("withdrew" if p.status == "withdrawn" else
+               f"session {sess.status}" + (": resume it" if sess.status == "interrupted" else ""))
+        schedule = Schedule.from_json(p.schedule)
+        done = {t.plan_position for t in trials if t.participant_id == p.id and t.status == "completed"}
+        expected: Counter[str] = Counter()
+        if done:
+            expected.update(schedule.questionnaires_start)
+        not_done: dict[str, list[int]] = {}
+        for e in schedule.entries:
+            if e.trial in done:
+                expected.update(e.questionnaires_after)
+            else:
+                not_done.setdefault(e.condition, []).append(e.trial)
+        for cond, numbers in not_done.items():
+            gaps.append(Gap(p.code, getattr(sess, "id", None), None, cond, "trial_missing", len(numbers),
+                            f"{len(numbers)} trial{'s' if len(numbers) > 1 else ''} missing: planned "
+                            f"{', '.join(map(str, numbers))} ({why})"))
+        short = {inst: n * items.get(inst, 0) - given_by[(p.id, inst)] for inst, n in expected.items()}
+        short = {k: v for k, v in short.items() if v > 0}
+        if short:
+            gaps.append(Gap(p.code, getattr(sess, "id", None), None, None, "answers_missing", sum(short.values()),
+                            f"{sum(short.values())} answers missing: "
+                            + ", ".join(f"{k} {v}" for k, v in sorted(short.items()))
+                            + f" ({why}; {given[p.id]} stored)"))
+    return DataGaps(study=target.name, trials_checked=checked, ticks=ticks_total, samples_stored=rows_total,
+                    gaps=tuple(gaps))
+
+
+def gap_lines(gaps: DataGaps, shown: int = 10) -> list[str]:
+    """Plain-text lines for ``studyctl status``: the totals, then up to ``shown`` gaps."""
+    t = gaps.totals()
+    lines = [f"data: {t['trials_checked']} trials checked: {t['samples_stored']} of {t['ticks']} loop samples stored "
+             f"({t['dropped_samples']} dropped); missing: {t['trials_missing']} trials, "
+             f"{t['answers_missing']} questionnaire answers"]
+    for g in gaps.gaps[:shown]:
+        where = (f"trial {g.trial_id}" if g.trial_id is not None else
+                 f"session {g.session_id}" if g.session_id is not None else "no session")
+        lines.append(f"  {g.participant} {where}{' ' + g.condition if g.condition else ''}: {g.detail}")
+    if len(gaps.gaps) > shown:
+        lines.append(f"  … {len(gaps.gaps) - shown} more (`studyctl status --json` lists them all)")
+    return lines
+
+
+def gaps_json(gaps: DataGaps) -> dict[str, Any]:
+    frame = gaps.to_frame()
+    return {"totals": gaps.totals(), "gaps": frame.astype(object).where(frame.notna(), None).to_dict("records")}
+
+
+__all__ = ["DataGaps", "Gap", "data_gaps", "gap_lines", "gaps_json"]
