@@ -249,7 +249,7 @@ def test_the_watchdog_thread_starts_before_time_0_not_in_the_first_tick(monkeypa
     monkeypatch.setattr(Watchdog, "start", start)
     clock = TimedClock(capacity=1024)
     out = run_trial(info=TrialInfo("c", 0.4, 1000.0), controller=None, device=RecordingDevice(),
-                    participant=Idle(), clock=clock, rng=np.random.default_rng(0))
+                    participant=IdleParticipant(), clock=clock, rng=np.random.default_rng(0))
     assert out.ticks > 1 and clock.n > 1
     first_late = clock.starts[0] - clock.due[0]
     assert first_late < 0.1, f"first tick {first_late * 1e3:.2f} ms late"
