@@ -111,20 +111,6 @@ def register(app: typer.Typer) -> None:
                 },
             }))
             return
-        typer.echo(f"{protocol.study.id}: {participants} participants, seed {seed}, "
-                   f"algorithm version {schedules[0].algorithm_version}")
-        typer.echo(rows.to_string(index=False))
-        frame = balance.to_frame()
-        for stratum in balance.strata:
-            typer.echo(f"\nBalance in stratum {stratum}:")
-            pos = frame[(frame.stratum == stratum) & (frame.kind == "position")]
-            typer.echo("position counts (condition × position):")
-            typer.echo(pos.pivot(index="condition", columns="other", values="count")
-                       .reindex(list(balance.conditions)).to_string())
-            carry = frame[(frame.stratum == stratum) & (frame.kind == "carryover")]
-            typer.echo("carry-over counts (row followed by column):")
-            typer.echo(carry.pivot(index="condition", columns="other", values="count")
-                       .reindex(index=list(balance.conditions), columns=list(balance.conditions))
-                       .fillna(0).astype(int).to_string())
-        typer.echo("\n" + balance.summary_frame().to_string(index=False))
-        typer.echo("(spread = max − min count over the counterbalanced conditions; 0 is perfectly balanced)")
+        from studyctl.report.terminal import schedule_text  # noqa: PLC0415 - only this command draws the table
+
+        typer.echo(schedule_text(protocol.study.id, participants, seed, schedules[0].algorithm_version, rows, balance))

@@ -130,3 +130,28 @@ def demo_table(result: Any) -> Table:
             f"{r.simulate_s:.1f} s", f"{r.total_s:.1f} s", status,
         )
     return table
+
+
+def schedule_text(protocol_id: str, participants: int, seed: int, algorithm_version: Any, rows: Any,
+                  balance: Any) -> str:
+    """``studyctl protocol schedule``'s table: every participant's planned trials (``rows``, from
+    :func:`~studyctl.protocol.schedule_rows`), then per stratum the position and carry-over counts of ``balance``
+    (:func:`~studyctl.protocol.schedule_balance`) as condition × position and condition × following condition."""
+    lines = [f"{protocol_id}: {participants} participants, seed {seed}, algorithm version {algorithm_version}",
+             rows.to_string(index=False)]
+    frame = balance.to_frame()
+    conditions = list(balance.conditions)
+    for stratum in balance.strata:
+        pos = frame[(frame.stratum == stratum) & (frame.kind == "position")]
+        carry = frame[(frame.stratum == stratum) & (frame.kind == "carryover")]
+        lines += [
+            f"\nBalance in stratum {stratum}:",
+            "position counts (condition × position):",
+            pos.pivot(index="condition", columns="other", values="count").reindex(conditions).to_string(),
+            "carry-over counts (row followed by column):",
+            carry.pivot(index="condition", columns="other", values="count")
+            .reindex(index=conditions, columns=conditions).fillna(0).astype(int).to_string(),
+        ]
+    lines += ["\n" + balance.summary_frame().to_string(index=False),
+              "(spread = max − min count over the counterbalanced conditions; 0 is perfectly balanced)"]
+    return "\n".join(lines)
