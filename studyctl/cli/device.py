@@ -7,7 +7,6 @@ from pathlib import Path
 
 import typer
 import yaml
-from rich.table import Table
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, output_console, workspace_arg
 from studyctl.errors import UsageError
@@ -36,12 +35,9 @@ def register(app: typer.Typer) -> None:
         if as_json:
             typer.echo(json.dumps(frame.to_dict(orient="records")))
             return
-        table = Table(title="studyctl devices")
-        for col in frame.columns:
-            table.add_column(col, overflow="fold")
-        for row in frame.itertuples(index=False):
-            table.add_row(*(str(v) for v in row))
-        output_console().print(table)
+        from studyctl.report.terminal import frame_table  # noqa: PLC0415 - only when a table is printed
+
+        output_console().print(frame_table("studyctl devices", frame))
 
     @device_app.command("check")
     def check_command(
@@ -68,12 +64,9 @@ def register(app: typer.Typer) -> None:
                           f"(achieved {result.achieved_hz:.1f} Hz), period jitter p99 "
                           f"{result.period_jitter_us_p99:.0f} us, lateness p99 {result.late_us_p99:.0f} us; "
                           f"servo process: {result.rt}")
-            table = Table(title="safety layer on the device")
-            for col in ("rule", "passed", "detail"):
-                table.add_column(col, overflow="fold")
-            for c in result.safety:
-                table.add_row(c.rule, "yes" if c.passed else "NO", c.detail)
-            console.print(table)
+            from studyctl.report.terminal import safety_table  # noqa: PLC0415 - only when a table is printed
+
+            console.print(safety_table(result.safety))
             for f in result.faults:
                 console.print(f"[red]device fault: {f}[/red]")
         if not result.ok:

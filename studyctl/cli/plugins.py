@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import typer
-from rich.table import Table
 
 from studyctl.cli.common import output_console
 from studyctl.errors import PluginError
@@ -31,16 +30,9 @@ def register(app: typer.Typer) -> None:
             # A narrow terminal cannot fit the description beside five columns: the failures' reasons
             # then follow the table, where they stay readable.
             wide = console.width >= 120
-            table = Table(title="studyctl plugins")
-            for col in ("kind", "name", "package", "version", "status"):
-                table.add_column(col, no_wrap=True)
-            if wide:
-                table.add_column("detail", overflow="fold")
-            for row in frame.itertuples(index=False):
-                style = None if row.status == "ok" else "red"
-                cells = [row.kind, row.name, row.package, row.version, row.status]
-                table.add_row(*cells, *([row.detail] if wide else []), style=style)
-            console.print(table)
+            from studyctl.report.terminal import plugins_table  # noqa: PLC0415 - only when a table is printed
+
+            console.print(plugins_table(frame, wide=wide))
             if not wide:
                 for row in frame.itertuples(index=False):
                     if row.status != "ok":

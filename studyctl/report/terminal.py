@@ -155,3 +155,64 @@ def schedule_text(protocol_id: str, participants: int, seed: int, algorithm_vers
     lines += ["\n" + balance.summary_frame().to_string(index=False),
               "(spread = max − min count over the counterbalanced conditions; 0 is perfectly balanced)"]
     return "\n".join(lines)
+
+
+def bench_tables(result: Any) -> list[Table]:
+    """A :class:`~studyctl.bench.BenchResult`'s figures beside their peers measured in the same run, then each of
+    its own tables (``studyctl bench NAME``)."""
+    table = Table(title=f"studyctl bench {result.name}")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    table.add_column("peer (same run)", justify="right")
+    for key, value in result.figures.items():
+        peer = result.peers.get(key)
+        table.add_row(key, f"{value:.4g}", "" if peer is None else f"{peer:.4g}")
+    for key, value in result.peers.items():
+        if key not in result.figures:
+            table.add_row(key, "", f"{value:.4g}")
+    tables = [table]
+    for title, rows in result.tables.items():
+        if not rows:
+            continue
+        sub = Table(title=title)
+        for col in rows[0]:
+            sub.add_column(str(col))
+        for row in rows:
+            sub.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row.values()))
+        tables.append(sub)
+    return tables
+
+
+def plugins_table(frame: Any, *, wide: bool) -> Table:
+    """``studyctl plugins list``: one row a plugin (``PluginListing.to_frame()``), a broken one in red. ``wide``: the
+    failures' reasons in a last column (a narrow terminal gets them after the table instead)."""
+    table = Table(title="studyctl plugins")
+    for col in ("kind", "name", "package", "version", "status"):
+        table.add_column(col, no_wrap=True)
+    if wide:
+        table.add_column("detail", overflow="fold")
+    for row in frame.itertuples(index=False):
+        style = None if row.status == "ok" else "red"
+        cells = [row.kind, row.name, row.package, row.version, row.status]
+        table.add_row(*cells, *([row.detail] if wide else []), style=style)
+    return table
+
+
+def frame_table(title: str, frame: Any) -> Table:
+    """Every column and row of a small frame as it is (``studyctl device list``)."""
+    table = Table(title=title)
+    for col in frame.columns:
+        table.add_column(col, overflow="fold")
+    for row in frame.itertuples(index=False):
+        table.add_row(*(str(v) for v in row))
+    return table
+
+
+def safety_table(checks: Any) -> Table:
+    """``studyctl device check``: each safety rule exercised on the device, passed or not, and what was seen."""
+    table = Table(title="safety layer on the device")
+    for col in ("rule", "passed", "detail"):
+        table.add_column(col, overflow="fold")
+    for c in checks:
+        table.add_row(c.rule, "yes" if c.passed else "NO", c.detail)
+    return table
