@@ -90,3 +90,17 @@ def test_a_command_line_imports_only_its_own_command_module():
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["['studyctl.cli.app',", "'studyctl.cli.common',", "'studyctl.cli.session']",
                                   "False"]
+
+
+def test_checking_and_store_commands_do_not_import_pandas(tmp_path):
+    """pandas (+pyarrow) is ~90 MB of a process: `protocol check`, `status`, `audit verify` and `db check` (what
+    refuses a hostile file or checks a study) build no table, so they stay small (issue 19's 200 MB bound)."""
+    code = ("import sys\nfrom studyctl.cli.app import main\nfrom studyctl.store.workspace import init_workspace\n"
+            f"init_workspace({str(tmp_path / 'ws')!r}, protocol='needle_insertion')\n"
+            "codes = [main(['protocol', 'check', 'needle_insertion'])]\n"
+            f"codes += [main([*c, '--workspace', {str(tmp_path / 'ws')!r}]) for c in "
+            "(['status'], ['audit', 'verify'], ['db', 'check'])]\n"
+            "print(codes, 'pandas' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.splitlines()[-1] == "[0, 0, 0, 0] False", out.stdout

@@ -9,14 +9,17 @@ from __future__ import annotations
 
 from collections import Counter, defaultdict
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import pandas as pd
 from sqlalchemy import select
 
 from studyctl.protocol.stored_plan import Schedule
 from studyctl.store import StudyStore
 from studyctl.store.models import Participant, Session, Trial
 from studyctl.store.status import rehearsal_session_ids
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 
 @dataclass(frozen=True)
@@ -52,11 +55,15 @@ class StudyProgress:
         return {k: dict(v.get(1, {})) for k, v in self.position_counts.items()}
 
     def to_frame(self) -> pd.DataFrame:
+        import pandas as pd
+
         return pd.DataFrame([tuple(r.__dict__[c] for c in self.COLUMNS) for r in self.rows],
                             columns=list(self.COLUMNS))
 
     def balance_frame(self) -> pd.DataFrame:
         """Columns stratum, position, condition, participants (condition order position, 1-based)."""
+        import pandas as pd
+
         out = [(s, pos, cond, n) for s, by_pos in self.position_counts.items()
                for pos, by_cond in sorted(by_pos.items()) for cond, n in sorted(by_cond.items())]
         return pd.DataFrame(out, columns=["stratum", "position", "condition", "participants"])

@@ -17,11 +17,14 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from studyctl.errors import UsageError
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built: loading or checking a
+    import pandas as pd  # protocol stays a small process (issue 19: hostile files within 200 MB)
 
 
 def _check_n(n: int) -> None:
@@ -116,6 +119,8 @@ class BalanceReport:
         For ``position`` rows ``other`` is the 1-based position; for ``carryover`` rows it is the
         condition that followed.
         """
+        import pandas as pd
+
         rows = []
         for s, stratum in enumerate(self.strata):
             for c, cond in enumerate(self.conditions):
@@ -129,6 +134,8 @@ class BalanceReport:
 
     def summary_frame(self) -> pd.DataFrame:
         """One row per stratum: participants, position_spread, carryover_spread."""
+        import pandas as pd
+
         return pd.DataFrame(
             {
                 "stratum": list(self.strata),

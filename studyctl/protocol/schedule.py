@@ -17,15 +17,17 @@ from __future__ import annotations
 import zlib
 from collections.abc import Iterable, Sequence
 from operator import ne
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from studyctl.errors import UsageError
 from studyctl.protocol import counterbalance as cbal
 from studyctl.protocol.schema import Protocol
 from studyctl.protocol.stored_plan import PLAN_COLUMNS, PlanEntry, Schedule, format_placement  # noqa: F401
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built: loading or checking a
+    import pandas as pd  # protocol stays a small process (issue 19: hostile files within 200 MB)
 
 SCHEDULE_ALGORITHM_VERSION = 1
 
@@ -368,6 +370,8 @@ def schedule_rows(schedules: Sequence[Schedule]) -> pd.DataFrame:
     ``participant`` is the 1-based order of the schedule in ``schedules``; ``slot`` is 1-based too, the number
     ``studyctl enroll`` prints (the stored :attr:`Schedule.slot` counts from 0).
     """
+    import pandas as pd
+
     rows = []
     for number, schedule in enumerate(schedules, start=1):
         for e in schedule.entries:

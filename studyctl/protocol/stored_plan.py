@@ -6,9 +6,10 @@ JSON form (what the store keeps) and table form. How a protocol is expanded into
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built: loading or checking a
+    import pandas as pd  # protocol stays a small process (issue 19: hostile files within 200 MB)
 
 PLAN_COLUMNS = (
     "trial",
@@ -143,6 +144,8 @@ class Schedule:
 
     def to_frame(self) -> pd.DataFrame:
         """One row per planned trial with the columns of :data:`PLAN_COLUMNS`."""
+        import pandas as pd
+
         rows = [
             (
                 e.trial,

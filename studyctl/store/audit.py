@@ -16,15 +16,17 @@ import json
 import os
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from studyctl.errors import UsageError, ValueTypeError
 from studyctl.store.anchor import HEAD_KEY
 from studyctl.store.models import AuditHead, AuditLog
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 GENESIS_HASH = "0" * 64
 _HASHED_FIELDS = ("id", "at", "actor", "action", "entity", "entity_id", "details")
@@ -119,6 +121,8 @@ class AuditReport:
 
     def to_frame(self) -> pd.DataFrame:
         """One row per problem: columns ``row_id`` (None for whole-log problems) and ``problem``."""
+        import pandas as pd
+
         ids: list[int | None] = list(self.bad_ids) + [None] * (len(self.problems) - len(self.bad_ids))
         return pd.DataFrame({"row_id": pd.Series(ids, dtype="Int64"), "problem": list(self.problems)},
                             columns=["row_id", "problem"])

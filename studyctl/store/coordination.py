@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
 from sqlalchemy import func, select
 
 from studyctl.errors import NotFoundError, UsageError
@@ -24,6 +23,9 @@ from studyctl.store.models import AuditLog, Participant, Session, Trial
 from studyctl.store.models import utcnow as _utcnow
 from studyctl.store.records import load_mark, seal_session
 from studyctl.suggest import nearest
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 MAX_TEXT = 4000
 RECORD_ACTIONS = ("participant.consent", "participant.status", "note", ERASE_ACTION, OVER_TARGET_ACTION)
@@ -45,6 +47,8 @@ class Withdrawal:
     erased: dict[str, int] | None = None  # records erased per kind (trial, event, answer, report, chunk, session)
 
     def to_frame(self) -> pd.DataFrame:
+        import pandas as pd
+
         return pd.DataFrame([{"code": self.code, "reason": self.reason, "trials_done": self.trials_done,
                               "trials_dropped": self.trials_dropped, "sessions_closed": len(self.sessions_closed),
                               "slot_freed": self.slot_freed, "keep_data": self.keep_data,

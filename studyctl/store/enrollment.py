@@ -15,9 +15,8 @@ from __future__ import annotations
 import secrets
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
 from sqlalchemy import select
 
 from studyctl.errors import IntegrityError, NotFoundError, UsageError
@@ -29,6 +28,9 @@ from studyctl.store.audit import append_audit
 from studyctl.store.identity import CODE_ALPHABET, random_code
 from studyctl.store.models import Participant, Study
 from studyctl.suggest import nearest
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 CODE_LENGTH = 5
 OVER_TARGET_ACTION = "participant.over_target"

@@ -8,14 +8,17 @@ notebook and passed as ``--head``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import pandas as pd
 from sqlalchemy.orm import Session as OrmSession
 
 from studyctl.store.anchor import Head, anchor_path, check_head, read_anchor
 from studyctl.store.audit import AuditReport, verify_audit
 from studyctl.store.db import Database
 from studyctl.store.records import RecordsReport, verify_records
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,8 @@ class IntegrityReport:
 
     def to_frame(self) -> pd.DataFrame:
         """One row per problem: ``what`` (audit, trial, event, answer, report, chunk, head), ``id``, ``problem``."""
+        import pandas as pd
+
         rows: list[tuple[str, int | None, str]] = []
         ids = list(self.audit.bad_ids) + [None] * (len(self.audit.problems) - len(self.audit.bad_ids))
         rows += [("audit", i, p) for i, p in zip(ids, self.audit.problems, strict=True)]

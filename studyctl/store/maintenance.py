@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from sqlalchemy import func, select
 
 from studyctl.errors import IntegrityError
 from studyctl.store.db import Database, SchemaState, require_head
 from studyctl.store.integrity import verify_session
 from studyctl.store.models import SampleChunk
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 
 def upgrade_database(url: Any) -> tuple[str | None, SchemaState]:
@@ -35,6 +37,8 @@ class DatabaseCheck:
         return all(passed for _, passed, _ in self.checks)
 
     def to_frame(self) -> pd.DataFrame:
+        import pandas as pd
+
         return pd.DataFrame(list(self.checks), columns=["check", "passed", "detail"])
 
     def lines(self) -> list[str]:

@@ -17,9 +17,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
 from sqlalchemy import select
 
 from studyctl.closing import Closeable
@@ -35,6 +34,9 @@ from studyctl.store.models import (
 )
 from studyctl.store.repository import StudyStore
 from studyctl.store.samples import DEFAULT_STREAM
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 #: Event kinds that carry a scene's hidden truth as built for the trial (``truth`` in older databases).
 TRUTH_EVENTS = ("scene_truth", "truth")
@@ -336,6 +338,8 @@ class StudyReader(Closeable):
 
     def answers(self) -> pd.DataFrame:
         """The study's questionnaire answers in the order given, columns :data:`ANSWER_COLUMNS`."""
+        import pandas as pd
+
         pids = [p.id for p in self.snapshot.participants]
         if not pids:
             return pd.DataFrame(columns=list(ANSWER_COLUMNS))

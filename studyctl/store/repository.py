@@ -17,9 +17,8 @@ import hashlib
 import secrets
 from collections.abc import Iterator
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.orm import Session as OrmSession
 
@@ -42,6 +41,9 @@ from studyctl.store.models import (
 from studyctl.store.records import load_mark, seal_session
 from studyctl.store.session_records import SessionRecords
 from studyctl.store.values import MAX_TEXT, check_choice, check_seed, check_text, require, schedule_sha256
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 _TRIAL_FIELDS = frozenset(
     {"status", "timed_out", "started_at", "ended_at", "outcome", "invalid_reason", "placement", "time_limit_s"}
@@ -387,6 +389,8 @@ class StudyStore(SessionRecords, Closeable):
             return verify_audit(s)
 
     def audit_frame(self) -> pd.DataFrame:
+        import pandas as pd
+
         cols = ["id", "at", "actor", "action", "entity", "entity_id", "details", "hash"]
         with self.reading() as s:
             rows = s.execute(select(*(getattr(AuditLog, c) for c in cols)).order_by(AuditLog.id)).all()

@@ -16,16 +16,18 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from sqlalchemy import func, insert, select
 
 from studyctl.errors import IntegrityError, NotFoundError, UsageError
 from studyctl.store.db import Database
 from studyctl.store.models import SampleChunk, Trial
 from studyctl.store.records import chunk_digest, load_mark, seal_session
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 DEFAULT_STREAM = "samples"
 _ALLOWED_DTYPES = ("<f8", "<f4")
@@ -292,6 +294,8 @@ def read_samples(db: Database, trial_id: int, stream: str = DEFAULT_STREAM) -> p
     Values come back as float64 (float32 streams are widened). A trial with no samples in that stream
     gives an empty frame with just the ``t`` column.
     """
+    import pandas as pd
+
     with db.reading() as s:
         if db.dialect == "postgresql":
             rows = _fetch_binary(s, trial_id, stream)

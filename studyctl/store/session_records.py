@@ -13,7 +13,6 @@ from collections.abc import Mapping, Sequence
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
-import pandas as pd
 from sqlalchemy import func, insert, select
 from sqlalchemy.orm import Session as OrmSession
 
@@ -21,6 +20,9 @@ from studyctl.errors import UsageError
 from studyctl.store.models import Event, LocationReport, QuestionnaireResponse, Trial, utcnow
 from studyctl.store.samples import DEFAULT_STREAM, SampleWriter, read_samples, sample_streams
 from studyctl.store.values import check_text, require
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 if TYPE_CHECKING:
     from studyctl.store.db import Database
@@ -86,6 +88,8 @@ class SessionRecords:
 
     def events_frame(self, session_id: int, trial_id: int | None = None) -> pd.DataFrame:
         """A session's events (optionally one trial's) with columns seq, trial_id, t_mono, t_wall, kind, payload."""
+        import pandas as pd
+
         stmt = select(Event.seq, Event.trial_id, Event.t_mono, Event.t_wall, Event.kind, Event.payload).where(
             Event.session_id == session_id).order_by(Event.seq)
         if trial_id is not None:
@@ -152,6 +156,8 @@ class SessionRecords:
         return r
 
     def responses_frame(self, participant_id: int | None = None) -> pd.DataFrame:
+        import pandas as pd
+
         cols = ["participant_id", "session_id", "trial_id", "instrument", "instrument_version", "item", "code",
                 "answered_at", "context"]
         stmt = select(*(getattr(QuestionnaireResponse, c) for c in cols)).order_by(QuestionnaireResponse.id)

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import pandas as pd
 from sqlalchemy import func, select
 
 from studyctl.store.models import (
@@ -18,6 +18,9 @@ from studyctl.store.models import (
     Trial,
 )
 from studyctl.store.repository import StudyStore
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,8 @@ class StudyStatus:
     def to_frame(self) -> pd.DataFrame:
         """Columns ``entity``, ``status``, ``count``: one row per entity × status (zeros included); rehearsals are
         the entities ``rehearsal_session`` and ``rehearsal_trial``."""
+        import pandas as pd
+
         rows = [("participant", k, v) for k, v in self.participants.items()]
         rows += [("session", k, v) for k, v in self.sessions.items()]
         rows += [("trial", k, v) for k, v in self.trials.items()]
