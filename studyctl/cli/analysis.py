@@ -81,12 +81,15 @@ def register(app: typer.Typer) -> None:
                                      "JSON object."),
     ) -> None:
         """Analyse a plan and write tidy CSV tables, figures, an HTML report and Markdown into a folder."""
+        from studyctl.analysis import load_plan
+
+        loaded = load_plan(plan)  # before the statistics and figures are imported: a bad plan costs little to refuse
         from studyctl.workflows.report import build_report
 
         console = _console()
         with _console(err=True).status("analysing…") as status:
             run = build_report(
-                plan,
+                loaded,
                 out,
                 db=db,
                 workspace=workspace_arg(workspace),
@@ -141,7 +144,13 @@ def register_sim(app: typer.Typer) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from studyctl.protocol import load_protocol
+        from studyctl.inputs import precheck_yaml_file
+        from studyctl.protocol import load_protocol, resolve_protocol
+
+        # the protocol (and population) read before the engine and the store are imported: a hostile file is
+        # refused by a small process (issue 19); check_simulation checks the rest
+        load_protocol(resolve_protocol(protocol))
+        precheck_yaml_file(population, "population file")
         from studyctl.workflows.simulate import check_simulation, choose_population, simulate_study
 
         folder = out or Path(f"{Path(protocol).stem}-sim")

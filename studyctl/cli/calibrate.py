@@ -46,7 +46,12 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from studyctl.workflows.calibrate import prepare_calibration, run_calibration
+        # every input checked before the simulation stack (pandas, the engine) is imported: a hostile targets
+        # or protocol file is refused by a small process (issue 19)
+        from studyctl.inputs import precheck_yaml_file
+        from studyctl.workflows.calibration_spec import prepare_calibration
+
+        precheck_yaml_file(population, "population file")
 
         err = Console(stderr=True, highlight=False)
         console = err if as_json else Console(highlight=False)
@@ -54,6 +59,8 @@ def register(app: typer.Typer) -> None:
                                    participants=participants, replicates=replicates, evaluations=evaluations,
                                    out=out, scheduler=scheduler, pilot_db=pilot_db, workers=workers,
                                    sim_rate_hz=sim_rate_hz)
+        from studyctl.workflows.calibrate import run_calibration
+
         console.print(f"calibrate {spec.protocol_id}: from {spec.population.label}; targets {spec.targets.path} "
                       f"({len(spec.targets.by_role('fit'))} fit, {len(spec.targets.by_role('validation'))} "
                       f"validation); free {', '.join(f.name for f in spec.free)}; {spec.evaluations} evaluations of "

@@ -118,6 +118,17 @@ def register(app: typer.Typer) -> None:
             TimeRemainingColumn,
         )
 
+        from studyctl.analysis import load_plan
+        from studyctl.inputs import precheck_yaml_file
+        from studyctl.protocol import load_protocol, resolve_protocol
+
+        # the protocol and the plan read before the power stack (pandas, the engine, the statistics) is
+        # imported: a hostile file is refused by a small process (issue 19); prepare_power checks the rest
+        load_protocol(resolve_protocol(protocol))
+        if plan is not None:
+            load_plan(plan)
+        precheck_yaml_file(population, "population file")
+
         from studyctl.errors import SessionInterrupted
         from studyctl.power import prepare_power
         from studyctl.report.power_figures import population_text

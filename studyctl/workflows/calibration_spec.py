@@ -102,17 +102,13 @@ def prepare_calibration(
     from studyctl.populations import free_params
     from studyctl.populations.loader import participant_params
     from studyctl.populations.targets import load_targets_file
-    from studyctl.power.seeds import check_master_seed
     from studyctl.protocol import load_protocol, resolve_protocol
-    from studyctl.workflows.simulate import choose_population
 
     path = resolve_protocol(protocol)
     proto = load_protocol(path)
     pid = proto.study.id
-    pop = choose_population(proto, population)
-    if pop is None:
-        raise PopulationError(f"protocol {pid!r} has no shipped population to start from; give one with "
-                              "--population FILE (format: studyctl-population/1)")
+    # the files read (protocol, targets, plan) before the simulation stack is imported (choose_population and the
+    # master seed check bring in the engine, the store and pandas): a hostile file is refused by a small process
     if targets is None and pilot_db is None:
         from studyctl.populations.targets import shipped_targets_path
 
@@ -130,6 +126,13 @@ def prepare_calibration(
         raise PopulationError(f"targets {tset.path} are for protocol {tset.protocol!r}, not {pid!r}")
     if not tset.by_role("fit"):
         raise PopulationError(f"targets {tset.path} have no role: fit target; calibrate fits only on fit targets")
+    from studyctl.power.seeds import check_master_seed
+    from studyctl.workflows.simulate import choose_population
+
+    pop = choose_population(proto, population)
+    if pop is None:
+        raise PopulationError(f"protocol {pid!r} has no shipped population to start from; give one with "
+                              "--population FILE (format: studyctl-population/1)")
     names = free if free is not None else list(pop.calibration.get("free") or [])
     if isinstance(names, str):
         names = [n for n in names.split(",") if n.strip()]
@@ -173,12 +176,17 @@ def _plan_ref(targets: str | Path | None, pid: str) -> str:
     """The analysis plan: the targets file's ``plan:`` (relative to that file), else the protocol's shipped one."""
     if targets is None or not Path(targets).is_file():
         return pid
-    import yaml
+    from studyctl.inputs import read_text
+    from studyctl.yamlmarks import load_marked
 
-    try:
-        data = yaml.safe_load(Path(targets).read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError, OSError):
-        return pid  # the targets loader reports the syntax error (or the unreadable file) with its position
+    # Read as the targets loader reads it (size, UTF-8, alias and depth limits; yaml.safe_load raised
+    # RecursionError on deep nesting), and before the plan, which imports the statistics: a hostile
+    # targets file is one error line from a small process (issue 19).
+    text = read_text(targets, "targets file (studyctl-targets/1 YAML)", error=PopulationError)
+    marked = load_marked(text, str(targets), merge_keys=False, text_keys=True)
+    if marked.problems:
+        raise PopulationError(str(marked.problems[0]))
+    data = marked.data
     ref = data.get("plan") if isinstance(data, dict) else None
     if not isinstance(ref, str) or not ref:
         return pid
