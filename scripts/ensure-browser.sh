@@ -9,7 +9,5 @@ if [ "$(id -u)" -ne 0 ]; then
     echo "Chromium or chromedriver is missing; run: sudo apt-get install chromium chromium-driver" >&2
     exit 1
 fi
-export DEBIAN_FRONTEND=noninteractive
-# Another apt/dpkg process (unattended upgrades, a second install) may hold the lock: wait for it, bounded.
-apt-get -o DPkg::Lock::Timeout=600 update -qq
-apt-get -o DPkg::Lock::Timeout=600 install -y -qq chromium chromium-driver >/dev/null
+# Another apt/dpkg process may hold the package locks: apt-install.sh waits for them, bounded.
+bash "$(dirname "$0")/apt-install.sh" chromium chromium-driver

@@ -8,7 +8,5 @@ if [ "$(id -u)" -ne 0 ]; then
     echo "PostgreSQL server binaries are missing; run: sudo apt-get install postgresql" >&2
     exit 1
 fi
-export DEBIAN_FRONTEND=noninteractive
-# Another apt/dpkg process (unattended upgrades, a second install) may hold the lock: wait for it, bounded.
-apt-get -o DPkg::Lock::Timeout=600 update -qq
-apt-get -o DPkg::Lock::Timeout=600 install -y -qq postgresql >/dev/null
+# Another apt/dpkg process may hold the package locks: apt-install.sh waits for them, bounded.
+bash "$(dirname "$0")/apt-install.sh" postgresql

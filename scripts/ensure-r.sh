@@ -10,7 +10,5 @@ if [ "$(id -u)" -ne 0 ]; then
     echo "R or its jsonlite package is missing; run: sudo apt-get install --no-install-recommends r-base-core r-cran-jsonlite" >&2
     exit 1
 fi
-export DEBIAN_FRONTEND=noninteractive
-# Another apt/dpkg process may hold the lock: wait for it, bounded (as ensure-browser.sh does).
-apt-get -o DPkg::Lock::Timeout=600 update -qq
-apt-get -o DPkg::Lock::Timeout=600 install -y -qq --no-install-recommends r-base-core r-cran-jsonlite >/dev/null
+# Another apt/dpkg process may hold the package locks: apt-install.sh waits for them, bounded.
+bash "$(dirname "$0")/apt-install.sh" --no-install-recommends r-base-core r-cran-jsonlite

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -27,11 +28,17 @@ def test_wheel_ships_migrations_and_init_finds_them(tmp_path):
         ".hypothesis", "demo"))
     # Reuse the environment's setuptools when it has one (fast, offline); else pip fetches it.
     isolation = ["--no-build-isolation"] if importlib.util.find_spec("setuptools") else []
-    build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", *isolation, "-w", str(wheels), str(source)],
+    build = subprocess.run(  # -v: pip passes on what setuptools says about our packaging
+        [sys.executable, "-m", "pip", "wheel", "-v", "--no-deps", *isolation, "-w", str(wheels), str(source)],
         capture_output=True, text=True, timeout=300,
     )
     assert build.returncode == 0, build.stderr[-2000:]
+    # no warnings from our own packaging (a license table, a data folder missing from the packages …); the
+    # byte-compiling notes come from PYTHONDONTWRITEBYTECODE in the environment, and the index notes from pip's config
+    said = [line for line in (build.stdout + build.stderr).splitlines()
+            if re.search(r"warn|deprecat", line, re.I) and "byte-compiling is disabled" not in line
+            and "is ignored: it is neither a file nor a directory" not in line]
+    assert said == [], said[:20]
     wheel = next(wheels.glob("studyctl-*.whl"))
     names = set(zipfile.ZipFile(wheel).namelist())
     for needed in ("env.py", "script.py.mako", "versions/0001_initial_schema.py"):
