@@ -31,7 +31,8 @@ as quickly as possible):
    that is felt — or stopped on — more often than the base rate allows, as a z-score) is re-probed
    ``confirm_presses`` times; cells still undecided are probed again, up to ``confirm_rounds`` rounds.
 3. **Report**: cells whose evidence stays above ``report_z``, keeping only the strongest of neighbouring
-   cells; then ``finish``. When nothing stood out, it guesses ``guesses`` distinct random cells.
+   cells; then ``finish``. When nothing stood out, it reports ``guesses`` cells: distinct random ones, or with
+   ``guess: best`` those whose evidence was strongest (a forced choice by the max rule).
 
 Between people, every perceptual, motor and decision parameter may differ (a population file draws them);
 within a person, the press speed varies from trial to trial (``speed_trial_cv``) and the depth from press to
@@ -151,6 +152,12 @@ class VirtualPalpator(Participant):
         Param("learning", 0.0, 0.0, 0.8, source="CITED: most practice gain in lump detection comes within 1-2 "
               "sessions (Adams et al.); fraction of perceptual noise lost by the 4th trial"),
         # -- decision -------------------------------------------------------------------------------------
+        Param("judge_spread", False, kind=bool, source="CHOSEN: whether a cell's evidence is judged against how "
+              "much normal tissue varied over the survey (the robust SD of the first presses' percepts) when that "
+              "exceeds the senses' own noise: in signal detection the criterion is set against the total noise of "
+              "the non-signal stimuli, external and internal (Green & Swets 1966; Lu & Dosher 2008, external noise); "
+              "a feedback that varies from press to press on plain sponge (the hand's depth varies by depth_cv) "
+              "marks fewer plain cells as different. False: only the Weber noise of the senses"),
         Param("screen_z", 2.0, 0.0, 10.0, source="FITTED: re-probe a cell whose evidence exceeds this"),
         Param("report_z", 3.5, 0.0, 10.0, source="FITTED: confidence needed to report a cell"),
         Param("confirm_presses", 2, 0, 10, kind=int, source="CHOSEN: re-probes of a candidate cell"),
@@ -159,6 +166,11 @@ class VirtualPalpator(Participant):
               "(sequential sampling: weak cues are checked more often, Wald 1947); 1 = one round"),
         Param("max_reports", 0, 0, 49, kind=int, source="CHOSEN: at most this many cells are reported, the strongest "
               "first (0 = no limit); the example phantom shows 3 tumours, so people expect about that many"),
+        Param("guess", "random", kind=str, source="CHOSEN: which cells a person reports when nothing stood out: "
+              "random (distinct cells at random) or best (the cells whose evidence was strongest: in a forced choice "
+              "an observer picks the alternative with the largest observation, the max rule of signal detection "
+              "theory, Green & Swets 1966; the instruction was to report the tumours, so weak evidence still "
+              "guides where)"),
         Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "
               "trials had 3 tumours; subjects were told to report)"),
         Param("cell_mm", 20.0, 1.0, 100.0, unit="mm", source="used when the trial's public info has no grid size"),
@@ -197,6 +209,8 @@ class VirtualPalpator(Participant):
         self._stop = {"balloon_psi": p["stop_balloon_psi"], "vibration_ms2": p["stop_vibration_ms2"]}
         self._stop_ratio = float(p["stop_ratio"])
         self._stop_levels = any(v < NEVER for v in self._stop.values())  # an absolute "enough" level is in use
+        if p["guess"] not in ("random", "best"):
+            raise ModelParameterError(f"virtual_palpator participant: guess {p['guess']!r} must be random or best")
         if p["after_stop"] not in ("release", "hold", "tap"):
             raise ModelParameterError(f"virtual_palpator participant: after_stop {p['after_stop']!r} must be "
                                       "release, hold or tap")
@@ -231,6 +245,7 @@ class VirtualPalpator(Participant):
         self._belief_depth = 0.0
         self._pressing: _Segment | None = None
         self._ref: dict[tuple[str, str], float | None] | None = None  # normal-tissue reference, after the sweep
+        self._spread: dict[tuple[str, str], float] = {}  # how much each note varies over plain tissue
         self._peaks: dict[str, list[float]] = {ch: [] for ch in CHANNELS}  # strongest feel of each press so far
         self._usual: dict[str, float] = {}  # their running median: what pressing normal tissue feels like
         self._finished = False
@@ -416,15 +431,22 @@ class VirtualPalpator(Participant):
         """Median log-percept over the swept cells per (channel, checkpoint); None when normal tissue is not felt.
 
         Also sets ``_felt_rate``: the share of cells felt at each note on the first press (add-one smoothed),
-        the base rate for the "felt here but not on normal tissue" test.
+        the base rate for the "felt here but not on normal tissue" test, and ``_spread``: the robust SD of the
+        first-press log-percepts over the cells (how much pressing normal tissue varies, noise of the senses,
+        of the hand's depth and of the feedback itself together), used with ``judge_spread``.
         """
         ref: dict[tuple[str, str], float | None] = {}
         self._felt_rate = {}
+        self._spread = {}
         n = len(self.evidence)
         for key in self._keys:
             first = [ev.logs[key][0] if ev.logs.get(key) else -math.inf for ev in self.evidence.values()]
             med = float(np.median(first)) if first else -math.inf
             ref[key] = med if math.isfinite(med) and key != STOP else None
+            felt_logs = np.array([v for v in first if math.isfinite(v)])
+            if ref[key] is not None and felt_logs.size >= 5:
+                # how much normal tissue itself varies from press to press (robust SD: 1.4826 x MAD)
+                self._spread[key] = 1.4826 * float(np.median(np.abs(felt_logs - ref[key])))
             felt = sum(1 for ev in self.evidence.values() if ev.felt.get(key, 0)) if key == STOP else sum(
                 1 for v in first if math.isfinite(v))
             self._felt_rate[key] = (felt + 1) / (n + 2)
@@ -446,6 +468,8 @@ class VirtualPalpator(Participant):
             if not logs:
                 continue
             sigma = self.senses[key[0]].sigma
+            if self.params["judge_spread"]:
+                sigma = max(sigma, self._spread.get(key, 0.0))
             z = (float(np.mean(logs)) - ref[key]) / (sigma / math.sqrt(len(logs)))
             if key == VISUAL:
                 z *= self.params["visual_trust"]
@@ -482,13 +506,30 @@ class VirtualPalpator(Participant):
                 if len(chosen) == self.params["max_reports"]:
                     break
         if not chosen and self.params["guesses"]:
-            cells = [(c, r) for r in range(1, self.rows + 1) for c in range(1, self.columns + 1)]
-            idx = self._rng.choice(len(cells), size=min(self.params["guesses"], len(cells)), replace=False)
-            chosen = [cells[i] for i in sorted(idx)]
+            chosen = self._guess(scored)
         self.reports = chosen
         self._finished = True
         requests = tuple(Request("report", {"column": c, "row": r}) for c, r in chosen) + (Request("finish"),)
         return Action(inputs={"x_mm": self._pose[0], "y_mm": self._pose[1], "depth_mm": -5.0}, requests=requests)
+
+    def _guess(self, scored: list[tuple[float, tuple[int, int]]]) -> list[tuple[int, int]]:
+        """The cells reported when nothing stood out. ``random``: distinct cells drawn at random. ``best``: the
+        cells whose evidence was strongest, not neighbouring each other (the max rule of a forced choice), and
+        random cells only where no evidence at all was gathered (a person who noted nothing)."""
+        cells = [(c, r) for r in range(1, self.rows + 1) for c in range(1, self.columns + 1)]
+        n = min(self.params["guesses"], len(cells))
+        chosen: list[tuple[int, int]] = []
+        if self.params["guess"] == "best":
+            for score, cell in scored:
+                if len(chosen) == n or not math.isfinite(score):
+                    break
+                if all(max(abs(cell[0] - c[0]), abs(cell[1] - c[1])) > 1 for c in chosen):
+                    chosen.append(cell)
+            if len(chosen) == n:
+                return chosen
+            cells = [c for c in cells if c not in chosen]
+        idx = self._rng.choice(len(cells), size=n - len(chosen), replace=False)
+        return chosen + [cells[i] for i in sorted(idx)]
 
 
 def _lerp(a, b, f):

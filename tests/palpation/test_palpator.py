@@ -285,3 +285,54 @@ def test_taps_fill_the_time_a_stopped_press_saved():
     assert sum(len(ev.logs.get(TRAVEL, [])) for ev in tap.evidence.values()) >= presses(release)
     with pytest.raises(ModelParameterError, match="after_stop 'wait' must be release, hold or tap"):
         VirtualPalpator({"after_stop": "wait"})
+
+
+def test_a_forced_choice_reports_the_cells_that_looked_most_different():
+    """Nothing passes the report criterion without feedback: with ``guess: best`` the person reports the cells whose
+    evidence (here the camera's) was strongest, not neighbouring each other; with ``random`` the same trial's reports
+    do not depend on the evidence."""
+    params = {"visual_weber": 0.05, "report_z": 9.9, "screen_z": 9.9}
+    best, scene = view_trial(SITES[0], 0, {**params, "guess": "best"})
+    ref = best._reference()
+    ranked = sorted(((best._score(ev, ref), cell) for cell, ev in best.evidence.items()),
+                    key=lambda sc: (-sc[0], sc[1]))
+    top = []
+    for _, cell in ranked:
+        if all(max(abs(cell[0] - c[0]), abs(cell[1] - c[1])) > 1 for c in top):
+            top.append(cell)
+        if len(top) == 3:
+            break
+    assert best.reports == top
+    hard = next((t["col"], t["row"]) for t in scene.truth()["tumours"] if t["class"] == "hard")
+    assert hard in best.reports
+    random_, _ = view_trial(SITES[0], 0, {**params, "guess": "random"})
+    assert random_.reports != best.reports and len(random_.reports) == 3
+    with pytest.raises(ModelParameterError, match="guess 'top' must be random or best"):
+        VirtualPalpator({"guess": "top"})
+
+
+def test_judged_against_the_spread_of_plain_tissue():
+    """With ``judge_spread`` a cell's evidence is measured against how much the note varied over the survey's
+    cells when that is more than the senses' noise: a feedback that varies a lot on plain sponge makes a cell that
+    stands out by the same amount count for less."""
+    from studyctl.participants.palpator import _CellEvidence
+
+    rng = np.random.default_rng(3)
+    key = ("vibration_ms2", "peak")
+    scores = {}
+    for judge in (False, True):
+        p = VirtualPalpator({"judge_spread": judge})
+        p.begin_trial(TrialInfo("x", 60, 50, public={"grid": {"columns": 7, "rows": 7, "cell_mm": 20}}), rng)
+        values = np.random.default_rng(0).normal(1.0, 0.5, 49)  # log-percepts: SD 0.5, far above the Weber noise
+        for k, v in enumerate(values):
+            ev = _CellEvidence(presses=1)
+            ev.logs[key] = [float(v)]
+            ev.felt[key] = 1
+            p.evidence[(k % 7 + 1, k // 7 + 1)] = ev
+        odd = _CellEvidence(presses=1, logs={key: [2.5]}, felt={key: 1})
+        p.evidence[(4, 4)] = odd
+        ref = p._reference()
+        scores[judge] = p._score(odd, ref)
+    sigma = VirtualPalpator({}).base_senses["vibration_ms2"].sigma
+    assert scores[False] > 6.0 > 3.0 > scores[True] > 1.5
+    assert scores[False] == pytest.approx(scores[True] * p._spread[key] / sigma, rel=1e-9)
