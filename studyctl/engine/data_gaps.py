@@ -16,9 +16,8 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
 from sqlalchemy import func, select
 
 from studyctl.protocol.stored_plan import Schedule
@@ -27,6 +26,9 @@ from studyctl.store.enrollment import study_protocol
 from studyctl.store.models import Participant, QuestionnaireResponse, SampleChunk, Session, Trial
 from studyctl.store.samples import DEFAULT_STREAM
 from studyctl.store.status import rehearsal_session_ids
+
+if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
+    import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
 # a session in these states is still being run: what it has not done yet is not missing
 _IN_PROGRESS = ("running", "paused")
@@ -66,6 +68,8 @@ class DataGaps:
                 "answers_missing": self.total("answers_missing")}
 
     def to_frame(self) -> pd.DataFrame:
+        import pandas as pd
+
         return pd.DataFrame([tuple(getattr(g, c) for c in self.COLUMNS) for g in self.gaps], columns=list(self.COLUMNS))
 
 
