@@ -117,9 +117,23 @@ class TimedClock(RealClock):
         return ServoTiming.from_starts(self.starts[: self.n], period_s, self.due[: self.n])
 
 
+_LIBC: list[Any] = []
+
+
 def _libc() -> Any:
-    name = ctypes.util.find_library("c")
-    return ctypes.CDLL(name, use_errno=True) if name else None
+    """The C library, looked up once. On Linux from the process's own symbols: ``ctypes.util.find_library`` runs
+    ``ldconfig -p`` in a subprocess, which inside :func:`realtime_setup` was a child process at the loop's priority
+    (traced: 20-68 ms of one servo process's setup at SCHED_FIFO held another servo loop off its CPU)."""
+    if not _LIBC:
+        try:
+            lib = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
+            if lib is None or not hasattr(lib, "mlockall"):
+                name = ctypes.util.find_library("c")
+                lib = ctypes.CDLL(name, use_errno=True) if name else None
+        except OSError:
+            lib = None
+        _LIBC.append(lib)
+    return _LIBC[0]
 
 
 def _memory_lock(report: dict[str, Any], warnings: list[str]) -> None:
@@ -192,28 +206,9 @@ def realtime_setup(cpu: int | None = None, nice: int = -10, *, lock_memory: bool
         except OSError as exc:
             warnings.append(f"not pinned to one CPU ({exc.strerror})")
         report["cpus"] = sorted(os.sched_getaffinity(0))
-    fifo = False
-    if hasattr(os, "SCHED_FIFO"):
-        try:
-            # No SCHED_RESET_ON_FORK: threads started later (the safety watchdog, an SDK's thread) run at the loop's
-            # priority, so none of them can be preempted by the machine's other processes while holding the
-            # interpreter lock the loop waits for (see the module docstring)
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
-            fifo = True
-        except (OSError, PermissionError) as exc:
-            warnings.append(f"no SCHED_FIFO ({exc.strerror or exc}): the loop shares its CPU with normal processes; "
-                            "run as root or grant CAP_SYS_NICE (setcap cap_sys_nice+ep on the Python binary)")
-    if not fifo and nice:
-        with contextlib.suppress(OSError):
-            _renice(nice)
-    if hasattr(os, "sched_getscheduler"):
-        policy = os.sched_getscheduler(0)
-        policy &= ~getattr(os, "SCHED_RESET_ON_FORK", 0)
-        names = {getattr(os, n): n for n in ("SCHED_OTHER", "SCHED_FIFO", "SCHED_RR", "SCHED_BATCH", "SCHED_IDLE")
-                 if hasattr(os, n)}
-        report["sched"] = names.get(policy, str(policy))
-        report["priority"] = os.sched_getparam(0).sched_priority
-    report["nice"] = os.nice(0)
+    # The slow steps first, at normal priority: locking memory, collecting garbage and looking up libc take tens of
+    # milliseconds on a loaded machine, which at SCHED_FIFO would hold every normal process (and another servo
+    # loop of the same priority) off this CPU for that long
     if lock_memory:
         _memory_lock(report, warnings)
     _timer_slack(report)
@@ -225,13 +220,44 @@ def realtime_setup(cpu: int | None = None, nice: int = -10, *, lock_memory: bool
     gc.freeze()  # everything allocated so far is never scanned again
     gc.disable()  # and nothing new is collected until the trial ends
     report["gc"] = "frozen+disabled"
+    fifo = False
+    if hasattr(os, "SCHED_FIFO"):
+        try:
+            # No SCHED_RESET_ON_FORK: threads started later (the safety watchdog, an SDK's thread) run at the loop's
+            # priority, so none of them can be preempted by the machine's other processes while holding the
+            # interpreter lock the loop waits for (see the module docstring)
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+            fifo = True
+        except (OSError, PermissionError) as exc:
+            warnings.append(f"no SCHED_FIFO ({exc.strerror or exc}): the loop shares its CPU with normal processes; "
+                            "run as root or grant CAP_SYS_NICE (setcap cap_sys_nice+ep on the Python binary)")
+    report["fifo"] = fifo
+    if not fifo and nice:
+        with contextlib.suppress(OSError):
+            report["reniced"] = _renice(nice)
+    if hasattr(os, "sched_getscheduler"):
+        policy = os.sched_getscheduler(0)
+        policy &= ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+        names = {getattr(os, n): n for n in ("SCHED_OTHER", "SCHED_FIFO", "SCHED_RR", "SCHED_BATCH", "SCHED_IDLE")
+                 if hasattr(os, n)}
+        report["sched"] = names.get(policy, str(policy))
+        report["priority"] = os.sched_getparam(0).sched_priority
+    report["nice"] = os.nice(0)
     if warnings:
         report["warnings"] = warnings
     return report
 
 
 def realtime_release(report: dict[str, Any]) -> None:
-    """After a trial: the collector back on, memory unlocked (a servo process between trials)."""
+    """After a trial: back to normal scheduling, the collector back on, memory unlocked (a servo process between
+    trials builds the next trial's plugins and reports this one: at SCHED_FIFO that work held every normal process,
+    and another servo loop of the same priority, off its CPU)."""
+    if report.get("fifo"):
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    if report.get("reniced"):
+        with contextlib.suppress(OSError):
+            _renice(-int(report["reniced"]))  # only undone as far as the OS lets an unprivileged process
     gc.enable()
     gc.unfreeze()
     if report.get("mlock"):
