@@ -33,6 +33,7 @@ class SerialDriverBoard(UdpDriverBoard):
     """The palpation driver board (balloon valves, vibration motor, force sensor ADC) over a serial port."""
 
     name = "serial_driver_board"
+    LINK = "serial"
     EXTRA = EXTRA_HINT
     PARAMS = (
         Param("port", "/dev/ttyUSB0", kind=str, source="the board's serial device"),

@@ -33,6 +33,7 @@ class UdpDriverBoard(ParamDevice):
     """The palpation driver board (balloon valves, vibration motor, force sensor ADC) over UDP."""
 
     name = "udp_driver_board"
+    LINK = "UDP"  # how the board is reached, in its identity
     simulated = False
     PARAMS = (
         Param("host", "127.0.0.1", kind=str, source="the board's address"),
@@ -80,8 +81,7 @@ class UdpDriverBoard(ParamDevice):
 
     def identity(self) -> dict[str, Any]:
         """What the board reported in its STATUS (firmware, ADC bits, rate, watchdog) and where it is."""
-        return {"model": "palpation driver board (UDP)", "address": f"{self.address[0]}:{self.address[1]}",
-                **self.status}
+        return {"model": f"palpation driver board ({self.LINK})", "address": self._where(), **self.status}
 
     def calibrate(self, seconds: float) -> dict[str, Any]:
         """Zero the force sensor: with nothing touching it, the mean force over ``seconds`` becomes ``zero_n``."""

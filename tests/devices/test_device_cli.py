@@ -26,7 +26,11 @@ def test_device_list_names_hardware_and_emulators():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("device,model,rate", [("omega6", "omega.6", 1000.0), ("udp_driver_board", "palpation", 50.0)])
+@pytest.mark.parametrize("device,model,rate", [
+    ("omega6", "omega.6", 1000.0), ("touch", "Touch", 1000.0), ("inverse3", "Inverse3", 1000.0),
+    ("udp_driver_board", "palpation driver board (UDP)", 50.0),
+    ("serial_driver_board", "palpation driver board (serial)", 50.0),  # was named "(UDP)", at address "None:<pty>"
+])
 def test_device_check_emulated_exercises_the_safety_layer(device, model, rate):
     out = _run("device", "check", device, "--emulate", "--seconds", "2", "--json")
     assert out.returncode == 0, out.stderr + out.stdout
@@ -34,7 +38,9 @@ def test_device_check_emulated_exercises_the_safety_layer(device, model, rate):
     assert data["ok"] and data["emulated"] and data["rate_hz"] == rate
     assert str(data["identity"]["model"]).startswith(model)
     assert {c["rule"]: c["passed"] for c in data["safety"]} == {"clamp": True, "nan": True, "watchdog": True}
-    assert abs(data["ticks"] - 2 * rate) <= 2 and data["faults"] == []
+    # a stall of the loop's CPU in the trial's last milliseconds leaves those ticks unrun (seen once: 1987 of 2000 on
+    # the loaded VM, whose host stops a virtual CPU for 1-13 ms at a time)
+    assert abs(data["ticks"] - 2 * rate) <= max(2, 0.01 * 2 * rate) and data["faults"] == []
     assert data["rt"]["gc"] == "frozen+disabled" and data["rt"]["cpus"]
 
 
