@@ -87,14 +87,3 @@ def loads_json(text: str | bytes, *, max_depth: int = MAX_JSON_DEPTH) -> Any:
 
 __all__ = ["MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "json_depth", "loads_json", "read_text"]
 
-
-def precheck_yaml_file(path: str | os.PathLike[str] | None, what: str) -> None:
-    """Read an input YAML file as its own loader will (size, UTF-8, alias and nesting limits) and raise that
-    loader's one-line error if it is hostile or unreadable. A command calls this before it imports a heavy stack
-    (engine, store, pandas), so such a file is refused by a small process (issue 19: within 200 MB); the file's
-    own loader still checks its content. No file given, or a missing one: nothing to do here."""
-    if path is None or not Path(path).is_file():
-        return
-    from studyctl.yamlmarks import load_plain
-
-    load_plain(read_text(path, what), str(path))

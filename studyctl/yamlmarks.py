@@ -268,3 +268,17 @@ def load_plain(text: str, filename: str) -> Any:
     if fatal:
         raise UsageError(str(fatal[0]))
     return marked.data
+
+
+def precheck_yaml_file(path: Any, what: str) -> None:
+    """Read an input YAML file as its own loader will (size, UTF-8, alias and nesting limits) and raise that
+    loader's one-line error if it is hostile or unreadable. A command calls this before it imports a heavy stack
+    (engine, store, pandas), so such a file is refused by a small process (issue 19: within 200 MB); the file's
+    own loader still checks its content. No file given, or a missing one: nothing to do here."""
+    from pathlib import Path
+
+    from studyctl.inputs import read_text
+
+    if path is None or not Path(path).is_file():
+        return
+    load_plain(read_text(path, what), str(path))

@@ -144,8 +144,8 @@ def register_sim(app: typer.Typer) -> None:
         """Run seeded virtual participants through the real engine into a new study workspace."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from studyctl.inputs import precheck_yaml_file
         from studyctl.protocol import load_protocol, resolve_protocol
+        from studyctl.yamlmarks import precheck_yaml_file
 
         # the protocol (and population) read before the engine and the store are imported: a hostile file is
         # refused by a small process (issue 19); check_simulation checks the rest

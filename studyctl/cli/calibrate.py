@@ -48,8 +48,8 @@ def register(app: typer.Typer) -> None:
 
         # every input checked before the simulation stack (pandas, the engine) is imported: a hostile targets
         # or protocol file is refused by a small process (issue 19)
-        from studyctl.inputs import precheck_yaml_file
         from studyctl.workflows.calibration_spec import prepare_calibration
+        from studyctl.yamlmarks import precheck_yaml_file
 
         precheck_yaml_file(population, "population file")
 

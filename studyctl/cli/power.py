@@ -119,8 +119,8 @@ def register(app: typer.Typer) -> None:
         )
 
         from studyctl.analysis import load_plan
-        from studyctl.inputs import precheck_yaml_file
         from studyctl.protocol import load_protocol, resolve_protocol
+        from studyctl.yamlmarks import precheck_yaml_file
 
         # the protocol and the plan read before the power stack (pandas, the engine, the statistics) is
         # imported: a hostile file is refused by a small process (issue 19); prepare_power checks the rest
