@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from types import SimpleNamespace
 
 import pytest
@@ -55,20 +56,24 @@ class _Rec:
     def event(self, *a, **k): ...
 
 
-def drive(plan) -> list[dict]:
-    """Every screen body the page would receive while ``plan`` runs."""
-    hub = ViewHub()
+def drive(plan, hub: ViewHub | None = None, after=None) -> list[dict]:
+    """Every screen body the page would receive while ``plan`` runs (``after(body)`` is called with each)."""
+    hub = hub or ViewHub()
     seen: list[dict] = []
     show, update = hub.show, hub.update
 
     def show_and_keep(*a, **k):
         out = show(*a, **k)
         seen.append(dict(hub.screen))
+        if after is not None:
+            after(seen[-1])
         return out
 
     def update_and_keep(**k):
         update(**k)
         seen.append(dict(hub.screen))
+        if after is not None:
+            after(seen[-1])
 
     hub.show, hub.update = show_and_keep, update_and_keep
     ui = ViewUI(_Inner(), hub, _Rec(plan))
@@ -151,3 +156,60 @@ def test_no_countdown_limit_without_a_protocol_limit():
     screens = drive(_full_plan("needle_insertion"))
     assert {s.get("time_limit_s") for s in screens if s["screen"] == "trial" and not s.get("practice")} == {90.0}
 
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", PROTOCOLS)
+def test_the_page_in_chromium_shows_no_condition_and_no_clock_without_a_limit(name, browser):
+    """Each reference protocol's every screen, rendered by the real page in headless Chromium: its visible text holds
+    no condition id (outside the protocol's own prose) or label, and the trial countdown shows only with a limit."""
+    from view_support import wait_for
+
+    from studyctl.view import ParticipantView
+
+    plan = _full_plan(name)
+    conditions = dict(plan.conditions)
+    problems: list[str] = []
+    shown = {"screens": 0, "clocks": 0, "limited": 0}
+
+    def check(body: dict) -> None:
+        want = json.loads(json.dumps(body))
+        def on_page() -> bool:  # the screen the page holds (the server numbers each screen's version)
+            screen = browser.execute_script("return window.studyctlView.state().screen") or {}
+            return {k: v for k, v in screen.items() if k != "version"} == want
+
+        wait_for(on_page, 15, f"the page to show {body['screen']}")
+        text = browser.execute_script("return document.body.innerText")
+        for prose in (body.get(k) for k in PROSE):
+            if isinstance(prose, str):
+                text = text.replace(prose.strip(), " ")
+        # ids as whole words (case-sensitive); labels anywhere, any case: as the hub-level check above
+        problems.extend(f"{body['screen']}: {text[:100]!r} holds {c.id!r} or {c.label!r}" for c in conditions.values()
+                        if re.search(rf"(?<![A-Za-z0-9_]){re.escape(c.id)}(?![A-Za-z0-9_])", text)
+                        or (c.label and c.label.lower() in text.lower()))
+        if body["screen"] == "trial":
+            limited = bool(body.get("time_limit_s"))
+            shown["limited"] += limited
+            # the page redraws its countdown every 100 ms: give it a few redraws either way
+            end = time.monotonic() + (5.0 if limited else 0.5)
+            while True:
+                clock = browser.execute_script("return document.getElementById('countdown').textContent").strip()
+                if (limited and clock) or time.monotonic() > end:
+                    break
+                time.sleep(0.05)
+            shown["clocks"] += bool(clock)
+            if bool(clock) != limited:
+                problems.append(f"trial {body.get('label')}: countdown {clock!r} with time_limit_s "
+                                f"{body.get('time_limit_s')}")
+        shown["screens"] += 1
+
+    with ParticipantView() as view:
+        browser.get(view.url)
+        wait_for(lambda: browser.execute_script("return window.studyctlView && window.studyctlView.state().screen"),
+                 15, "the page connected")
+        drive(plan, hub=view.hub, after=check)
+        del view.hub.show, view.hub.update  # the hub's own again: closing the view shows its last screen
+    assert problems == []
+    assert shown["screens"] >= 19 and shown["clocks"] == shown["limited"]
+    # of the four, only the needle protocol sets a trial time limit (90 s): a clock on each of its 15 trials
+    assert shown["limited"] == (15 if name == "needle_insertion" else 0), shown
