@@ -163,6 +163,21 @@ def test_shipped_names_complete():
     assert complete_shipped("protocols")("./my") == []  # the shell then completes file names
 
 
+def test_every_parameter_taking_a_shipped_name_completes_it():
+    import click
+
+    takers = []
+    for path, p in _params(typer.main.get_command(app)):
+        help_text = (getattr(p, "help", None) or "").lower()
+        if "shipped" in help_text and ("protocol" in help_text or "plan" in help_text) and "name" in help_text:
+            takers.append((" ".join(path), p))
+    assert len(takers) >= 9, [t for t, _ in takers]  # protocol check/show/schedule, init, simulate, power, calibrate …
+    ctx = click.Context(typer.main.get_command(app))
+    for where, p in takers:
+        got = [getattr(c, "value", c) for c in p.shell_complete(ctx, "needl")]  # a protocol and a plan of that name
+        assert got == ["needle_insertion"], (where, p.name, got)
+
+
 @pytest.mark.slow  # one simulated person (~5 s)
 def test_simulate_json_is_one_object(tmp_path, capsys):
     import json

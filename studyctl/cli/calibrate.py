@@ -6,11 +6,14 @@ from pathlib import Path
 
 import typer
 
+from studyctl.cli.common import complete_shipped
+
 
 def register(app: typer.Typer) -> None:
     @app.command("calibrate")
     def calibrate(
-        protocol: str = typer.Argument(..., help="Shipped protocol name or protocol file."),
+        protocol: str = typer.Argument(..., help="Shipped protocol name or protocol file.",
+                                       autocompletion=complete_shipped("protocols")),
         targets: Path = typer.Option(None, "--targets", help="Targets file (format: studyctl-targets/1; default: "
                                      "the protocol's shipped studyctl/populations/<protocol>.targets.yaml)."),
         population: Path = typer.Option(None, "--population", help="Population to start from (default: the "

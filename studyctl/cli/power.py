@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
-from studyctl.cli.common import output_console
+from studyctl.cli.common import complete_shipped, output_console
 
 _POP_HELP = ("A population file (format: studyctl-population/1) the virtual people are drawn from (default: the "
              "protocol's shipped population), or a YAML file with a population: section (baseline, "
@@ -46,9 +46,11 @@ def _population(file: Path | None, effects: list[str], group_effects: list[str],
 def register(app: typer.Typer) -> None:
     @app.command("power")
     def power(
-        protocol: str = typer.Argument(..., help="Protocol file, or a shipped protocol name (bio_inspired_palpation)."),
+        protocol: str = typer.Argument(..., help="Protocol file, or a shipped protocol name (bio_inspired_palpation).",
+                                       autocompletion=complete_shipped("protocols")),
         plan: str = typer.Option(None, "--plan", help="Analysis plan (file or shipped name) for that protocol "
-                                 "(default for a shipped protocol: the shipped plan of the same name)."),
+                                 "(default for a shipped protocol: the shipped plan of the same name).",
+                                 autocompletion=complete_shipped("analysis")),
         participants: str = typer.Option("8,12,16,20,25", "--participants", "-n",
                                          help="Sample sizes, comma-separated (each ≥ the counterbalancing sequences)."),
         replicates: int = typer.Option(500, "--replicates", "-r", help="Simulated studies per sample size."),

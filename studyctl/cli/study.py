@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, workspace_arg
+from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, complete_shipped, workspace_arg
 from studyctl.engine.data_gaps import data_gaps, gap_lines, gaps_json
 from studyctl.engine.progress import progress_json, progress_lines, study_progress
 from studyctl.errors import UsageError
@@ -20,7 +20,8 @@ def register(app: typer.Typer) -> None:
     def init(
         folder: Path = typer.Argument(..., help="Workspace folder to create (may exist if it holds no study)."),
         protocol: str = typer.Option(
-            None, "--protocol", help="Shipped protocol name or protocol file; validated and snapshotted."
+            None, "--protocol", help="Shipped protocol name or protocol file; validated and snapshotted.",
+            autocompletion=complete_shipped("protocols"),
         ),
         name: str = typer.Option(None, "--name", help="Study name (default: the protocol's study id or folder name)."),
         seed: int = typer.Option(None, "--seed", help="Master seed (default: the protocol's, else random)."),
