@@ -13,7 +13,10 @@ process, a thread doing pure-Python work (the prompts, view and store a session 
   busy thread, with the same hybrid wait, without the real-time setup (the path a session took before).
 
 Figures: ``period_jitter_us_p99_loaded`` (p99 of |period − 1 ms|), ``late_ticks_pct_loaded`` (ticks starting more
-than 1 ms after they were due, %), lateness p99, the loop's CPU seconds, and ``servo_start_s`` (wall seconds from
+than 1 ms after they were due, %), lateness p99, the loop's CPU seconds, ``loop_cpu_steal_ms`` (what the hypervisor
+took from the loop's CPU during the servo run: on a virtual machine the host stops a virtual CPU for milliseconds,
+and the loop then runs the missed ticks late; ``scripts/servo_stalls.py`` traces which late ticks that explains),
+and ``servo_start_s`` (wall seconds from
 starting the servo process to the trial's time 0: spawn, imports, plugins built, device opened; paid once per
 session) and ``servo_next_trial_start_s`` (the same for a following trial in the same process: plugins built,
 device opened).
