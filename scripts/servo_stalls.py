@@ -107,7 +107,8 @@ def record(seconds: float, cpu: int, out_dir: Path) -> dict:
     hog.start()
     stop_ui = threading.Event()
     threading.Thread(target=busy_python, args=(stop_ui,), daemon=True).start()
-    saved = {name: (TRACE / name).read_text() for name in ("trace_clock", "tracing_cpumask", "buffer_size_kb")}
+    saved = {name: (TRACE / name).read_text() for name in ("trace_clock", "tracing_cpumask", "buffer_size_kb",
+                                                           "tracing_on")}
     clock_now = re.search(r"\[(\w+)\]", saved["trace_clock"])
     try:
         _write("trace_clock", "mono")  # time.perf_counter's clock
@@ -146,6 +147,7 @@ def record(seconds: float, cpu: int, out_dir: Path) -> dict:
         _write("tracing_cpumask", saved["tracing_cpumask"].strip())
         if clock_now:
             _write("trace_clock", clock_now.group(1))
+        _write("tracing_on", saved["tracing_on"].strip())
         stop_ui.set()
         stop.set()
         hog.join(timeout=5)
