@@ -160,9 +160,10 @@ def test_no_countdown_limit_without_a_protocol_limit():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", PROTOCOLS)
-def test_the_page_in_chromium_shows_no_condition_and_no_clock_without_a_limit(name, browser):
+def test_the_page_in_chromium_shows_no_condition_and_no_clock_without_a_limit(name, browser, shots):
     """Each reference protocol's every screen, rendered by the real page in headless Chromium: its visible text holds
     no condition id (outside the protocol's own prose) or label, and the trial countdown shows only with a limit."""
+    from test_browser import at_sizes
     from view_support import wait_for
 
     from studyctl.view import ParticipantView
@@ -202,6 +203,12 @@ def test_the_page_in_chromium_shows_no_condition_and_no_clock_without_a_limit(na
                 problems.append(f"trial {body.get('label')}: countdown {clock!r} with time_limit_s "
                                 f"{body.get('time_limit_s')}")
         shown["screens"] += 1
+        kind = body["screen"] + ("_practice" if body.get("practice") else "")
+        # the first of each at 1920x1080 and 1280x720, everything inside the window (a trial's own screen needs the
+        # running trial's visual and requests: test_browser.py shoots those from real sessions)
+        if kind in ("hands_on", "trial_ready") and kind not in shown:
+            shown[kind] = 1
+            at_sizes(browser, shots, f"30_{name}_{kind}")
 
     with ParticipantView() as view:
         browser.get(view.url)
