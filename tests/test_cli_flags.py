@@ -151,6 +151,7 @@ def test_status_watch_refreshes_until_ctrl_c(tmp_path, capsys, monkeypatch):
     out = capsys.readouterr().out
     assert naps == [0.5, 0.5, 0.5] and "study:    needle_insertion" in out and "NDL-AAAAA" in out
     assert "every 0.5 s; Ctrl-C to stop" in out
+    assert out.index("(read at") < out.index("study:")  # the stamp on top: a tall view is cut at the bottom
     assert main(["status", "--watch", "--json", "-w", str(tmp_path / "ws")]) != 0
     assert capsys.readouterr().err.startswith("Error: --watch shows a live view")
 

@@ -88,8 +88,9 @@ def register(app: typer.Typer) -> None:
         def view(info, progress, gaps) -> Text:  # noqa: ANN001
             # Text, not markup: names are shown verbatim whatever characters they hold
             stamp = datetime.now().strftime("%H:%M:%S")
-            return Text("\n".join([*_status_lines(info, progress, gaps),
-                                   f"(read at {stamp}; every {interval:g} s; Ctrl-C to stop)"]))
+            # the stamp first: a view taller than the terminal is cut at the bottom
+            return Text("\n".join([f"(read at {stamp}; every {interval:g} s; Ctrl-C to stop)",
+                                   *_status_lines(info, progress, gaps)]))
 
         with Live(view(info, progress, gaps), console=Console(highlight=False), auto_refresh=False) as live:
             try:
@@ -113,4 +114,5 @@ def _status_lines(info, progress, gaps) -> list[str]:  # noqa: ANN001
         lines.append(f"{'rehearsals:':<13} {sum(info.rehearsal_sessions.values())} sessions, "
                      f"{sum(info.rehearsal_trials.values())} trials "
                      "(run --rehearse; not counted above, never analysed)")
-    return lines + list(progress_lines(progress)) + gap_lines(gaps)
+    data = gap_lines(gaps)  # the totals near the top (a --watch taller than the terminal is cut at the bottom)
+    return lines + data[:1] + list(progress_lines(progress)) + data[1:]
