@@ -129,6 +129,15 @@ def test_needle_session_scans_likert_reload_and_records(store, browser, new_brow
             c = document.getElementById('cv-ct'); return [b.width, c.getBoundingClientRect().width, c.width,
             getComputedStyle(document.getElementById('ct-scale')).display];""")
         assert bar[3] != "none" and bar[0] == pytest.approx(10 / panel["mm_per_px"] * bar[1] / bar[2], rel=0.05)
+        # and one on every other slice (coronal), 10 mm at its own resolution, inside that slice
+        panels = browser.execute_script("return window.studyctlView.state().lastFrame.panels")
+        more = browser.execute_script("""const c = document.getElementById('cv-ct').getBoundingClientRect();
+            return [...document.querySelectorAll('.ct-scale-more')].map((b) => { const r = b.getBoundingClientRect();
+              return [r.width, r.left - c.left, getComputedStyle(b).display]; });""")
+        assert len(panels) >= 2 and len(more) == len(panels) - 1
+        for p, (width, left, display) in zip(panels[1:], more, strict=True):
+            assert display != "none" and width == pytest.approx(10 / p["mm_per_px"] * bar[1] / bar[2], rel=0.05)
+            assert left == pytest.approx((p["col0"] + 8) * bar[1] / bar[2], abs=2)
         at_sizes(browser, shots, "04_ct_scan_1")
 
         browser.refresh()  # the participant's browser reloads mid-trial

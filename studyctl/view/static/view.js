@@ -336,16 +336,22 @@
       el.style.left = (100 * p.col0 / w) + "%";
       box.append(el);
     }
-    // Scale bar: 10 mm at the slices' own resolution, bottom-left of the first slice.
-    const bar = $("ct-scale");
-    const mpp = panels.length ? Number(panels[0].mm_per_px) : NaN;
-    if (isFinite(mpp) && mpp > 0) {
-      bar.style.display = "";
-      bar.style.left = (100 * (panels[0].col0 + 8) / w) + "%";
-      bar.style.width = (100 * (10 / mpp) / w) + "%";
-    } else {
-      bar.style.display = "none";
-    }
+    // Scale bars: 10 mm at each slice's own resolution, bottom-left of each slice (the first is #ct-scale).
+    const first = $("ct-scale");
+    for (const old of box.parentNode.querySelectorAll(".ct-scale-more")) old.remove();
+    panels.forEach((p, i) => {
+      const bar = i === 0 ? first : first.cloneNode(true);
+      const mpp = Number(p.mm_per_px);
+      if (i > 0) { bar.removeAttribute("id"); bar.className = "ct-scale-more"; first.parentNode.append(bar); }
+      if (isFinite(mpp) && mpp > 0) {
+        bar.style.display = "";
+        bar.style.left = (100 * (p.col0 + 8) / w) + "%";
+        bar.style.width = (100 * (10 / mpp) / w) + "%";
+      } else {
+        bar.style.display = "none";
+      }
+    });
+    if (!panels.length) first.style.display = "none";
   }
 
   function heightsColour(v, lo, hi) {
