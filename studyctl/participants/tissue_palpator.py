@@ -12,7 +12,9 @@ presses, every other line shifted by half a spacing, boustrophedon), then a 3 ×
 ``follow_up_count`` spots). A press brings the watched point — the cursor when one is visible, else the hand —
 from ``hover_mm`` above the visible surface to ``press_depth_mm`` below it with a saturated proportional law
 on its error (``gain_per_s``), so the cursor's lag (pseudo-haptics) and the rendered force pushing the hand
-back (the device's spring-held hand) are compensated the way a person does, by moving the hand further.
+back (the device's spring-held hand) are compensated the way a person does, by moving the hand further; with
+``press_adaptation`` the pressing gain is raised by how little the watched point has yielded per hand millimetre
+over the trial's presses (visuomotor gain adaptation), so a press keeps its pace under a slowed cursor.
 Moves in the air are planned straight-line hand motions.
 
 Perception per press (noise multiplicative, drawn from the trial's rng):
@@ -151,6 +153,9 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
         self._follow_up: dict[str, Any] = {}
         self._direct = False
         self._stopped_early = False
+        # how far the watched point has gone into the tissue per millimetre the hand was told to press, as learnt
+        # over this trial's presses (1: as in the air); the press is steered with the inverse as extra gain
+        self._press_yield = 1.0
         self.perceived: dict[str, Any] = {}
         self._motor = self._trial_motor(info, rng)
 
@@ -300,6 +305,10 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
         k = m["gain"] * dt
         # holding a press: slow depth corrections only, well below the hand's own resonance against the tissue
         kz = k * self.params["hold_gain_ratio"] if self._phase == "dwell" else k
+        if self._phase == "press":
+            # adapted to how little the watched point yields per hand millimetre in this condition (the cursor's
+            # pseudo-haptic slowing, the hand pushed back by rendered force): the press keeps its planned pace
+            kz /= self._press_yield
         vx, vy, vz = ex * k, ey * k, ez * kz
         lateral = m["move"] * dt
         vertical = m["press"] * dt
@@ -310,6 +319,21 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
         h[0] += vx
         h[1] += vy
         h[2] += vz
+
+    def _adapt_press_gain(self, press: dict[str, Any], ctrl: tuple[float, float, float]) -> None:
+        """Learn from this press how far the watched point went into the tissue per millimetre the hand was told
+        to go (visuomotor gain adaptation: people rescale their movements to a changed cursor gain within a few
+        movements, Krakauer et al. 2000), at ``press_adaptation`` per press, the boost at most
+        ``max_press_boost``."""
+        rate = self.params["press_adaptation"]
+        if rate <= 0 or "in_at" not in press:
+            return
+        c0, h0 = press["in_at"]
+        told = h0 - self._hand[2]
+        if told < 0.5:  # too little travel in the tissue to see a gain
+            return
+        seen = min(max((c0 - ctrl[2]) / told, 1.0 / self.params["max_press_boost"]), 1.0)
+        self._press_yield += rate * (seen - self._press_yield)
 
     def _plan_move(self, ctrl: tuple[float, float, float]) -> None:
         """Hand goal that brings the watched point to the target, never lower than the target height (a
@@ -370,7 +394,10 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
             # and holds, without servoing the last fraction of a millimetre (a spring-held hand pressing on
             # rendered forces would oscillate about it for the whole phase timeout).
             near = ctrl[2] <= self._target[2] + p["tolerance_mm"]
+            if "in_at" not in press and ctrl[2] <= press["h"]:
+                press["in_at"] = (ctrl[2], self._hand[2])  # the watched point enters the tissue
             if near or timed_out or force >= p["max_press_force_n"]:
+                self._adapt_press_gain(press, ctrl)
                 self._phase, self._phase_t = "dwell", 0.0
                 press["bx"], press["by"], press["bz"] = ctrl[0], ctrl[1], ctrl[2]
                 press["hold"] = self._hold_time(press, force)

@@ -35,6 +35,13 @@ PARAMS = (
     Param("hold_gain_ratio", 0.25, low=0.0, high=1.0,
           source="CHOSEN: while holding a press the depth is corrected this much more slowly than while pressing "
           "(a 4/s loop at tempo 2 stays clear of the 4-5 Hz resonance of a spring-held hand on the tissue)"),
+    Param("press_adaptation", 0.0, low=0.0, high=1.0,
+          source="CHOSEN: how much of the gap between the hand's travel and the watched point's in the tissue (cursor "
+          "slowed by pseudo-haptics, hand pushed back by rendered force) one press adapts the pressing gain by; "
+          "people adapt to a changed visuomotor gain within a few movements (Krakauer, Pine, Ghilardi & Ghez 2000, "
+          "J Neurosci 20:8916); 0: never (the press slows with the yield)"),
+    Param("max_press_boost", 4.0, low=1.0, high=20.0,
+          source="CHOSEN: the pressing gain is raised at most this much by adaptation"),
     Param("tolerance_mm", 0.3, low=0.01, high=5.0, unit="mm", source="CHOSEN: depth accuracy at the press bottom"),
     Param("settle_s", 0.05, low=0.0, high=5.0, unit="s", source="CHOSEN: a pause before pressing, at tempo 1"),
     Param("phase_timeout_s", 1.5, low=0.1, high=30.0, unit="s", source="CHOSEN: a stuck movement is abandoned"),

@@ -69,3 +69,36 @@ def test_presses_are_compared_with_the_tissue_at_the_same_depth():
     assert (0.2 * 4.7**1.7 / 4.7) / (0.2 * 1.8**1.7 / 1.8) > 1.6
     assert contrast[-1] == pytest.approx(0.3, abs=0.03)
     assert np.max(np.abs(contrast[:-2])) < 0.02
+
+
+def _press_through(person: VirtualTissuePalpator, seen_per_told: float, told_mm: float = 4.0) -> None:
+    """One press whose watched point went ``seen_per_told`` mm into the tissue per mm the hand was told to go."""
+    person._hand = [0.0, 0.0, 20.0 - told_mm]
+    press = {"h": 25.0, "in_at": (25.0, 20.0)}
+    person._adapt_press_gain(press, (0.0, 0.0, 25.0 - seen_per_told * told_mm))
+
+
+def test_the_pressing_gain_adapts_to_how_little_the_watched_point_yields():
+    adapting = VirtualTissuePalpator({"press_adaptation": 0.3, "max_press_boost": 4.0})
+    fixed = VirtualTissuePalpator({})  # press_adaptation 0: the press slows with the yield, as before
+    for person in (adapting, fixed):
+        person.begin_trial(TrialInfo(condition="PHF_FF", time_limit_s=10.0, rate_hz=250.0, visual="realtime",
+                                     public={}), np.random.default_rng(0))
+    yields = []
+    for _ in range(12):
+        for person in (adapting, fixed):
+            _press_through(person, 0.3)
+        yields.append(adapting._press_yield)
+    assert yields[0] == pytest.approx(1.0 - 0.3 * 0.7)  # one press moves it 30 % of the way
+    assert yields[-1] == pytest.approx(0.3, abs=0.02)  # within a dozen presses, about the yield seen
+    assert fixed._press_yield == 1.0
+    for _ in range(30):
+        _press_through(adapting, 0.05)  # a point that hardly moves: the boost is capped
+    assert adapting._press_yield == pytest.approx(0.25, abs=1e-3)
+    before = adapting._press_yield
+    adapting._hand = [0.0, 0.0, 19.8]
+    adapting._adapt_press_gain({"h": 25.0, "in_at": (25.0, 20.0)}, (0.0, 0.0, 25.0))  # 0.2 mm told: nothing learnt
+    assert adapting._press_yield == before
+    adapting.begin_trial(TrialInfo(condition="FF", time_limit_s=10.0, rate_hz=250.0, visual="realtime", public={}),
+                         np.random.default_rng(1))
+    assert adapting._press_yield == 1.0  # a new condition is learnt afresh

@@ -101,18 +101,18 @@ PERSON_003 = {"tempo": 3.2, "line_spacing_mm": 9.5, "press_spacing_mm": 9.5, "vi
               "ratio_window_mm": 1.0, "z_threshold": 3.5, "report_fraction": 0.15, "press_precision": 0.05}
 
 
-def _trial_003(params, *, seed, controller, cparams=None):
+def _trial_003(params, *, seed, controller, cparams=None, person_cls=VirtualTissuePalpator):
     """One seed 003 trial (PHF or FF controller, block at 0°) through the trial loop; returns (score, person)."""
-    from studyctl.controllers.tissue import PseudoHaptic
+    from studyctl.controllers.tissue import PseudoHaptic, PseudoHapticForceFeedback
 
-    cls = {"PHF": PseudoHaptic, "FF": StiffnessMapForceFeedback}[controller]
+    cls = {"PHF": PseudoHaptic, "FF": StiffnessMapForceFeedback, "PHF_FF": PseudoHapticForceFeedback}[controller]
     cparams = cparams or {}
     needs = cls.needs(cparams) | {"view"}
     scene = StiffnessTissueScene.build({"phantom": "seed003_block"}, {"orientation_deg": 0.0}, needs,
                                        np.random.default_rng(seed))
     device = SimulatedForceDevice({}, scene, np.random.default_rng(seed + 1))
     device.open()
-    person = VirtualTissuePalpator(params)
+    person = person_cls(params)
     info = TrialInfo(condition=controller, time_limit_s=900.0, rate_hz=250.0, visual="realtime",
                      public={**scene.public(), "trial_index": 1})
     out = run_trial(info=info, controller=cls(cparams, scene), device=device, participant=person,
@@ -140,3 +140,27 @@ def test_seed_003_force_feedback_without_force_is_noticed():
     broken = _trial_003(PERSON_003, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0]
     assert working.nodules_found >= 2
     assert broken.nodules_found == 0
+
+
+class _PressClock(VirtualTissuePalpator):
+    """Counts the time spent pressing (from above the surface down to the wanted depth)."""
+
+    pressing_s = 0.0
+
+    def act(self, t, percept):
+        if getattr(self, "_phase", None) == "press":
+            self.pressing_s += self._dt
+        return super().act(t, percept)
+
+
+@pytest.mark.slow
+def test_presses_under_both_feedbacks_keep_their_pace_once_adapted():
+    """PHF+FF: the cursor yields (f + 1) times less than the hand and the hand is pushed back, so a press steered
+    by the cursor crept to its depth; a person who adapts its pressing gain to that presses sooner, and still
+    finds nodules."""
+    crept, crept_person = _trial_003(PERSON_003, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    adapted, adapted_person = _trial_003({**PERSON_003, "press_adaptation": 0.3}, seed=11, controller="PHF_FF",
+                                         person_cls=_PressClock)
+    per_press = [p.pressing_s / len(p._presses) for p in (crept_person, adapted_person)]
+    assert per_press[1] < 0.85 * per_press[0], per_press
+    assert adapted.nodules_found >= 1
