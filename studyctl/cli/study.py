@@ -8,11 +8,7 @@ from pathlib import Path
 import typer
 
 from studyctl.cli.common import DB_OPTION, STUDY_OPTION, WORKSPACE_OPTION, complete_shipped, workspace_arg
-from studyctl.engine.data_gaps import data_gaps, gap_lines, gaps_json
-from studyctl.engine.progress import progress_json, progress_lines, study_progress
 from studyctl.errors import UsageError
-from studyctl.store.status import study_status
-from studyctl.store.workspace import init_workspace, open_study
 
 
 def register(app: typer.Typer) -> None:
@@ -31,6 +27,12 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
     ) -> None:
         """Create a study workspace: studyctl.toml plus its database at the newest schema."""
+        if protocol is not None:  # read before the store is imported: a hostile protocol is refused by a small
+            from studyctl.protocol import load_protocol, resolve_protocol  # process (issue 19)
+
+            load_protocol(resolve_protocol(protocol))
+        from studyctl.store.workspace import init_workspace
+
         result = init_workspace(folder, protocol=protocol, name=name, db=db, seed=seed)
         if as_json:
             typer.echo(json.dumps({"study": result.study, "root": str(result.root), "database": str(result.database),
@@ -57,6 +59,10 @@ def register(app: typer.Typer) -> None:
         """Show the study, its protocol and how many participants, sessions and trials are in each state."""
         if watch and as_json:
             raise UsageError("--watch shows a live view for a person; for scripts poll `studyctl status --json`")
+        from studyctl.engine.data_gaps import data_gaps, gaps_json
+        from studyctl.engine.progress import progress_json, study_progress
+        from studyctl.store.status import study_status
+        from studyctl.store.workspace import open_study
 
         def read() -> tuple:  # noqa: ANN202
             with open_study(db, workspace_arg(workspace), study) as opened:
@@ -103,6 +109,9 @@ def register(app: typer.Typer) -> None:
 
 def _status_lines(info, progress, gaps) -> list[str]:  # noqa: ANN001
     """The text of ``studyctl status`` (also the body of ``--watch``)."""
+    from studyctl.engine.data_gaps import gap_lines
+    from studyctl.engine.progress import progress_lines
+
     lines = [f"study:    {info.study}", f"database: {info.database}"]
     proto = f"{info.protocol_name} (sha256 {info.protocol_sha256})" if info.protocol_name else "none"
     lines += [f"protocol: {proto}", f"seed:     {info.seed}"]

@@ -126,6 +126,8 @@ def test_alias_bomb_analysis_plan_is_one_error(tmp_path):
 # 205-208 MB (report, power, calibrate) or 160-167 MB (simulate) when the stack came first, and a deeply nested
 # targets file was a RecursionError traceback.
 WORKFLOW_CASES = {
+    "init_protocol_bomb": (["init", "w", "--protocol", "{bomb}"], [r"bomb\.yaml:\d+:\d+", r"aliases"]),
+    "init_protocol_deep": (["init", "w", "--protocol", "{deep}"], [r"deep\.yaml:1:\d+", r"nesting depth"]),
     "report_plan_bomb": (["report", "{bomb}", "-o", "out"], [r"bomb\.yaml:\d+:\d+", r"aliases"]),
     "power_protocol_bomb": (["power", "{bomb}"], [r"bomb\.yaml:\d+:\d+", r"aliases"]),
     "power_plan_bomb": (["power", "needle_insertion", "--plan", "{bomb}"], [r"bomb\.yaml:\d+:\d+", r"aliases"]),
@@ -150,7 +152,8 @@ def test_hostile_file_to_a_workflow_is_one_error_from_a_small_process(case, tmp_
              "deep": _protocol(tmp_path, "x: " + "[" * 50_000 + "]" * 50_000 + "\n", "deep.yaml")}
     argv = [a.format(**files) for a in argv]
     _expect_one_error(_run(argv, tmp_path), *patterns, cwd=tmp_path)
-    assert not (tmp_path / "out").exists() and not (tmp_path / "reports").exists()  # nothing left behind
+    for left in ("out", "reports", "w"):
+        assert not (tmp_path / left).exists()  # nothing left behind
 
 
 @pytest.fixture(scope="module")
