@@ -10,8 +10,9 @@ with ``--lsl`` publishes two kinds of stream while it records:
   different set of channels.
 
 Time stamps are LSL's clock (``local_clock()``, the monotonic clock): a trial time ``t`` is placed at the trial's
-start on that clock plus ``t``. The servo process reports its start on the same clock (``servo_clock`` event), so
-samples that arrive in batches keep their own times.
+start on that clock plus ``t``. The servo process reports the loop's time 0 on the same clock (``servo_clock``
+event, taken where the loop takes its time 0), so samples that arrive in batches keep their own times: a sample's
+stamp is the monotonic time at which the loop read it.
 
 :class:`LslRecorder` wraps the session's recorder: everything is recorded as before, and also published.
 """
@@ -112,16 +113,17 @@ class LslRecorder:
         self.rate_hz = 1000.0
 
     def event(self, kind: str, payload: Mapping[str, Any], *args: Any, **kw: Any) -> Any:
+        s = self.streams
+        arrived = s.clock()  # before the inner recorder writes (a store commit can take milliseconds)
         out = self.inner.event(kind, payload, *args, **kw)
         t = kw.get("t", args[0] if args else None)
         trial = kw.get("trial_id")
-        s = self.streams
         if kind == "servo_clock":
             s.trial_zero = float(payload["monotonic_zero"])
         elif kind == "trial_loop_start":
             self.rate_hz = float(payload.get("rate_hz") or self.rate_hz)
             if s.trial_zero is None or (t is not None and s.clock() - (s.trial_zero + float(t)) > 5.0):
-                s.trial_zero = s.clock() - float(t or 0.0)  # in this process: the event arrives as it happens
+                s.trial_zero = arrived - float(t or 0.0)  # in this process: the event arrives as it happens
         if kind not in SKIPPED:
             now = s.clock()
             stamp = s.trial_zero + float(t) if (trial is not None and t is not None and s.trial_zero) else now

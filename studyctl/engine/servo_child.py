@@ -239,8 +239,14 @@ def run_one(spec: ServoSpec, n: int, inbox: Any, outbox: Any, parent_pid: int, s
             cpu0 = time.process_time()
             loop_cpu = rt["cpus"][0] if len(rt.get("cpus", ())) == 1 else None
             steal0 = cpu_steal_ms(loop_cpu)
-            # trial time 0 on the monotonic clock (LSL's local_clock), so the parent can place batched samples in time
-            send((n, "event", 0.0, "servo_clock", {"monotonic_zero": time.monotonic()}))
+
+            def on_start(start: float) -> None:
+                # trial time 0 on the monotonic clock (LSL's local_clock), so the parent can place batched samples
+                # in time; taken at the loop's own time 0: taken before run_trial it preceded time 0 by the
+                # participant's begin_trial, the controller's reset and the watchdog thread's start (0.19-0.36 ms,
+                # tests/devices/test_lsl.py at load 3)
+                send((n, "event", 0.0, "servo_clock", {"monotonic_zero": time.monotonic() - (clock.now() - start)}))
+
             outcome = run_trial(
                 info=spec.info,
                 controller=controller,
@@ -252,6 +258,7 @@ def run_one(spec: ServoSpec, n: int, inbox: Any, outbox: Any, parent_pid: int, s
                 on_sample=on_sample,
                 view=scene.view if (scene is not None and spec.participant) else None,
                 should_stop=should_stop,
+                on_start=on_start,
             )
         finally:
             if spec.realtime:
@@ -262,6 +269,8 @@ def run_one(spec: ServoSpec, n: int, inbox: Any, outbox: Any, parent_pid: int, s
         steal1 = cpu_steal_ms(loop_cpu)
         if steal0 is not None and steal1 is not None:  # the hypervisor's share of the loop's CPU during the trial
             rt["steal_ms"] = steal1 - steal0
+        if clock.n:  # when the loop's first paced tick began, on the monotonic clock (checks servo_clock's stamps)
+            rt["first_tick_monotonic"] = time.monotonic() - clock.now() + float(clock.starts[0])
         timing = clock.timing(1.0 / spec.info.rate_hz)
         send((n, "event", outcome.duration_s, "servo_timing", {**timing.as_dict(), "rt": rt,
                                                                 "nice": rt.get("nice", 0)}))

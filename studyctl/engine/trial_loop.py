@@ -51,6 +51,7 @@ def run_trial(
     should_stop: Callable[[], str | None] | None = None,
     on_sample_parts: Callable[[float, Mapping[str, float], Mapping[str, float], Mapping[str, float]], None]
     | None = None,
+    on_start: Callable[[float], None] | None = None,
 ) -> TrialOutcome:
     """Run one trial to its end: the participant finishes, the time limit passes, or it is stopped.
 
@@ -66,6 +67,8 @@ def run_trial(
     ``on_sample_parts(t, values, written, diagnostics)``, when given instead of ``on_sample``, takes the
     sample's three parts unmerged (the same sample as ``{**values, **written, **diagnostics}``) so that a
     sink that keeps fixed channels need not build a dict every tick.
+    ``on_start(start)`` is called with the clock's reading at trial time 0, as soon as it is taken (the servo
+    process places the trial on the monotonic clock with it, for Lab Streaming Layer time stamps).
     """
     events: list[dict[str, Any]] = []
 
@@ -94,6 +97,8 @@ def run_trial(
         # the first tick late by more than 1 ms on a loaded machine (3 of 12 servo runs of the bench loop at load 10-31)
         watchdog.start()
     start = clock.now()
+    if on_start is not None:
+        on_start(start)
     if watchdog is not None:
         watchdog.kick()
     percept: dict[str, Any] = {}

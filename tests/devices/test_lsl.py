@@ -8,10 +8,13 @@ import json
 import threading
 import time
 
+import numpy as np
 import pytest
+from sqlalchemy import select
 
 from studyctl.engine.api import run_session
 from studyctl.engine.ui import Script
+from studyctl.store.models import Event, Trial
 
 pylsl = pytest.importorskip("pylsl", reason="pylsl (extra lsl) is not installed")
 pytestmark = pytest.mark.slow
@@ -71,3 +74,21 @@ def test_a_rehearsal_streams_markers_and_samples_to_lsl(study):
     ends = [ts for ts, e in events if e["kind"] == "trial_loop_end"]
     last_end = ends[-1]
     assert abs(stamps[-1] - last_end) < 0.1, (stamps[-1], last_end)
+    # Each stamp is the trial's time 0 on the LSL clock plus the sample's recorded trial time, and that time 0 is the
+    # loop's own: the servo process reports when its first paced tick began (first_tick_monotonic, the monotonic
+    # clock = LSL's local_clock), and the sample the loop read at that tick must carry that stamp. The servo_clock
+    # zero used to be taken before run_trial (before the participant's begin_trial, the controller's reset and the
+    # watchdog thread's start), which put every stamp early by that setup: 191-357 us in 3 runs of this test on the
+    # old code (load 3); 10-14 us after the fix (3 runs, same load: the sample's t is read just after the tick began).
+    # 100 us lies between the two.
+    with opened.store.reading() as db:
+        last = db.scalars(select(Trial).where(Trial.session_id == result.session_id)
+                          .order_by(Trial.id.desc())).first()
+        rt = next(p["rt"] for k, p in db.execute(select(Event.kind, Event.payload)
+                                                  .where(Event.trial_id == last.id)).all() if k == "servo_timing")
+    recorded = opened.store.read_samples(last.id)["t"].to_numpy()
+    streamed = np.array(stamps[-len(recorded):])
+    zeros = streamed - recorded
+    assert np.ptp(zeros) < 1e-6, np.ptp(zeros)  # one time 0 for the whole trial, every sample at its own t
+    first_tick = float(rt["first_tick_monotonic"])
+    assert abs(zeros[0] + recorded[1] - first_tick) < 1e-4, (zeros[0] + recorded[1] - first_tick) * 1e3
