@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import textwrap
@@ -167,6 +168,14 @@ def test_cli_enroll(tmp_path, capsys, valid_text):
     assert out[0].startswith("Enrolled P-") and out[0].endswith("in group expert: slot 1, sequence 1")
     assert out[1] == "  order: A → B → D → C"
     assert out[2].startswith("  trial   1: A (block 1, repetition 1); placement soft=")
+    # --json counts as the text does, in fields named by their base; the stored plan's indices count from 0
+    assert main(["enroll", "-w", str(tmp_path / "ws"), "--group", "expert", "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    plan = got["schedule"]
+    assert (got["slot_number"], got["slot_index"], plan["slot"]) == (2, 1, 1)
+    assert got["sequence_number"] == got["sequence_index"] + 1 == plan["sequence"] + 1
+    assert main(["enroll", "-w", str(tmp_path / "ws"), "--group", "expert"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].endswith(f"slot 3, sequence {got['sequence_number'] + 1}")
     assert main(["enroll", "-w", str(tmp_path / "ws")]) == 2
     assert capsys.readouterr().err.strip() == ("Error: this study has groups novice, expert; say which with "
                                                "--group")
