@@ -190,7 +190,7 @@ def _timer_slack(report: dict[str, Any]) -> None:
 def realtime_setup(cpu: int | None = None, nice: int = -10, *, lock_memory: bool = True) -> dict[str, Any]:
     """Give this process the best real-time footing the OS allows; return what it actually got.
 
-    Pins the process to one CPU (``cpu``, default the last allowed one), asks for SCHED_FIFO at
+    Pins the process to one CPU (``cpu``, default :func:`least_held_cpu`), asks for SCHED_FIFO at
     :data:`FIFO_PRIORITY` (needs root or CAP_SYS_NICE; else lowers the nice value by ``-nice`` as far as permitted,
     with a warning), locks its memory, sets the timer slack to 1 ns, and freezes then disables the garbage collector.
     The report says what took effect (``sched``, ``priority``, ``nice``, ``cpus``, ``mlock``, ``gc``) and, under
@@ -201,7 +201,7 @@ def realtime_setup(cpu: int | None = None, nice: int = -10, *, lock_memory: bool
     if hasattr(os, "sched_setaffinity"):
         try:
             allowed = sorted(os.sched_getaffinity(0))
-            target = cpu if cpu is not None and cpu in allowed else allowed[-1]
+            target = cpu if cpu is not None and cpu in allowed else least_held_cpu(allowed)
             os.sched_setaffinity(0, {target})
         except OSError as exc:
             warnings.append(f"not pinned to one CPU ({exc.strerror})")
@@ -246,6 +246,40 @@ def realtime_setup(cpu: int | None = None, nice: int = -10, *, lock_memory: bool
     if warnings:
         report["warnings"] = warnings
     return report
+
+
+PF_KTHREAD = 0x00200000  # /proc/PID/stat flags: a kernel thread (its per-CPU FIFO threads are on every CPU alike)
+_RT_POLICIES = frozenset({1, 2})  # SCHED_FIFO, SCHED_RR
+
+
+def least_held_cpu(allowed: list[int], proc: str = "/proc") -> int:
+    """The allowed CPU that the fewest other real-time loops are pinned to (the last one on a tie, as before).
+
+    A loop pinned to a CPU at SCHED_FIFO shares it with any other loop pinned there at the same priority: a second
+    session, or a bench or test beside a session, pinned like this one to the last CPU made both loops wait for each
+    other's spin. Counted: user processes (not kernel threads) whose main thread runs SCHED_FIFO or SCHED_RR and may
+    run on that CPU alone (``/proc/PID/stat``; their other threads are not read, which keeps the scan to a few
+    milliseconds, done at normal priority). Best effort: two loops set up at the same moment can still pick the same
+    CPU, and where ``/proc`` cannot be read this is the last allowed CPU."""
+    held = dict.fromkeys(allowed, 0)
+    me = os.getpid()
+    try:
+        entries = [e.name for e in os.scandir(proc) if e.name.isdigit() and int(e.name) != me]
+    except OSError:
+        entries = []
+    for pid in entries:
+        try:
+            with open(f"{proc}/{pid}/stat", "rb") as fh:
+                stat = fh.read()
+            fields = stat[stat.rindex(b")") + 2:].split()  # after the command name, which may hold spaces
+            if int(fields[6]) & PF_KTHREAD or int(fields[38]) not in _RT_POLICIES:  # flags (9th), policy (41st)
+                continue
+            cpus = os.sched_getaffinity(int(pid))
+        except (OSError, ValueError, IndexError):  # gone meanwhile, or not ours to read
+            continue
+        if len(cpus) == 1 and (c := next(iter(cpus))) in held:
+            held[c] += 1
+    return min(allowed, key=lambda c: (held[c], -c))
 
 
 def realtime_release(report: dict[str, Any]) -> None:

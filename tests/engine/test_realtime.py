@@ -52,3 +52,44 @@ def test_the_slow_setup_runs_at_normal_priority_and_the_trial_end_returns_to_it(
         pytest.skip("SCHED_FIFO not permitted here (needs root or CAP_SYS_NICE)")
     assert got["during"] == got["fifo"] and got["report"]["sched"] == "SCHED_FIFO"
     assert got["after"] == got["other"]
+
+
+# A loop of another process pinned to one CPU, blocked on its stdin (no CPU used); "fifo" at SCHED_FIFO 1.
+_HOLDER = r"""
+import os, sys
+os.sched_setaffinity(0, {int(sys.argv[1])})
+if sys.argv[2] == "fifo":
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+print("ready", flush=True)
+sys.stdin.read()
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs CPU affinity and two CPUs")
+def test_a_servo_loop_avoids_a_cpu_another_real_time_loop_is_pinned_to():
+    """Every servo process pinned itself to the last allowed CPU, so two sessions (or a test or bench beside a
+    session) ran their SCHED_FIFO loops at the same priority on one CPU, each waiting for the other's spin. Now the
+    setup picks the CPU the fewest other real-time loops are pinned to. Three SCHED_FIFO holders on the last CPU and
+    three normal-priority ones pinned to the first (which must not count): the setup pins to the first (on the old
+    code: the last). Three, not one: other engineers' servo loops on this shared machine may hold a CPU meanwhile."""
+    allowed = sorted(os.sched_getaffinity(0))
+    first, last = allowed[0], allowed[-1]
+    holders = [subprocess.Popen([sys.executable, "-c", _HOLDER, str(cpu), policy], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+               for cpu, policy in [(last, "fifo")] * 3 + [(first, "other")] * 3]
+    try:
+        for h in holders:
+            line = h.stdout.readline()
+            if line.strip() != "ready":
+                h.wait(timeout=10)
+                if "Operation not permitted" in h.stderr.read():
+                    pytest.skip("SCHED_FIFO not permitted here (needs root or CAP_SYS_NICE)")
+                raise AssertionError(f"holder did not start: {line!r}")
+        out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stderr
+        assert json.loads(out.stdout)["report"]["cpus"] == [first]
+    finally:
+        for h in holders:
+            h.stdin.close()
+            h.wait(timeout=10)
