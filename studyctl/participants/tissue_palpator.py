@@ -394,8 +394,8 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
             # and holds, without servoing the last fraction of a millimetre (a spring-held hand pressing on
             # rendered forces would oscillate about it for the whole phase timeout).
             near = ctrl[2] <= self._target[2] + p["tolerance_mm"]
-            if "in_at" not in press and ctrl[2] <= press["h"]:
-                press["in_at"] = (ctrl[2], self._hand[2])  # the watched point enters the tissue
+            if p["press_adaptation"] > 0 and "in_at" not in press and ctrl[2] <= press["h"]:
+                press["in_at"] = (ctrl[2], self._hand[2])  # the watched point enters the tissue (adaptation only)
             if near or timed_out or force >= p["max_press_force_n"]:
                 self._adapt_press_gain(press, ctrl)
                 self._phase, self._phase_t = "dwell", 0.0
