@@ -240,12 +240,16 @@ def run_one(spec: ServoSpec, n: int, inbox: Any, outbox: Any, parent_pid: int, s
             loop_cpu = rt["cpus"][0] if len(rt.get("cpus", ())) == 1 else None
             steal0 = cpu_steal_ms(loop_cpu)
 
+            def monotonic_of(reading: float) -> float:
+                """A reading of the loop's clock on the monotonic clock (LSL's local_clock)."""
+                return time.monotonic() - (clock.now() - reading)
+
             def on_start(start: float) -> None:
                 # trial time 0 on the monotonic clock (LSL's local_clock), so the parent can place batched samples
                 # in time; taken at the loop's own time 0: taken before run_trial it preceded time 0 by the
                 # participant's begin_trial, the controller's reset and the watchdog thread's start (0.19-0.36 ms,
                 # tests/devices/test_lsl.py at load 3)
-                send((n, "event", 0.0, "servo_clock", {"monotonic_zero": time.monotonic() - (clock.now() - start)}))
+                send((n, "event", 0.0, "servo_clock", {"monotonic_zero": monotonic_of(start)}))
 
             outcome = run_trial(
                 info=spec.info,
@@ -270,7 +274,7 @@ def run_one(spec: ServoSpec, n: int, inbox: Any, outbox: Any, parent_pid: int, s
         if steal0 is not None and steal1 is not None:  # the hypervisor's share of the loop's CPU during the trial
             rt["steal_ms"] = steal1 - steal0
         if clock.n:  # when the loop's first paced tick began, on the monotonic clock (checks servo_clock's stamps)
-            rt["first_tick_monotonic"] = time.monotonic() - clock.now() + float(clock.starts[0])
+            rt["first_tick_monotonic"] = monotonic_of(float(clock.starts[0]))
         timing = clock.timing(1.0 / spec.info.rate_hz)
         send((n, "event", outcome.duration_s, "servo_timing", {**timing.as_dict(), "rt": rt,
                                                                 "nice": rt.get("nice", 0)}))

@@ -174,16 +174,37 @@ class TargetSet:
 def load_targets_file(path: str | Path, *, plan: Any | None = None, protocol: Any | None = None) -> TargetSet:
     """Read and check a targets file against the protocol's analysis plan (the plan named in the file, else the
     shipped plan of its protocol) and the protocol's strata."""
-    from studyctl.inputs import read_text
-
     file = Path(path)
     if not file.exists():
         raise NotFoundError(f"targets file {str(path)!r} does not exist; give a studyctl-targets/1 YAML file "
                             "(shipped ones: studyctl/populations/<protocol>.targets.yaml)")
-    # A folder, a binary or an oversized file is one error naming it (read_text), not a traceback.
-    text = read_text(file, "targets file (studyctl-targets/1 YAML)", error=PopulationError)
+    text = _read_targets_text(file)
     return parse_targets(text, str(file), plan=plan, protocol=protocol,
                          sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
+
+
+def _read_targets_text(file: str | Path) -> str:
+    """A folder, a binary or an oversized file is one error naming it (read_text), not a traceback."""
+    from studyctl.inputs import read_text
+
+    return read_text(file, "targets file (studyctl-targets/1 YAML)", error=PopulationError)
+
+
+def _marked_targets(text: str, label: str) -> Any:
+    """Targets YAML as every reader of it parses it: no merge keys, keys as text, the loader's size, alias and
+    depth limits; the first problem is the error."""
+    from studyctl.yamlmarks import load_marked
+
+    m = load_marked(text, label, merge_keys=False, text_keys=True)
+    if m.problems:
+        raise PopulationError(str(m.problems[0]))
+    return m
+
+
+def read_targets_data(path: str | Path) -> Any:
+    """The data of a targets file read and parsed as :func:`load_targets_file` does, not yet checked (calibrate
+    reads its ``plan:`` with it before the plan, and the statistics it imports, are loaded)."""
+    return _marked_targets(_read_targets_text(path), str(path)).data
 
 
 def _fail(m: Any, label: str, path: tuple[Any, ...], message: str, *, value: bool = True) -> PopulationError:
@@ -195,11 +216,7 @@ def _fail(m: Any, label: str, path: tuple[Any, ...], message: str, *, value: boo
 def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: Any | None = None,
                   sha256: str = "") -> TargetSet:
     """Check targets YAML ``text`` (see :func:`load_targets_file`)."""
-    from studyctl.yamlmarks import load_marked
-
-    m = load_marked(text, label, merge_keys=False, text_keys=True)
-    if m.problems:
-        raise PopulationError(str(m.problems[0]))
+    m = _marked_targets(text, label)
     data = m.data
     if not isinstance(data, Mapping):
         raise _fail(m, label, (), f"a targets file is a mapping starting with 'format: {TARGETS_FORMAT}'")

@@ -108,6 +108,13 @@ def _copy(items: Any) -> list[Any]:
     return []
 
 
+def _short_error(exc: BaseException) -> str:
+    """What the page says when a read failed: the error's kind and the first line of its message, at most 200
+    characters (an empty message gives the kind alone)."""
+    lines = str(exc).splitlines()
+    return f"{type(exc).__name__}: {lines[0][:200] if lines else ''}"
+
+
 class CoordinatorBoard:
     """The coordinator page's state (see the module docstring for who writes what).
 
@@ -211,7 +218,7 @@ class CoordinatorBoard:
                                        .where(AuditLog.action == "note", AuditLog.id > self._erased_until)
                                        .order_by(AuditLog.id.desc()).limit(500)))
         except Exception as exc:  # the page says it could not read; the session itself is not disturbed
-            self._stored = {**self._stored, "error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}"}
+            self._stored = {**self._stored, "error": _short_error(exc)}
             return
         notes = []
         for at, actor, entity, details in rows:
@@ -250,13 +257,13 @@ class CoordinatorBoard:
                 return None
             progress = study_progress(self._store, self._study_name)
         except Exception as exc:  # shown on the page; the session is not disturbed
-            return {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"}
+            return {"error": _short_error(exc)}
         try:
             found = data_gaps(self._store, self._study_name)
             gaps = {"totals": found.totals(), "gaps": [g.__dict__ for g in found.gaps[:GAPS_SHOWN]],
                     "more": max(0, len(found.gaps) - GAPS_SHOWN)}
         except Exception as exc:  # the progress is still shown
-            gaps = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"}
+            gaps = {"error": _short_error(exc)}
         people: dict[str, dict[str, Any]] = {}
         conditions: list[str] = []
         for r in progress.rows:

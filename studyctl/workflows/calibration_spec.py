@@ -176,17 +176,12 @@ def _plan_ref(targets: str | Path | None, pid: str) -> str:
     """The analysis plan: the targets file's ``plan:`` (relative to that file), else the protocol's shipped one."""
     if targets is None or not Path(targets).is_file():
         return pid
-    from studyctl.inputs import read_text
-    from studyctl.yamlmarks import load_marked
+    from studyctl.populations.targets import read_targets_data
 
     # Read as the targets loader reads it (size, UTF-8, alias and depth limits; yaml.safe_load raised
     # RecursionError on deep nesting), and before the plan, which imports the statistics: a hostile
     # targets file is one error line from a small process (issue 19).
-    text = read_text(targets, "targets file (studyctl-targets/1 YAML)", error=PopulationError)
-    marked = load_marked(text, str(targets), merge_keys=False, text_keys=True)
-    if marked.problems:
-        raise PopulationError(str(marked.problems[0]))
-    data = marked.data
+    data = read_targets_data(targets)
     ref = data.get("plan") if isinstance(data, dict) else None
     if not isinstance(ref, str) or not ref:
         return pid
