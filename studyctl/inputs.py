@@ -86,4 +86,3 @@ def loads_json(text: str | bytes, *, max_depth: int = MAX_JSON_DEPTH) -> Any:
 
 
 __all__ = ["MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "json_depth", "loads_json", "read_text"]
-

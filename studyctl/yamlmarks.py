@@ -11,10 +11,12 @@ keys, keys read as text) and word the problems themselves, using :attr:`Problem.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import yaml
 
+from studyctl.inputs import read_text
 from studyctl.problems import KeyPath, Mark, Problem, show
 
 try:  # the C composer is much faster and gives the same marks
@@ -275,10 +277,6 @@ def precheck_yaml_file(path: Any, what: str) -> None:
     loader's one-line error if it is hostile or unreadable. A command calls this before it imports a heavy stack
     (engine, store, pandas), so such a file is refused by a small process (issue 19: within 200 MB); the file's
     own loader still checks its content. No file given, or a missing one: nothing to do here."""
-    from pathlib import Path
-
-    from studyctl.inputs import read_text
-
     if path is None or not Path(path).is_file():
         return
     load_plain(read_text(path, what), str(path))

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import functools
 import gc
 import math
 import os
@@ -117,23 +118,19 @@ class TimedClock(RealClock):
         return ServoTiming.from_starts(self.starts[: self.n], period_s, self.due[: self.n])
 
 
-_LIBC: list[Any] = []
-
-
+@functools.cache
 def _libc() -> Any:
     """The C library, looked up once. On Linux from the process's own symbols: ``ctypes.util.find_library`` runs
     ``ldconfig -p`` in a subprocess, which inside :func:`realtime_setup` was a child process at the loop's priority
     (traced: 20-68 ms of one servo process's setup at SCHED_FIFO held another servo loop off its CPU)."""
-    if not _LIBC:
-        try:
-            lib = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
-            if lib is None or not hasattr(lib, "mlockall"):
-                name = ctypes.util.find_library("c")
-                lib = ctypes.CDLL(name, use_errno=True) if name else None
-        except OSError:
-            lib = None
-        _LIBC.append(lib)
-    return _LIBC[0]
+    try:
+        lib = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
+        if lib is None or not hasattr(lib, "mlockall"):
+            name = ctypes.util.find_library("c")
+            lib = ctypes.CDLL(name, use_errno=True) if name else None
+    except OSError:
+        lib = None
+    return lib
 
 
 def _memory_lock(report: dict[str, Any], warnings: list[str]) -> None:

@@ -24,7 +24,6 @@ from studyctl.store.values import check_text, require
 if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
     import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
 
-if TYPE_CHECKING:
     from studyctl.store.db import Database
 
 
