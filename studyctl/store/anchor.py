@@ -9,6 +9,10 @@ database name. ``studyctl run``/``resume`` also print the head for the lab noteb
 
 The file only moves forward (a writer never replaces a longer head with a shorter one), so a log that
 is shorter than the file, or whose row N no longer has the noted hash, was truncated or rewritten.
+
+Just before such a commit the file also records the head the commit will make (``pending``), and just after it
+the committed head replaces both: a process killed between its commit and the head file's update leaves a
+database one commit ahead of the file, at exactly the pending head, which is not a tampered tail.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 class Head:
     count: int
     hash: str
+    pending: Head | None = None  # in a head file: the head a commit under way will make (see the module doc)
 
     def text(self) -> str:
         return f"{self.count}:{self.hash}"
@@ -66,23 +71,36 @@ def read_anchor(path: Path) -> Head | None:
     except (OSError, UnicodeDecodeError):
         return None
     parts = text.split()
-    if len(parts) != 3 or parts[0] != _FORMAT or not parts[1].isdigit() or not _HEX64.match(parts[2]):
+    if len(parts) not in (3, 6) or parts[0] != _FORMAT or not _is_head(parts[1:3]):
         return None
+    if len(parts) == 6:  # FORMAT COUNT HASH pending COUNT HASH
+        if parts[3] != "pending" or not _is_head(parts[4:6]):
+            return None
+        return Head(int(parts[1]), parts[2], Head(int(parts[4]), parts[5]))
     return Head(int(parts[1]), parts[2])
 
 
-def write_anchor(path: Path, head: Head) -> None:
-    """Record ``head`` in the file unless it already holds a longer one. Never fails the caller's work:
-    the commit already happened; a head file that cannot be written only weakens the later check."""
+def _is_head(parts: list[str]) -> bool:
+    return parts[0].isdigit() and bool(_HEX64.match(parts[1]))
+
+
+def write_anchor(path: Path, head: Head, *, pending: bool = False) -> None:
+    """Record ``head`` in the file unless it already holds a longer one; with ``pending``, record it as the head a
+    commit under way will make, beside the file's committed head. Never fails the caller's work: a head file that
+    cannot be written only weakens the later check."""
     try:
         current = read_anchor(path)
         if current is not None and current.count >= head.count:
             return
+        line = f"{_FORMAT} {head.count} {head.hash}"
+        if pending:
+            committed = current or Head(0, "0" * 64)
+            line = f"{_FORMAT} {committed.count} {committed.hash} pending {head.count} {head.hash}"
         path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         fd = os.open(tmp, os.O_CREAT | os.O_TRUNC | os.O_WRONLY, 0o600)
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(f"{_FORMAT} {head.count} {head.hash}\n")
+            fh.write(line + "\n")
         os.replace(tmp, path)
     except OSError:
         pass
@@ -112,7 +130,12 @@ def check_head(tx: OrmSession, head: Head, source: str, *, strict_tail: bool) ->
                             "the log was rewritten from that row or earlier")
     if rows > head.count:
         msg = f"audit row(s) {_span(head.count + 1, rows)} are not in {source}"
-        if strict_tail:
+        pending = head.pending
+        if pending is not None and pending.count == rows and tx.scalar(
+                select(AuditLog.hash).where(AuditLog.id == rows)) == pending.hash:
+            # the commit that wrote them had announced them: studyctl stopped between its commit and the file's update
+            notes.append(f"{msg} but are the commit it recorded as under way (studyctl stopped before updating it)")
+        elif strict_tail:
             problems.append(f"{msg}: they were inserted outside studyctl (or studyctl stopped right after writing "
                             "them)")
         else:
@@ -129,16 +152,23 @@ def audit_head(db) -> Head:
         return Head(int(row.count), str(row.hash)) if row is not None else Head(0, "0" * 64)
 
 
-def _after_commit(session: OrmSession) -> None:
-    head = session.info.pop(HEAD_KEY, None)
-    if head is None:
-        return
+def _anchor_of(session: OrmSession) -> Path | None:
     try:
         url = session.get_bind().engine.url
     except Exception:  # unbound session: nothing to anchor
-        return
-    path = anchor_path(url)
-    if path is not None:
+        return None
+    return anchor_path(url)
+
+
+def _before_commit(session: OrmSession) -> None:
+    head = session.info.get(HEAD_KEY)
+    if head is not None and (path := _anchor_of(session)) is not None:
+        write_anchor(path, Head(*head), pending=True)
+
+
+def _after_commit(session: OrmSession) -> None:
+    head = session.info.pop(HEAD_KEY, None)
+    if head is not None and (path := _anchor_of(session)) is not None:
         write_anchor(path, Head(*head))
 
 
@@ -148,6 +178,7 @@ def _after_rollback(session: OrmSession) -> None:
 
 # Every ORM commit that appended audit rows (append_audit notes the new head in session.info) advances
 # the head file, whichever code path opened the transaction.
+event.listen(OrmSession, "before_commit", _before_commit)
 event.listen(OrmSession, "after_commit", _after_commit)
 event.listen(OrmSession, "after_soft_rollback", lambda session, _tx: _after_rollback(session))
 
