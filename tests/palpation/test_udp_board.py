@@ -87,8 +87,10 @@ def test_trial_over_udp_commands_the_board(emulator):
     emu = emulator("--force", "0.8")
     out, events = _trial(UdpDriverBoard({"port": emu.port}), 1.5)
     assert out.ended_by == "time_limit" and out.ticks >= 60
-    # a loaded CI machine may miss a loop deadline; the sensor itself must never look faulty
-    assert not [e for e in events if e[1] == "device_fault" and e[2]["rule"] != "missed_deadline"]
+    # a loaded CI machine may miss a loop deadline or stall the loop (the watchdog's loop_stalled: a 67 ms stall of
+    # this in-process 50 Hz loop failed a clean-clone CI run); the sensor itself must never look faulty
+    timing = ("missed_deadline", "loop_stalled")  # as test_rehearsal counts a loaded machine's timing faults
+    assert not [e for e in events if e[1] == "device_fault" and e[2]["rule"] not in timing]
     time.sleep(0.1)
     log = emu.entries()
     commands = [e for e in log if e["event"] == "command"]
