@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from studyctl.devices.vendor import ForceAdapter, import_sdk
+from studyctl.devices.vendor import EMULATOR_PARAM, SCALE_PARAM, ForceAdapter, import_sdk
 from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
@@ -37,11 +37,11 @@ class Inverse3Device(ForceAdapter):
     PARAMS = (
         Param("max_force_n", 10.0, 1e-3, 10.0, unit="N", source="CHOSEN: about the Inverse3's peak; check the unit"),
         Param("port", "", kind=str, source="serial port of the Inverse3 (empty: the first detected)"),
-        Param("scale", 1.0, 1e-3, 100.0, source="device mm → scene mm"),
+        SCALE_PARAM,
         Param("offset_mm", (-18.6, 153.0, -151.0), kind=tuple, unit="mm",
               source="scene position of the device origin (default: the workspace centre reads 0)"),
         Param("ramp_up_s", 1.0, 0.0, 10.0, unit="s", source="CHOSEN: as for the other force devices"),
-        Param("emulator", "", kind=str, source="a running emulator's name (rehearsals, tests); empty: the device"),
+        EMULATOR_PARAM,
     )  # fmt: skip
 
     def setup(self, p: dict[str, Any]) -> None:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from studyctl.devices.vendor import ForceAdapter, import_sdk
+from studyctl.devices.vendor import EMULATOR_PARAM, SCALE_PARAM, ForceAdapter, import_sdk
 from studyctl.errors import DeviceError, ModelParameterError
 from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
@@ -49,7 +49,7 @@ class Omega6Device(ForceAdapter):
     load_sdk = staticmethod(load_sdk)
     PARAMS = (
         Param("max_force_n", 12.0, 1e-3, 12.0, unit="N", source="omega.6 peak force (CHAI3D driver spec)"),
-        Param("scale", 1.0, 1e-3, 100.0, source="device mm → scene mm"),
+        SCALE_PARAM,
         Param("offset_mm", (0.0, 0.0, 0.0), kind=tuple, unit="mm", source="scene position of the device origin"),
         Param("pen_axis", "-x", choices=("x", "y", "z", "-x", "-y", "-z"), kind=str,
               source="CHOSEN: the wrist-frame axis along the needle; check on the device"),
@@ -60,7 +60,7 @@ class Omega6Device(ForceAdapter):
         Param("max_force_rate_n_per_s", 2000.0, 1.0, 1e6, unit="N/s",
               source="CHOSEN: a puncture drop takes at least 0.5 ms per newton"),
         Param("device_id", -1, -1, 64, kind=int, source="-1: the first available device"),
-        Param("emulator", "", kind=str, source="a running emulator's name (rehearsals, tests); empty: the real device"),
+        EMULATOR_PARAM,
     )  # fmt: skip
 
     def setup(self, p: dict[str, Any]) -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from studyctl.devices.vendor import ForceAdapter, import_sdk
+from studyctl.devices.vendor import EMULATOR_PARAM, SCALE_PARAM, ForceAdapter, import_sdk
 from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import Channels, Observation
 from studyctl.plugins.params import Param
@@ -47,11 +47,11 @@ class TouchDevice(ForceAdapter):
     PARAMS = (
         Param("max_force_n", 3.3, 1e-3, 3.3, unit="N", source="Omni/Touch peak force (CHAI3D driver table)"),
         Param("device_name", "Default Device", kind=str, source="the OpenHaptics device configuration name"),
-        Param("scale", 1.0, 1e-3, 100.0, source="device mm → scene mm"),
+        SCALE_PARAM,
         Param("offset_mm", (0.0, 0.0, 0.0), kind=tuple, unit="mm", source="scene position of the device origin"),
         Param("ramp_up_s", 1.0, 0.0, 10.0, unit="s", source="CHOSEN: CHAI3D ramps over 2 s"),
         Param("sensor_stale_s", 0.01, 0.002, 1.0, unit="s", source="CHOSEN: 10 missed HD servo ticks"),
-        Param("emulator", "", kind=str, source="a running emulator's name (rehearsals, tests); empty: the device"),
+        EMULATOR_PARAM,
     )  # fmt: skip
 
     def setup(self, p: dict[str, Any]) -> None:

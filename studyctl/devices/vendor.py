@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 from studyctl.devices.base import ParamDevice
 from studyctl.errors import DeviceError
 from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits
+from studyctl.plugins.params import Param
 
 FORCE_CHANNELS = ("fx_n", "fy_n", "fz_n")
 
@@ -68,6 +69,12 @@ def run_emulator(
         argv += [hang_flag, str(hang_after_s)]
     with start_emulator(module, argv, what=what) as handle:
         yield handle
+
+
+# Parameters every vendor adapter declares with the same meaning and range (each adapter lists them in its PARAMS)
+SCALE_PARAM = Param("scale", 1.0, 1e-3, 100.0, source="device mm → scene mm")
+EMULATOR_PARAM = Param("emulator", "", kind=str,
+                       source="a running emulator's name (rehearsals, tests); empty: the device")
 
 
 class ForceAdapter(ParamDevice):

@@ -54,7 +54,26 @@ def attach_block(name: str, slots: int = WORLD_SLOTS) -> tuple[shared_memory.Sha
     return shm, np.ndarray((slots,), dtype=np.float64, buffer=shm.buf)
 
 
-class PalpationBoardWorld:
+class _SharedWorld:
+    """A world block this process attached to: :meth:`close` lets the hand go, then detaches (``block`` becomes a
+    private zero array, so a late write after close lands nowhere instead of in freed shared memory)."""
+
+    SLOTS = WORLD_SLOTS
+
+    def attach(self, block: str) -> None:
+        self._shm, self.block = attach_block(block, self.SLOTS)
+
+    def release(self) -> None:
+        """The hand lets go (each world says what that means on its block)."""
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.release()
+        self.block = np.zeros(self.SLOTS)
+        self._shm.close()
+
+
+class PalpationBoardWorld(_SharedWorld):
     """A hand holding the seed-000 forceps over the trial's sponge phantom, on the board emulator's world block.
 
     :meth:`touch` takes the virtual participant's inputs (``x_mm``, ``y_mm``, commanded ``depth_mm``), lets the
@@ -71,7 +90,7 @@ class PalpationBoardWorld:
         self.compliance = float((params or {}).get("instrument_compliance_mm_per_n",
                                                    defaults["instrument_compliance_mm_per_n"]))
         self.scene = scene
-        self._shm, self.block = attach_block(block)
+        self.attach(block)
         self._pose = {"probe_x_mm": -1.0, "probe_y_mm": -1.0, "depth_mm": 0.0}
 
     def touch(self, inputs: Channels) -> None:
@@ -99,12 +118,6 @@ class PalpationBoardWorld:
         """The hand lets go: nothing presses on the sensor."""
         self.block[W_FORCE_N] = 0.0
 
-    def close(self) -> None:
-        with contextlib.suppress(Exception):
-            self.release()
-        self.block = np.zeros(WORLD_SLOTS)
-        self._shm.close()
-
 
 # Layout of a 3-DoF force device's world block (float64 slots; emulators/shm_device --world): written by the emulator …
 F_HEARTBEAT, F_FORCE, F_POS = 0, 1, 4  # the force the device applied (N), the handle's position (m), device frame
@@ -114,7 +127,7 @@ F_ATTACHED, F_TARGET, F_ROT, F_BUTTON = 7, 8, 11, 20
 FORCE_WORLD_SLOTS = 24
 
 
-class ForceDeviceWorld:
+class ForceDeviceWorld(_SharedWorld):
     """A hand holding a 3-DoF force device's handle (omega.6 class), on its emulator's world block.
 
     :meth:`touch` takes the virtual participant's inputs as it gives them to the simulated device (``x_mm``…: where
@@ -126,6 +139,7 @@ class ForceDeviceWorld:
     """
 
     kind = "force3d"
+    SLOTS = FORCE_WORLD_SLOTS
 
     def __init__(self, block: str, scene: Scene | None, params: Mapping[str, Any] | None = None) -> None:
         p = dict(params or {})
@@ -135,7 +149,7 @@ class ForceDeviceWorld:
         self.col = "xyz".index(axis[-1])
         self.sign = -1.0 if axis.startswith("-") else 1.0
         self.scene = scene
-        self._shm, self.block = attach_block(block, FORCE_WORLD_SLOTS)
+        self.attach(block)
         self._feel = {"fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0, "x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0}
 
     def touch(self, inputs: Channels) -> None:
@@ -188,12 +202,6 @@ class ForceDeviceWorld:
     def release(self) -> None:
         """The hand lets go: the emulator's own modelled hand holds the handle again."""
         self.block[F_ATTACHED] = 0.0
-
-    def close(self) -> None:
-        with contextlib.suppress(Exception):
-            self.release()
-        self.block = np.zeros(FORCE_WORLD_SLOTS)
-        self._shm.close()
 
 
 WORLDS = {PalpationBoardWorld.kind: PalpationBoardWorld, ForceDeviceWorld.kind: ForceDeviceWorld}

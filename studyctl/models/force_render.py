@@ -15,18 +15,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from studyctl.errors import ModelParameterError
 from studyctl.models.force_lookup import DEFAULT_INTERPOLATION, INTERPOLATIONS, make_lookup
+from studyctl.models.param_block import ParamBlock
 from studyctl.models.stiffness_map import StiffnessMap
 from studyctl.models.surface_mesh import SurfaceMesh
 
 
 @dataclass(frozen=True)
-class RenderParams:
+class RenderParams(ParamBlock):
     """Parameters of :class:`ForceRenderer` (protocol names in brackets are the same).
 
     max_force_n : clamp of each force and of the total (3.3 N, PHANToM Omni).
@@ -50,14 +50,6 @@ class RenderParams:
     retract_deadband_mm: float = 0.02
     horizontal: str = "oppose"
     min_motion_mm: float = 0.05
-
-    @classmethod
-    def from_mapping(cls, params: dict[str, Any], where: str = "render parameters") -> RenderParams:
-        """Build from protocol parameters, ignoring keys that are not render parameters."""
-        names = set(cls.__dataclass_fields__)
-        out = cls(**{k: v for k, v in params.items() if k in names})
-        out.validate(where)
-        return out
 
     def validate(self, where: str = "render parameters") -> None:
         if not (isinstance(self.max_force_n, int | float) and math.isfinite(self.max_force_n) and self.max_force_n > 0):

@@ -37,10 +37,11 @@ from typing import Any
 import numpy as np
 
 from studyctl.errors import ModelParameterError
+from studyctl.models.param_block import ParamBlock
 
 
 @dataclass(frozen=True)
-class PseudoHapticParams:
+class PseudoHapticParams(ParamBlock):
     """r0 : default cursor/input ratio R₀ (> 0).
     resync_mm_per_s : out-of-contact speed at which the cursor returns towards the hand's R₀-mapped position.
     delta_threshold_n : Δf_n must exceed this for the reduced ratios to apply (0 = the paper's rule).
@@ -49,13 +50,6 @@ class PseudoHapticParams:
     r0: float = 1.0
     resync_mm_per_s: float = 10.0
     delta_threshold_n: float = 0.0
-
-    @classmethod
-    def from_mapping(cls, params: dict[str, Any], where: str = "pseudo-haptic parameters") -> PseudoHapticParams:
-        names = set(cls.__dataclass_fields__)
-        out = cls(**{k: v for k, v in params.items() if k in names})
-        out.validate(where)
-        return out
 
     def validate(self, where: str = "pseudo-haptic parameters") -> None:
         if not (isinstance(self.r0, int | float) and math.isfinite(self.r0) and self.r0 > 0):

@@ -8,17 +8,9 @@ import math
 import time
 
 import pytest
+from polling import wait_for
 
 pytestmark = pytest.mark.slow
-
-
-def _wait(fn, timeout=5.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if fn():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def test_the_hand_moves_the_handle_and_feels_the_applied_force_through_the_emulator():
@@ -37,7 +29,7 @@ def test_the_hand_moves_the_handle_and_feels_the_applied_force_through_the_emula
             # modelled hand pulls it there, and the adapter reads it from the encoders through the SDK
             device.apply_input({"x_mm": 20.0, "y_mm": 0.0, "z_mm": 10.0, "dir_x": 0.0, "dir_y": 0.0, "dir_z": -1.0,
                                 "button": 1.0})
-            assert _wait(lambda: abs(device.read(0.0).values["x_mm"] - 20.0) < 1.0)
+            wait_for(lambda: abs(device.read(0.0).values["x_mm"] - 20.0) < 1.0, timeout=5.0, what="the handle at x 20")
             obs = device.read(0.0).values
             assert abs(obs["z_mm"] - 10.0) < 1.0 and obs["button"] == 1.0
             assert math.isclose(obs["dir_z"], -1.0, abs_tol=1e-9)  # the wrist's pen axis as the adapter reads it
@@ -49,7 +41,7 @@ def test_the_hand_moves_the_handle_and_feels_the_applied_force_through_the_emula
             felt = device.feedback()
             assert math.isclose(felt["fx_n"], 12.0, rel_tol=1e-6) and device.read(0.0).values["x_mm"] > 40.0
             # no more commands: the device's own watchdog turns the force off, and the hand feels nothing
-            assert _wait(lambda: device.feedback()["fx_n"] == 0.0, timeout=2.0)
+            wait_for(lambda: device.feedback()["fx_n"] == 0.0, timeout=2.0, what="no force once released")
         finally:
             device.close()
 

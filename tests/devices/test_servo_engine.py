@@ -12,6 +12,7 @@ import textwrap
 import time
 
 import pytest
+from polling import wait_for
 from sqlalchemy import select
 
 from studyctl.engine.api import resume_session, run_session
@@ -127,16 +128,6 @@ def _servo_pid(parent: int) -> int | None:
     return None
 
 
-def _wait_for(fn, timeout=60.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = fn()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError("timed out")
-
-
 def _trial_running(url: str) -> bool:
     with StudyStore.open(url) as store, store.reading() as s:
         return s.scalar(select(Trial.id).where(Trial.status == "running")) is not None
@@ -175,8 +166,8 @@ def test_killing_either_process_leaves_a_resumable_session_and_a_safe_device(stu
         if victim == "parent":
             proc.wait(timeout=10)
             # the orphaned child notices, ends the trial and puts the device in its safe state, then exits
-            _wait_for(lambda: not os.path.exists(f"/proc/{servo}") or
-                      open(f"/proc/{servo}/stat").read().split()[2] == "Z", timeout=10)
+            wait_for(lambda: not os.path.exists(f"/proc/{servo}") or
+                     open(f"/proc/{servo}/stat").read().split()[2] == "Z", timeout=10, what="the orphaned servo to end")
         else:
             out, err = proc.communicate(timeout=30)
             assert proc.returncode != 0

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from polling import wait_for  # noqa: F401  (the view tests import it from here)
 from rich.console import Console
 
 from studyctl.engine.clock import RealClock
@@ -158,15 +159,6 @@ def start_session(store: StudyStore, plan, hand_factory: Callable[[], TerminalPa
     thread.start()
     return Running(thread, rec, result, pt)
 
-
-def wait_for(predicate: Callable[[], Any], timeout: float = 10.0, what: str = "condition") -> Any:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
 class PtyProcess:
