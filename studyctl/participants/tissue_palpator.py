@@ -418,7 +418,14 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
             press["z_sum"] += ctrl[2]
             press["n_held"] += 1
             held = self._phase_t - press.get("steady_t", 0.0)
-            if held >= press["hold"] or self._phase_t >= press["hold"] + p["phase_timeout_s"]:
+            if p["judge_from_bottom"]:
+                # The push is felt, and evidence about it gathered, from the moment the press stops (Ratcliff &
+                # McKoon 2008); waiting for it to be steady only decides which push is read. So the hold runs
+                # from the bottom, and the press is released once it is also steady for the shortest dwell.
+                done = self._phase_t >= press["hold"] and held >= self._motor["dwell"]
+            else:
+                done = held >= press["hold"]
+            if done or self._phase_t >= press["hold"] + p["phase_timeout_s"]:
                 self._record(press)
                 self._target = (ctrl[0], ctrl[1], press["h"] + p["hover_mm"])
                 self._phase, self._phase_t = "lift", 0.0

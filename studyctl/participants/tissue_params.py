@@ -73,6 +73,11 @@ PARAMS = (
           "with the half before; 0.1 s halves span three cycles of the ~30 Hz on/off push that seed 003's "
           "release-on-retract rendering gives a held stylus, and people cannot modulate a force faster than "
           "5-10 Hz (Brooks 1990, telerobotic response requirements), so a judgement of 'steady' takes this long"),
+    Param("judge_from_bottom", False, kind=bool,
+          source="CHOSEN: whether the hold that makes one press's judgement precise runs from the press bottom "
+          "(true: the push is felt while it settles, evidence accumulating over the whole hold, Ratcliff & McKoon "
+          "2008; the press ends once the hold is over and the push is steady) or only from when the push is "
+          "steady (false: the settling time is added to every hold)"),
     Param("max_dwell_s", 2.0, low=0.0, high=30.0, unit="s", source="CHOSEN: nobody holds one press longer"),
     Param("force_trust", 1.0, low=0.0, high=1.0,
           source="CHOSEN: the share of the force cue's information a person uses (1: statistically optimal "
