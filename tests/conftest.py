@@ -35,6 +35,18 @@ os.environ["MPLBACKEND"] = "Agg"
 _counter = itertools.count()
 
 
+# Markers that follow from the fixtures a test uses, so a new test cannot slip into the fast default run
+# (pyproject: plain `pytest` deselects slow, browser and postgres; `pytest -m ""`, as CI runs it, selects all).
+_MARK_BY_FIXTURE = {"new_browser": "browser", "pg_server": "postgres"}
+
+
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselects
+def pytest_collection_modifyitems(items):
+    for item in items:
+        for fixture in set(_MARK_BY_FIXTURE).intersection(getattr(item, "fixturenames", ())):
+            item.add_marker(getattr(pytest.mark, _MARK_BY_FIXTURE[fixture]))
+
+
 @pytest.fixture(autouse=True)
 def _audit_head_dir(tmp_path_factory, monkeypatch):
     """Each test keeps PostgreSQL audit head files in a folder of its own: the shared test database is

@@ -92,6 +92,7 @@ def test_a_command_line_imports_only_its_own_command_module():
                                   "False"]
 
 
+@pytest.mark.slow
 def test_checking_and_store_commands_do_not_import_pandas(tmp_path):
     """pandas (+pyarrow) is ~90 MB of a process: `protocol check`, `status`, `audit verify` and `db check` (what
     refuses a hostile file or checks a study) build no table, so they stay small (issue 19's 200 MB bound)."""

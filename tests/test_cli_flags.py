@@ -51,6 +51,7 @@ def test_every_command_has_json_but_the_listed_ones():
     assert missing <= set(NO_JSON), f"commands without --json: {sorted(missing - set(NO_JSON))}"
 
 
+@pytest.mark.slow
 def test_json_output_is_one_parseable_object(tmp_path, capsys):
     import json
     from pathlib import Path

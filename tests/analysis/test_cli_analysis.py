@@ -31,6 +31,7 @@ def test_analyze_csv_plan_prints_tests(capsys):
     assert len(rows) == 4 + 6
 
 
+@pytest.mark.slow
 def test_report_csv_plan(capsys, tmp_path):
     code, out, err = run(capsys, "report", "pseudo_haptic_palpation_published", "--out", str(tmp_path / "r"))
     assert code == 0, err

@@ -61,6 +61,7 @@ def result(plan, table):
     return run_plan(plan, table)
 
 
+@pytest.mark.slow
 def test_rows_per_entry(result):
     frame = result.to_frame()
     assert list(frame.columns) == list(ROW_COLUMNS)

@@ -149,6 +149,7 @@ def test_preflight_names_what_is_missing(ws):
             run_session(o.store, "PTY-ZZZZZ")
 
 
+@pytest.mark.slow
 def test_manual_condition_outcome_entered_by_the_coordinator(tmp_path, capsys):
     """Seed 002: in the manual condition no controller runs; the coordinator enters time and locations."""
     folder = tmp_path / "ddp"

@@ -55,6 +55,7 @@ def _snapshot(store, session_id):
     return out, answers
 
 
+@pytest.mark.slow
 def test_store_run_writes_everything_and_reloads(store):
     p = _participant(store)
     rec = StoreRecorder.create(store, p.id, toy_plan(), seed=21, virtual=True)
@@ -78,6 +79,7 @@ def test_store_run_writes_everything_and_reloads(store):
 
 
 @pytest.mark.parametrize("policy", ["repeat", "invalidate_and_append"])
+@pytest.mark.slow
 def test_crash_mid_trial_resume_from_database(store, policy):
     ref_p = _participant(store, "REF")
     ref = StoreRecorder.create(store, ref_p.id, toy_plan(policy), seed=5, virtual=True)

@@ -26,6 +26,7 @@ def test_bench_capr_json(capsys):
     assert fig["reduced_within_1pct_command_error_pct"] <= 1.0
 
 
+@pytest.mark.slow
 def test_read_offset_continuous_rate_against_spike_counts():
     """Our continuous-rate read is above spike counting by the 15-21 % the public code's counts show."""
     from studyctl.bench.capr import ReferenceStructure, read_offset

@@ -59,6 +59,7 @@ def test_without_feedback_reports_do_not_depend_on_the_tumours():
     assert dev.felt_keys == {"balloon_psi", "vibration_hz", "vibration_ms2"}  # all it is given to feel
 
 
+@pytest.mark.slow
 def test_detection_emerges_from_the_feedback():
     hard = 0
     for seed, sites in enumerate(SITES):
@@ -203,6 +204,7 @@ def test_practice_sharpens_perception_and_is_remembered():
     assert q.senses["balloon_psi"].weber == pytest.approx(0.14)
 
 
+@pytest.mark.slow
 def test_a_broken_controller_is_noticed_by_the_shipped_population():
     """`none` in place of the bio-inspired controller: the population's typical person (every trait at its
     location), on the same tumours and seeds, finds fewer tumours."""
@@ -230,6 +232,7 @@ def test_a_broken_controller_is_noticed_by_the_shipped_population():
     assert found_bio >= found_none + 3
 
 
+@pytest.mark.slow
 def test_at_most_max_reports_cells_are_reported_strongest_first():
     many, _, _, _ = trial(LinearController, SITES[1], seed=2, params={"report_z": 1.0, "screen_z": 0.5})
     capped, _, _, _ = trial(LinearController, SITES[1], seed=2, params={"report_z": 1.0, "screen_z": 0.5,

@@ -112,6 +112,7 @@ def test_cli_calibrate_bad_free_parameter_is_one_error_line(tmp_path, protocol, 
     assert "did you mean 'press_speed_mm_s'" in line
 
 
+@pytest.mark.slow
 def test_simulated_report_compares_with_published(tmp_path, protocol):
     from studyctl.workflows.report import build_report
     from studyctl.workflows.simulate import simulate_study

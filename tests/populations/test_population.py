@@ -137,6 +137,7 @@ def _params_seen(monkeypatch) -> list[dict]:
     return seen
 
 
+@pytest.mark.slow
 def test_simulated_sessions_store_population_and_traits_and_pass_them_to_the_participant(tmp_path, monkeypatch,
                                                                                        population):
     from studyctl.engine.seeding import population_rng, session_seed
@@ -167,6 +168,7 @@ def test_simulated_sessions_store_population_and_traits_and_pass_them_to_the_par
     assert not any(math.isclose(p.get("hold_s", 0.4), 0.4) for p in seen)
 
 
+@pytest.mark.slow
 def test_no_population_runs_as_before_and_says_so(tmp_path):
     from studyctl.populations import describe_choice
     from studyctl.protocol import load_protocol
@@ -191,6 +193,7 @@ def test_bad_population_writes_no_workspace(tmp_path):
     assert not (tmp_path / "ws").exists()
 
 
+@pytest.mark.slow
 def test_power_draws_people_from_the_population(tmp_path):
     from studyctl.power import prepare_power
     from studyctl.power.replicate import simulate_replicate
@@ -207,6 +210,7 @@ def test_power_draws_people_from_the_population(tmp_path):
     assert len(times[0]) == len(times[1]) and not np.allclose(times[0], times[1])
 
 
+@pytest.mark.slow
 def test_cli_simulate_names_the_population(tmp_path, capsys):
     from studyctl.cli.app import main
 

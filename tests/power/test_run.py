@@ -18,6 +18,7 @@ from studyctl.stats import wilson_interval
 from studyctl.workflows.power import run_power
 
 
+@pytest.mark.slow
 def test_replicate_runs_whole_sessions_and_the_plan(serial_run):
     reps = serial_run.replicates
     assert len(reps) == len(SIZES) * REPLICATES
@@ -38,6 +39,7 @@ def test_replicate_is_a_pure_function_of_its_arguments(mini_spec, serial_run):
     assert set(again["kind"]) <= {"omnibus", "two_sample", "pairwise", "posthoc"}
 
 
+@pytest.mark.slow
 def test_population_knob_reaches_the_virtual_participants(mini_spec):
     """Numbing the palpator's feel (thresholds above anything the actuators give) in the linear condition
     changes what the engine records there, and only there."""
@@ -96,6 +98,7 @@ def test_report_folder(serial_run):
     assert settings["participants"] == list(SIZES) and settings["replicates"] == REPLICATES
 
 
+@pytest.mark.slow
 def test_interrupted_run_continues_and_matches(mini_spec, serial_run, tmp_path):
     class Stop(Exception):
         pass

@@ -43,6 +43,7 @@ def test_chunk_completes_the_blocks():
     assert chunk_size(load_protocol(PROTOCOL)) == 12  # 2 sequences × 2 strata, at least 10 people
 
 
+@pytest.mark.slow
 def test_pool_rows_are_the_full_engine_study(spec12, one_chunk_pool):
     """Drawing all 12 people of a one-chunk pool gives exactly the plan's result on that simulated study."""
     _, pool = one_chunk_pool

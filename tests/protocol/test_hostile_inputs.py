@@ -104,6 +104,7 @@ PROTOCOL_CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(PROTOCOL_CASES))
+@pytest.mark.slow
 def test_hostile_protocol_is_one_error_from_protocol_check(case, tmp_path):
     text, patterns = PROTOCOL_CASES[case]
     path = _protocol(tmp_path, text)
@@ -146,6 +147,7 @@ WORKFLOW_CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(WORKFLOW_CASES))
+@pytest.mark.slow
 def test_hostile_file_to_a_workflow_is_one_error_from_a_small_process(case, tmp_path):
     argv, patterns = WORKFLOW_CASES[case]
     files = {"bomb": _protocol(tmp_path, LAUGHS, "bomb.yaml"),
@@ -177,6 +179,7 @@ INPUT_CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(INPUT_CASES))
+@pytest.mark.slow
 def test_hostile_answers_file_is_one_error_and_writes_nothing(case, ws, tmp_path):
     data, name, patterns = INPUT_CASES[case]
     path = tmp_path / name
@@ -186,6 +189,7 @@ def test_hostile_answers_file_is_one_error_and_writes_nothing(case, ws, tmp_path
         assert o.store.list_sessions(o.store.list_participants(o.study.id)[0].id) == []  # nothing half-written
 
 
+@pytest.mark.slow
 def test_empty_db_option_is_refused_not_the_workspace(ws):
     _expect_one_error(_run(["status", "--db", ""], ws), r"--db is empty", cwd=ws)
     _expect_one_error(_run(["audit", "verify", "--db", "  "], ws), r"--db is empty", cwd=ws)

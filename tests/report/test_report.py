@@ -123,6 +123,7 @@ def written(result, tmp_path_factory):
     return write_report(result, out, figure_data={"trace": trace})
 
 
+@pytest.mark.slow
 def test_files_written(written):
     out = written.out_dir
     names = sorted(p.name for p in out.iterdir())
@@ -172,6 +173,7 @@ def test_markdown_links_figures_and_has_tables(written):
     assert "| item | A | B | C |" in md  # the Likert table: items × conditions
 
 
+@pytest.mark.slow
 def test_missing_figure_data_marks_the_report_partial(result, tmp_path):
     files = write_report(result, tmp_path)
     assert files.partial
@@ -293,6 +295,7 @@ def test_figures_for_print(written):
     assert b"pHYs" in png and struct.unpack(">I", png[png.index(b"pHYs") + 4:][:4])[0] == round(300 / 0.0254)
 
 
+@pytest.mark.slow
 def test_figure_formats_are_checked(result, tmp_path):
     with pytest.raises(ConfigError, match="allowed are png, svg, pdf"):
         write_report(result, tmp_path / "r", figure_formats=("png", "tiff"))
@@ -347,6 +350,7 @@ def test_tables_tex_has_every_table_as_booktabs(written):
     assert "_" not in body.replace("\\_", "")  # every underscore escaped
 
 
+@pytest.mark.slow
 def test_effect_sizes_get_seeded_bootstrap_intervals(result):
     import dataclasses
 

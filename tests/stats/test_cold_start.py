@@ -64,6 +64,7 @@ def test_integral_numbers_are_counts():
     assert wilson_interval(np.int64(2), 3.0).successes == 2
 
 
+@pytest.mark.slow
 def test_first_tukey_call_in_a_fresh_process_reads_the_shipped_table():
     code = (
         "import numpy as np\n"

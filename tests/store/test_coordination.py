@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pandas as pd
+import pytest
 import yaml
 
 from studyctl.cli.app import main
@@ -78,6 +79,7 @@ def test_consent_note_withdraw_recorded_audited_and_exported(tmp_path, capsys):
     assert records.loc[records.record == "withdrawal", "text"].tolist() == ["no longer available"]
 
 
+@pytest.mark.slow
 def test_bad_input_is_one_error_line_and_writes_nothing(tmp_path, capsys):
     ws = _workspace(tmp_path)
     with open_study(workspace=ws) as o:
@@ -133,6 +135,7 @@ def test_consent_without_a_declared_version_takes_any(tmp_path, capsys):
     assert code == 0 and '"version": "local-3"' in out
 
 
+@pytest.mark.slow
 def test_a_note_typed_during_a_trial_is_a_record(tmp_path):
     """The run prompt's `n` (here the scripted equivalent): the trial goes on, the note is in the export."""
     ws = _workspace(tmp_path, consent=None, target=None)
@@ -155,6 +158,7 @@ def test_a_note_typed_during_a_trial_is_a_record(tmp_path):
     assert main(["audit", "verify", "-w", str(ws)]) == 0
 
 
+@pytest.mark.slow
 def test_status_counts_dropped_samples_and_missing_data(tmp_path, capsys):
     """Dropped samples (loop ticks without a stored row), trials and answers missing once a session has ended."""
     import sqlite3

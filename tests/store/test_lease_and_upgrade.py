@@ -156,6 +156,7 @@ def test_records_written_through_the_library_are_sealed_and_raw_inserts_are_name
     assert [p.line().split(":")[0] for p in report.records.problems] == ["event 2 inserted"]
 
 
+@pytest.mark.slow
 def test_withdrawing_seals_the_records_of_the_session_it_closes(tmp_path):
     """A session cut short by a crash holds records written after its last seal (pending while it could be
     resumed). Withdrawing the participant closes it: those records are kept as they stand and sealed, not

@@ -37,6 +37,7 @@ def _fill(store, name: str, *, seed: int = 11):
     return study, (a, b), (sa, sb), (t1, t2, t3)
 
 
+@pytest.mark.slow
 def test_reader_gives_typed_rows_of_one_study(store):
     study, (a, b), (sa, sb), (t1, t2, t3) = _fill(store, "one")
     _fill(store, "other", seed=12)  # a second study in the same database stays out of every answer

@@ -67,6 +67,7 @@ def test_random_seed_is_stored_and_in_range(store):
 
 
 @pytest.mark.parametrize("code", NASTY_CODES, ids=range(len(NASTY_CODES)))
+@pytest.mark.slow
 def test_codes_are_stored_verbatim(store, code):
     study = store.create_study("s")
     schedule = [{"position": 0, "condition": code, "note": code}]
@@ -214,6 +215,7 @@ def test_lone_surrogates_are_refused(store):
 @given(codes=st.lists(
     st.text(alphabet=st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00"), min_size=1, max_size=60),
     min_size=1, max_size=4, unique=True))
+@pytest.mark.slow
 def test_any_text_code_round_trips(store, codes):
     study = store.create_study(f"s{next(_names)}")
     for code in codes:

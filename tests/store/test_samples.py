@@ -96,6 +96,7 @@ def test_empty_stream_reads_as_empty_frame(store, trial):
     ("kwargs", "match"),
     [({"dtype": "<i4"}, "dtype"), ({"flush_interval_s": 0}, "flush_interval_s"), ({"stream": ""}, "stream")],
 )
+@pytest.mark.slow
 def test_bad_writer_settings(store, trial, kwargs, match):
     with pytest.raises(UsageError, match=match):
         store.sample_writer(trial.id, ["a"], **kwargs)

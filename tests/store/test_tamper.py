@@ -123,6 +123,7 @@ def _one(conn, stmt):
     return conn.execute(stmt).first()
 
 
+@pytest.mark.slow
 def test_untouched_study_verifies(copy_url, capsys):
     code, out = _verify(copy_url, capsys)
     assert code == 0, out
@@ -278,6 +279,7 @@ CASES = [edit_audit, delete_audit, insert_audit, truncate_tail, edit_trial, dele
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.__name__ for c in CASES])
+@pytest.mark.slow
 def test_tampering_is_detected_and_named(copy_url, case, capsys):
     import re
 

@@ -200,6 +200,7 @@ def test_malformed_workspace_file(tmp_path, capsys):
     assert code != 0 and "studyctl.toml: not valid TOML" in one_error_line(err)
 
 
+@pytest.mark.slow
 def test_db_upgrade_from_empty_and_newer_revision(tmp_path, capsys):
     path = tmp_path / "x.db"
     sqlite3.connect(path).close()  # an empty SQLite file: no schema at all

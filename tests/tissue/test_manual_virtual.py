@@ -73,6 +73,7 @@ def test_the_finger_feels_the_ff_force_model_without_the_device_clamp():
     finger.close()
 
 
+@pytest.mark.slow
 def test_the_finger_needs_a_phantom_and_refuses_bad_input():
     with pytest.raises(ModelParameterError, match="needs a stiffness_tissue scene"):
         DirectTouchDevice({}, None)

@@ -185,6 +185,7 @@ class _Inner(Participant):
         return Action({"x_mm": t}, (Request("report", {"x_mm": 1.0, "y_mm": 2.0}),) if t == 0.002 else ())
 
 
+@pytest.mark.slow
 def test_view_participant_slots_frames_and_adds_requests():
     hub = ViewHub()
     inner = _Inner()
