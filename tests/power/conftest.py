@@ -6,16 +6,8 @@ grid and two conditions, so a replicate of 2-4 participants takes about a second
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
-
-HERE = str(Path(__file__).parent)
-if HERE not in sys.path:  # importlib mode: make power_testdata importable from the test modules
-    sys.path.insert(0, HERE)
-
-from power_testdata import PLAN, PROTOCOL, REPLICATES, SEED, SIZES  # noqa: E402
+from power_testdata import PLAN, PROTOCOL, REPLICATES, SEED, SIZES
 
 
 @pytest.fixture(scope="session")

@@ -9,14 +9,9 @@ from __future__ import annotations
 
 import os
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
-
-HERE = str(Path(__file__).parent)
-if HERE not in sys.path:
-    sys.path.insert(0, HERE)
 
 CHROMIUM = os.environ.get("STUDYCTL_CHROMIUM", "/usr/bin/chromium")
 CHROMEDRIVER = os.environ.get("STUDYCTL_CHROMEDRIVER", "/usr/bin/chromedriver")
