@@ -361,6 +361,24 @@ def fitted_population(result: CalibrationResult, values: dict[str, float]) -> An
     return replace(pop, version=spec.population.version + 1, calibration=calibration, sha256="", path="")
 
 
+FIT_HEADER = "# Fitted by studyctl calibrate "
+
+
+def population_text(source: str | Path, pop: Any) -> str:
+    """The fitted population's YAML: merged into the text of the file it started from when there is one, so the
+    file's comments survive (:func:`~studyctl.populations.roundtrip.merge_into_text`; an earlier fit's header
+    line is replaced by the new one), else dumped plainly."""
+    from studyctl.populations.roundtrip import merge_into_text
+
+    path = Path(source) if source else None
+    if path is not None and path.is_file():
+        lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
+        merged = merge_into_text("".join(x for x in lines if not x.startswith(FIT_HEADER)), pop.to_dict())
+        if merged is not None:
+            return merged
+    return pop.to_yaml()
+
+
 def _write_outputs(result: CalibrationResult, values: dict[str, float]) -> dict[str, Path]:
     """The population file, the fit report (Markdown, HTML, CSV) and agreement.csv, each via temp + rename."""
     from studyctl.report.calibration import fit_report_html, fit_report_markdown
@@ -376,9 +394,9 @@ def _write_outputs(result: CalibrationResult, values: dict[str, float]) -> dict[
         "agreement": stem.with_name(stem.name + ".agreement.csv"),
         "journal": spec.journal,
     }
-    header = (f"# Fitted by studyctl calibrate {spec.protocol_id} --targets {Path(spec.targets.path).name} "
+    header = (f"{FIT_HEADER}{spec.protocol_id} --targets {Path(spec.targets.path).name} "
               f"--free {','.join(f.name for f in spec.free)} --seed {spec.seed} --participants {spec.participants}\n")
-    _atomic_text(files["population"], header + pop.to_yaml())
+    _atomic_text(files["population"], header + population_text(spec.population.path, pop))
     frame = result.agreement.to_frame()
     est = pd.DataFrame([e.to_dict() for e in result.estimates])
     _atomic_text(files["report_csv"], pd.concat([frame.assign(kind="target"),
