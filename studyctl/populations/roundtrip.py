@@ -45,7 +45,11 @@ def merge_into_text(source: str, data: Mapping[str, Any], *, width: int = 110) -
     _merge(doc, data)
     out = io.StringIO()
     yaml.dump(doc, out)
-    return out.getvalue()
+    text = out.getvalue()
+    # ruamel leaves a space at the end of a wrapped flow list's lines ("a, b, \n"); dropped unless a value held it
+    # (a block scalar's trailing space is content)
+    tidy = "\n".join(line.rstrip(" ") for line in text.split("\n"))
+    return tidy if tidy == text or yaml.load(tidy) == yaml.load(text) else text
 
 
 def _merge(node: Any, new: Mapping[str, Any]) -> None:
