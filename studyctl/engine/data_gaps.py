@@ -18,14 +18,10 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import func, select
-
 from studyctl.protocol.stored_plan import Schedule
 from studyctl.store import StudyStore
 from studyctl.store.enrollment import study_protocol
-from studyctl.store.models import Participant, QuestionnaireResponse, SampleChunk, Session, Trial
-from studyctl.store.samples import DEFAULT_STREAM
-from studyctl.store.status import rehearsal_session_ids
+from studyctl.store.reader import StudyReader
 
 if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
     import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
@@ -75,32 +71,23 @@ class DataGaps:
 
 def data_gaps(store: StudyStore, study: str | None = None) -> DataGaps:
     """Dropped samples, missing trials and missing questionnaire answers of every participant of a study."""
-    target = store.get_study(study)
+    reader = StudyReader(store, study)
     # a study created without a protocol (a bare `init`) has no questionnaires and no manual conditions to know of
-    protocol = study_protocol(target) if target.protocol_text else None
+    protocol = study_protocol(reader.study) if reader.study.protocol_text else None
     items = {i.id: len(i.items) for i in protocol.instruments} if protocol else {}
     manual = {c.id for c in protocol.conditions if c.manual} if protocol else set()
-    with store.reading() as s:
-        people = list(s.scalars(select(Participant).where(Participant.study_id == target.id).order_by(Participant.id)))
-        ids = [p.id for p in people]
-        sessions = list(s.scalars(select(Session).where(Session.participant_id.in_(ids)).order_by(Session.id)))
-        rehearsals = rehearsal_session_ids(s, [x.id for x in sessions])
-        trials = [t for t in s.scalars(select(Trial).where(Trial.participant_id.in_(ids)).order_by(Trial.id))
-                  if t.session_id not in rehearsals]
-        stored = dict(s.execute(select(SampleChunk.trial_id, func.sum(SampleChunk.n))
-                                .where(SampleChunk.trial_id.in_([t.id for t in trials]),
-                                       SampleChunk.stream == DEFAULT_STREAM)
-                                .group_by(SampleChunk.trial_id)).all())
-        answers = s.execute(select(QuestionnaireResponse.participant_id, QuestionnaireResponse.instrument,
-                                   QuestionnaireResponse.item, QuestionnaireResponse.context)
-                            .where(QuestionnaireResponse.participant_id.in_(ids),
-                                   QuestionnaireResponse.session_id.not_in(rehearsals or {-1}))
-                            .distinct()).all()
+    roster = reader.roster()
+    people, sessions = roster.participants, roster.sessions
+    trials = sorted(roster.trials, key=lambda t: t.id)  # gaps are listed in the order the trials were run
+    stored = reader.stored_sample_rows([t.id for t in trials])
+    # an answer is counted once per item and context; one given outside any session is not a session's answer
+    answers = {(a.participant_id, a.instrument, a.item, a.context) for a in reader.answer_rows()
+               if a.session_id is not None}
     code = {p.id: p.code for p in people}
     gaps: list[Gap] = []
     checked = ticks_total = rows_total = 0
     for t in trials:
-        ticks = (t.outcome or {}).get("ticks") if isinstance(t.outcome, dict) else None
+        ticks = t.outcome.get("ticks")
         if t.status == "running" or not isinstance(ticks, int) or t.condition in manual:
             continue
         rows = int(stored.get(t.id) or 0)
@@ -108,7 +95,7 @@ def data_gaps(store: StudyStore, study: str | None = None) -> DataGaps:
         if ticks > rows:
             gaps.append(Gap(code[t.participant_id], t.session_id, t.id, t.condition, "dropped_samples", ticks - rows,
                             f"{ticks - rows} samples dropped ({rows} of {ticks} stored)"))
-    latest = {x.participant_id: x for x in sessions if x.id not in rehearsals}
+    latest = {x.participant_id: x for x in sessions}  # sessions by id within a participant: the last wins
     given = Counter(pid for pid, *_ in answers)
     given_by = Counter((pid, inst) for pid, inst, *_ in answers)
     for p in people:
@@ -139,7 +126,7 @@ def data_gaps(store: StudyStore, study: str | None = None) -> DataGaps:
                             f"{sum(short.values())} answers missing: "
                             + ", ".join(f"{k} {v}" for k, v in sorted(short.items()))
                             + f" ({why}; {given[p.id]} stored)"))
-    return DataGaps(study=target.name, trials_checked=checked, ticks=ticks_total, samples_stored=rows_total,
+    return DataGaps(study=reader.study.name, trials_checked=checked, ticks=ticks_total, samples_stored=rows_total,
                     gaps=tuple(gaps))
 
 

@@ -11,12 +11,9 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from sqlalchemy import select
-
 from studyctl.protocol.stored_plan import Schedule
 from studyctl.store import StudyStore
-from studyctl.store.models import Participant, Session, Trial
-from studyctl.store.status import rehearsal_session_ids
+from studyctl.store.reader import StudyReader, TrialRow
 
 if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
     import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
@@ -80,18 +77,12 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
     position has no completed or invalid attempt yet (from the stored schedule when no session exists; none
     for a withdrawn participant, whose remaining trials were dropped).
     """
-    target = store.get_study(study)
-    with store.reading() as s:
-        people = list(s.scalars(select(Participant).where(Participant.study_id == target.id)
-                                .order_by(Participant.id)))
-        sessions = list(s.scalars(select(Session).where(Session.participant_id.in_([p.id for p in people]))
-                                  .order_by(Session.id)))
-        trials = list(s.scalars(select(Trial).where(Trial.participant_id.in_([p.id for p in people]))))
-        rehearsals = rehearsal_session_ids(s, [x.id for x in sessions])
-    sessions = [x for x in sessions if x.id not in rehearsals]  # rehearsals are not progress
-    latest = {x.participant_id: x for x in sessions}
-    by_session: dict[int, list[Trial]] = defaultdict(list)
-    for t in trials:
+    reader = StudyReader(store, study)
+    roster = reader.roster()  # rehearsals are not progress
+    people = roster.participants
+    latest = {x.participant_id: x for x in roster.sessions}  # sessions by id within a participant: the last wins
+    by_session: dict[int, list[TrialRow]] = defaultdict(list)
+    for t in roster.trials:
         by_session[t.session_id].append(t)
     rows: list[ProgressRow] = []
     positions: dict[str, dict[int, Counter]] = {}
@@ -123,7 +114,7 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
             for pos, cond in enumerate(schedule.order, start=1):
                 positions.setdefault(key, {}).setdefault(pos, Counter())[cond] += 1
     return StudyProgress(
-        study=target.name,
+        study=reader.study.name,
         rows=tuple(rows),
         position_counts={k: {pos: dict(c) for pos, c in v.items()} for k, v in positions.items()},
     )

@@ -1,9 +1,10 @@
 """The read side of one stored study: typed rows of what the study database holds, read once.
 
-Analysis, figures and calibration read a stored study through :class:`StudyReader` and nothing else
-(no SQL above the store). A reader belongs to one open database and one study; everything except the
-samples is read in a single snapshot the first time it is needed and kept for the reader's life, so a
-report that computes metrics and then draws trace figures reads the study once.
+Analysis, figures, calibration, study progress and the data-gap count read a stored study through
+:class:`StudyReader` and nothing else (no SQL above the store: ``tests/architecture/test_read_side.py``). A
+reader belongs to one open database and one study; everything except the samples is read in a single snapshot
+the first time it is needed and kept for the reader's life, so a report that computes metrics and then draws
+trace figures reads the study once. Progress and gap counts read the lighter :meth:`StudyReader.roster` afresh.
 
 Rows are frozen dataclasses. JSON payloads (a trial's outcome and placement, an event's payload, a
 session's plan) are handed on as they were stored: their meaning belongs to the layers that wrote them
@@ -19,7 +20,7 @@ from functools import cached_property
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from studyctl.closing import Closeable
 from studyctl.errors import UnknownKeyError
@@ -28,12 +29,14 @@ from studyctl.store.models import (
     LocationReport,
     Participant,
     QuestionnaireResponse,
+    SampleChunk,
     Session,
     Study,
     Trial,
 )
 from studyctl.store.repository import StudyStore
 from studyctl.store.samples import DEFAULT_STREAM
+from studyctl.store.status import rehearsal_session_ids
 
 if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
     import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
@@ -62,18 +65,21 @@ class StudyInfo:
     name: str
     protocol_name: str | None
     protocol_text: str | None
+    protocol_sha256: str | None
     seed: int
 
 
 @dataclass(frozen=True)
 class ParticipantRow:
-    """One enrolled participant. ``group`` is the participant's group, else its stratum."""
+    """One enrolled participant. ``group`` is the participant's group, else its stratum; ``schedule`` the trial plan
+    drawn at enrollment as stored (:meth:`studyctl.protocol.stored_plan.Schedule.from_json` reads it), or None."""
 
     id: int
     code: str
     group: str | None
     stratum: str | None
     status: str
+    schedule: JSON | None = None
 
 
 @dataclass(frozen=True)
@@ -112,8 +118,9 @@ class TrialRow:
     """One stored trial with its events and reports.
 
     ``step`` is the plan step the trial ran (a repeat of an aborted trial has the step of the trial it
-    replaces); ``stored_truth`` is the scene's truth as the engine recorded it for this trial, or None
-    when the database predates truth events (then the scene must be rebuilt from the session plan).
+    replaces), ``plan_position`` the schedule entry the attempt was recorded under; ``stored_truth`` is the
+    scene's truth as the engine recorded it for this trial, or None when the database predates truth events (then
+    the scene must be rebuilt from the session plan).
     """
 
     id: int
@@ -127,6 +134,7 @@ class TrialRow:
     invalid_reason: str | None
     outcome: JSON
     placement: JSON
+    plan_position: int = 0
     events: tuple[EventRow, ...] = ()
     reports: tuple[LocationReportRow, ...] = ()
 
@@ -136,6 +144,32 @@ class TrialRow:
             if ev.kind in TRUTH_EVENTS:
                 return ev.payload
         return None
+
+
+@dataclass(frozen=True)
+class AnswerRow:
+    """One questionnaire answer (the columns of :data:`ANSWER_COLUMNS`); ``session_id`` is None for an answer given
+    outside a session."""
+
+    participant_id: int
+    session_id: int | None
+    trial_id: int | None
+    instrument: str
+    item: str
+    code: int
+    context: str | None
+
+
+@dataclass(frozen=True)
+class StudyRoster:
+    """Who takes part and what they ran, without events, reports or samples: what study progress and the data-gap
+    count need, read in one transaction (a coordinator page asks for it again and again). Rehearsal sessions and
+    their trials are left out. Sessions carry no plan (``plan_json`` None) and trials no events: the
+    :class:`StudySnapshot` has those."""
+
+    participants: tuple[ParticipantRow, ...]
+    sessions: tuple[SessionRow, ...]  # by participant, then id
+    trials: tuple[TrialRow, ...]  # by participant, session, then id
 
 
 @dataclass(frozen=True)
@@ -168,6 +202,7 @@ class StudyReader(Closeable):
             name=row.name,
             protocol_name=row.protocol_name,
             protocol_text=row.protocol_text,
+            protocol_sha256=row.protocol_sha256,
             seed=int(row.seed),
         )
         self._owns_store = owns_store
@@ -205,23 +240,8 @@ class StudyReader(Closeable):
         """Participants, sessions and trials (with events and reports) of the study, read once. Rehearsal sessions
         (``studyctl run --rehearse``) are left out: they are recorded, never analysed."""
         with self.store.reading() as s:
-            participants = list(
-                s.scalars(select(Participant).where(Participant.study_id == self.study.id).order_by(Participant.id))
-            )
-            pids = [p.id for p in participants]
-            sessions = (
-                # by participant first: with several workers, sessions (and their trials and answers) are
-                # inserted in whichever order the workers start, and tables must not follow that race
-                list(s.scalars(select(Session).where(Session.participant_id.in_(pids))
-                               .order_by(Session.participant_id, Session.id)))
-                if pids
-                else []
-            )
+            participants, sessions, trials = self._people(s)
             sids = [x.id for x in sessions]
-            trials = (
-                list(s.scalars(select(Trial).where(Trial.session_id.in_(sids))
-                               .order_by(Trial.participant_id, Trial.session_id, Trial.id))) if sids else []
-            )
             events = (
                 s.execute(
                     select(Event.session_id, Event.trial_id, Event.t_mono, Event.kind, Event.payload)
@@ -249,7 +269,6 @@ class StudyReader(Closeable):
             sessions = [x for x in sessions if x.id not in rehearsals]
             trials = [tr for tr in trials if tr.session_id not in rehearsals]
             events = [e for e in events if e[0] not in rehearsals]
-        self._rehearsals = frozenset(rehearsals)
         plans: dict[int, JSON] = {}
         trial_events: dict[int, list[EventRow]] = {}
         for sid, tid, t, kind, payload in events:
@@ -260,28 +279,9 @@ class StudyReader(Closeable):
         trial_reports: dict[int, list[LocationReportRow]] = {}
         for tid, t, payload in reports:
             trial_reports.setdefault(tid, []).append(LocationReportRow(tid, float(t), _frozen(payload)))
-        p_rows = tuple(ParticipantRow(p.id, p.code, p.group or p.stratum, p.stratum, p.status) for p in participants)
-        s_rows = tuple(
-            SessionRow(x.id, x.participant_id, x.status, int(x.seed or 0), plans.get(x.id)) for x in sessions
-        )
-        t_rows = tuple(
-            TrialRow(
-                id=tr.id,
-                session_id=tr.session_id,
-                participant_id=tr.participant_id,
-                step=int((tr.outcome or {}).get("step", tr.plan_position)),
-                condition=tr.condition,
-                repetition=tr.repetition,
-                time_limit_s=tr.time_limit_s,
-                status=tr.status,
-                invalid_reason=tr.invalid_reason,
-                outcome=_frozen(tr.outcome),
-                placement=_frozen(tr.placement),
-                events=tuple(trial_events.get(tr.id, ())),
-                reports=tuple(trial_reports.get(tr.id, ())),
-            )
-            for tr in trials
-        )
+        p_rows = tuple(_participant_row(p) for p in participants)
+        s_rows = tuple(_session_row(x, plans.get(x.id)) for x in sessions)
+        t_rows = tuple(_trial_row(tr, trial_events.get(tr.id, ()), trial_reports.get(tr.id, ())) for tr in trials)
         return StudySnapshot(
             participants=p_rows,
             sessions=s_rows,
@@ -289,6 +289,52 @@ class StudyReader(Closeable):
             participant_by_id=MappingProxyType({p.id: p for p in p_rows}),
             session_by_id=MappingProxyType({x.id: x for x in s_rows}),
         )
+
+    def _people(self, s) -> tuple[list[Participant], list[Session], list[Trial]]:  # noqa: ANN001 - a Session
+        """The study's participants, their sessions and those sessions' trials (rehearsals included), in the open
+        session ``s``."""
+        participants = list(
+            s.scalars(select(Participant).where(Participant.study_id == self.study.id).order_by(Participant.id))
+        )
+        pids = [p.id for p in participants]
+        sessions = (
+            # by participant first: with several workers, sessions (and their trials and answers) are
+            # inserted in whichever order the workers start, and tables must not follow that race
+            list(s.scalars(select(Session).where(Session.participant_id.in_(pids))
+                           .order_by(Session.participant_id, Session.id)))
+            if pids
+            else []
+        )
+        sids = [x.id for x in sessions]
+        trials = (
+            list(s.scalars(select(Trial).where(Trial.session_id.in_(sids))
+                           .order_by(Trial.participant_id, Trial.session_id, Trial.id))) if sids else []
+        )
+        return participants, sessions, trials
+
+    def roster(self) -> StudyRoster:
+        """Participants, sessions and trials as they stand now (read afresh on every call, unlike the snapshot: a
+        running study's progress moves), rehearsals left out."""
+        with self.store.reading() as s:
+            participants, sessions, trials = self._people(s)
+            rehearsals = rehearsal_session_ids(s, [x.id for x in sessions])
+        return StudyRoster(
+            participants=tuple(_participant_row(p) for p in participants),
+            sessions=tuple(_session_row(x, None) for x in sessions if x.id not in rehearsals),
+            trials=tuple(_trial_row(tr, (), ()) for tr in trials if tr.session_id not in rehearsals),
+        )
+
+    def stored_sample_rows(self, trial_ids: tuple[int, ...] | list[int], stream: str = DEFAULT_STREAM
+                           ) -> dict[int, int]:
+        """Sample rows stored per trial of ``trial_ids`` (in ``stream``); a trial without samples is left out."""
+        ids = list(trial_ids)
+        if not ids:
+            return {}
+        with self.store.reading() as s:
+            rows = s.execute(select(SampleChunk.trial_id, func.sum(SampleChunk.n))
+                             .where(SampleChunk.trial_id.in_(ids), SampleChunk.stream == stream)
+                             .group_by(SampleChunk.trial_id)).all()
+        return {int(tid): int(n or 0) for tid, n in rows}
 
     @property
     def participants(self) -> tuple[ParticipantRow, ...]:
@@ -336,26 +382,60 @@ class StudyReader(Closeable):
         """A trial's samples (``t`` then one column per channel); read on every call, never kept."""
         return self.store.read_samples(trial_id, stream)
 
+    def answer_rows(self) -> tuple[AnswerRow, ...]:
+        """The study's questionnaire answers in the order given (by participant), rehearsal sessions' left out."""
+        with self.store.reading() as s:
+            pids = [int(p) for p in s.scalars(select(Participant.id).where(Participant.study_id == self.study.id))]
+            if not pids:
+                return ()
+            rows = s.execute(
+                select(*(getattr(QuestionnaireResponse, c) for c in ANSWER_COLUMNS))
+                .where(QuestionnaireResponse.participant_id.in_(pids))
+                .order_by(QuestionnaireResponse.participant_id, QuestionnaireResponse.id)
+            ).all()
+            rehearsals = rehearsal_session_ids(s, {r.session_id for r in rows if r.session_id is not None})
+        return tuple(AnswerRow(*r) for r in rows if r.session_id not in rehearsals)
+
     def answers(self) -> pd.DataFrame:
         """The study's questionnaire answers in the order given, columns :data:`ANSWER_COLUMNS`."""
         import pandas as pd
 
-        pids = [p.id for p in self.snapshot.participants]
-        if not pids:
-            return pd.DataFrame(columns=list(ANSWER_COLUMNS))
-        stmt = (
-            select(*(getattr(QuestionnaireResponse, c) for c in ANSWER_COLUMNS))
-            .where(QuestionnaireResponse.participant_id.in_(pids))
-            .order_by(QuestionnaireResponse.participant_id, QuestionnaireResponse.id)
-        )
-        with self.store.reading() as s:
-            rows = s.execute(stmt).all()
-        rehearsals = getattr(self, "_rehearsals", frozenset())  # set by the snapshot read above
-        return pd.DataFrame([tuple(r) for r in rows if r.session_id not in rehearsals], columns=list(ANSWER_COLUMNS))
+        return pd.DataFrame([tuple(getattr(a, c) for c in ANSWER_COLUMNS) for a in self.answer_rows()],
+                            columns=list(ANSWER_COLUMNS))
+
+
+def _participant_row(p: Participant) -> ParticipantRow:
+    return ParticipantRow(p.id, p.code, p.group or p.stratum, p.stratum, p.status,
+                          None if p.schedule is None else _frozen(p.schedule))
+
+
+def _session_row(x: Session, plan: JSON | None) -> SessionRow:
+    return SessionRow(x.id, x.participant_id, x.status, int(x.seed or 0), plan)
+
+
+def _trial_row(tr: Trial, events: tuple[EventRow, ...] | list[EventRow],
+               reports: tuple[LocationReportRow, ...] | list[LocationReportRow]) -> TrialRow:
+    return TrialRow(
+        id=tr.id,
+        session_id=tr.session_id,
+        participant_id=tr.participant_id,
+        step=int((tr.outcome or {}).get("step", tr.plan_position)),
+        condition=tr.condition,
+        repetition=tr.repetition,
+        time_limit_s=tr.time_limit_s,
+        status=tr.status,
+        invalid_reason=tr.invalid_reason,
+        outcome=_frozen(tr.outcome),
+        placement=_frozen(tr.placement),
+        plan_position=int(tr.plan_position),
+        events=tuple(events),
+        reports=tuple(reports),
+    )
 
 
 __all__ = [
     "ANSWER_COLUMNS",
+    "AnswerRow",
     "PLAN_EVENTS",
     "TRUTH_EVENTS",
     "EventRow",
@@ -364,6 +444,7 @@ __all__ = [
     "SessionRow",
     "StudyInfo",
     "StudyReader",
+    "StudyRoster",
     "StudySnapshot",
     "TrialRow",
 ]

@@ -114,3 +114,22 @@ def test_rows_follow_participants_not_the_order_workers_wrote_them(store):
     assert [s.id for s in reader.sessions] == [sa.id, sb.id]
     assert [t.id for t in reader.trials] == [ta0.id, ta1.id, tb.id]
     assert reader.answers()["participant_id"].tolist() == [a.id, b.id]
+
+
+def test_the_roster_is_read_afresh_without_rehearsals_events_or_samples(store):
+    """What `studyctl status` (progress, data gaps) reads: rows as they stand now, a rehearsal left out."""
+    study, (a, b), (sa, sb), (t1, t2, t3) = _fill(store, "one")
+    rehearsal = store.start_session(b.id, seed=3)
+    store.append_event(rehearsal.id, "session_plan", {"plan": {"version": 1}, "rehearsal": True}, t_mono=0.0)
+    tr = store.add_trial(rehearsal.id, plan_position=0, condition="y", status="completed")
+    store.record_response(b.id, instrument="q", instrument_version="1", item="i2", code=1, session_id=rehearsal.id)
+    reader = StudyReader(store, "one")
+    roster = reader.roster()
+    assert [x.id for x in roster.sessions] == [sa.id, sb.id]
+    assert [t.id for t in roster.trials] == [t1.id, t2.id, t3.id]
+    assert [t.plan_position for t in roster.trials] == [0, 1, 0] and [t.step for t in roster.trials] == [0, 0, 0]
+    assert all(t.events == () for t in roster.trials) and all(x.plan_json is None for x in roster.sessions)
+    assert reader.stored_sample_rows([t1.id, t2.id, tr.id]) == {t2.id: 5}
+    assert [(r.participant_id, r.item, r.code) for r in reader.answer_rows()] == [(a.id, "i1", 4), (b.id, "i1", 2)]
+    store.update_trial(t3.id, status="invalid")
+    assert [t.status for t in reader.roster().trials][-1] == "invalid"  # afresh, unlike the snapshot
