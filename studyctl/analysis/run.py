@@ -1,7 +1,9 @@
-"""One call from a plan to a result: load the plan, read the data (database or CSV), run the tests.
+"""One call from a loaded plan to one result: read the data (database or CSV), run the tests, collect the figures'
+data and, for a report, the effect sizes' and model coefficients' intervals.
 
-This is where a plan is loaded (once) and where a stored study is opened (once, through one
-:class:`~studyctl.store.reader.StudyReader`) for both its metrics and the figures drawn from its samples.
+The plan comes loaded (its name or file is resolved once, by the command or workflow that was given it); the stored
+study is opened once, through one :class:`~studyctl.store.reader.StudyReader`, for both its metrics and the figures
+drawn from its samples.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from studyctl.analysis.execute import run_plan
-from studyctl.analysis.plan import AnalysisPlan, load_plan
+from studyctl.analysis.plan import AnalysisPlan
 from studyctl.analysis.results import AnalysisResult, FigureData
 from studyctl.analysis.table import MetricTable, read_summary_csv
 from studyctl.analysis.trials import StoredStudy
@@ -64,13 +66,14 @@ def _csv_table(plan: AnalysisPlan, db: str | None) -> MetricTable:
 
 
 def analyze(
-    plan: AnalysisPlan | str | Path,
+    plan: AnalysisPlan,
     *,
     db: str | None = None,
     workspace: str | Path | None = None,
     study: str | None = None,
     table: MetricTable | None = None,
     figures: bool = False,
+    intervals: bool = False,
     on_step: Callable[[str], None] | None = None,
     stored: StoredStudy | None = None,
 ) -> AnalysisResult:
@@ -79,7 +82,7 @@ def analyze(
     Parameters
     ----------
     plan
-        A plan object, a plan file, or the name of a shipped plan.
+        A loaded plan (:func:`~studyctl.analysis.plan.load_plan` resolves a file or a shipped plan's name).
     db, workspace, study
         Where the study database is (ignored for CSV plans and when ``table`` is given).
     table
@@ -87,6 +90,10 @@ def analyze(
     figures
         Also collect the data of the plan's figures drawn from stored samples or controllers
         (``result.figures``), from the same open study.
+    intervals
+        Also bootstrap the effect sizes' intervals (:mod:`studyctl.analysis.effect_ci`, ``tables["effect_sizes"]``)
+        and fit the model tests' coefficients with Wald intervals (:mod:`studyctl.analysis.model_ci`,
+        ``tables["model_coefficients"]``): what a report shows; power and calibration runs leave them out.
     on_step
         Progress callback with the name of each step.
     stored
@@ -101,8 +108,6 @@ def analyze(
     """
     from studyctl.analysis.figure_data import collect, needs_figure_data
 
-    if not isinstance(plan, AnalysisPlan):
-        plan = load_plan(plan)
     want_figures = figures and needs_figure_data(plan)
     figure_data: dict[str, FigureData] = {}
     timings: dict[str, float] = {}
@@ -128,4 +133,13 @@ def analyze(
             t1 = time.perf_counter()
             figure_data = collect(plan, stored)
             timings["figure_data_s"] = time.perf_counter() - t1
-    return dataclasses.replace(result, timings=timings, figures=figure_data)
+    result = dataclasses.replace(result, timings=timings, figures=figure_data)
+    if intervals:
+        from studyctl.analysis.effect_ci import effect_size_intervals
+        from studyctl.analysis.model_ci import model_coefficient_intervals
+
+        if on_step:
+            on_step("effect-size intervals")
+        result = dataclasses.replace(result, tables={**result.tables, "effect_sizes": effect_size_intervals(result),
+                                                     "model_coefficients": model_coefficient_intervals(result)})
+    return result

@@ -41,6 +41,7 @@ SEED = 2024
 
 def _cohort_metrics(protocol: str, n: int, rate: float | None, folder: Path) -> tuple[pd.DataFrame, float, float]:
     """Metric values of an ``n``-participant cohort at loop-rate cap ``rate``, CPU and wall s per participant."""
+    from studyctl.analysis.plan import load_plan
     from studyctl.analysis.run import analyze
     from studyctl.store.workspace import open_study
     from studyctl.workflows.simulate import create_cohort, relax_sqlite_durability, run_participant
@@ -52,7 +53,7 @@ def _cohort_metrics(protocol: str, n: int, rate: float | None, folder: Path) -> 
         for code in cohort.codes:
             run_participant(cohort, code, store=opened.store)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
-    frame = analyze(protocol, workspace=cohort.workspace).data.to_frame()
+    frame = analyze(load_plan(protocol), workspace=cohort.workspace).data.to_frame()
     return frame, cpu / n, wall / n
 
 

@@ -4,20 +4,36 @@ virtual participant) is compared with the published targets shipped for its prot
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from studyctl.analysis.results import AnalysisResult
+from studyctl.store.reader import StudyReader
 
-def simulated_vs_published(plan: Any, result: Any, reader: Any, *, targets: str | Path | None = None
+
+def with_agreement(result: AnalysisResult, reader: StudyReader, *, targets: str | Path | None = None
+                   ) -> AnalysisResult:
+    """``result`` with the comparison's tables (``agreement_info``, and ``agreement`` when targets exist) for a
+    simulated study; unchanged for a study of people."""
+    compared = simulated_vs_published(result, reader, targets=targets)
+    if compared is None:
+        return result
+    frame, info = compared
+    extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
+    return replace(result, tables={**result.tables, **extra})
+
+
+def simulated_vs_published(result: AnalysisResult, reader: StudyReader, *, targets: str | Path | None = None
                            ) -> tuple[pd.DataFrame | None, pd.DataFrame] | None:
     """(agreement table, info lines) for a simulated study, or None for a study of people.
 
     ``reader``: the study's open :class:`~studyctl.store.reader.StudyReader` (the one its analysis read).
     ``targets``: a targets file (default: ``studyctl/populations/<protocol>.targets.yaml`` when shipped).
     """
+    plan = result.plan
     from studyctl.calibration import agreement, simulated_values
     from studyctl.populations.targets import load_targets_file, shipped_targets_path
 

@@ -28,6 +28,7 @@ from typing import Any
 
 import pandas as pd
 
+from studyctl.analysis.plan import load_plan
 from studyctl.engine.api import check_sim_rate
 from studyctl.errors import ConfigError, StudyctlError
 from studyctl.report.build import ensure_writable
@@ -155,7 +156,7 @@ def _session_task(cohort: Cohort, code: str) -> tuple[str, float]:
 
 def _report_task(cohort: Cohort, folder: str) -> dict[str, Any]:
     """Analysis and report of one study (runs in a worker process)."""
-    rep = build_report(cohort.study, folder, workspace=cohort.workspace)
+    rep = build_report(load_plan(cohort.study), folder, workspace=cohort.workspace)
     result, files = rep.result, rep.files
     frame = result.to_frame()
     sig = frame[(frame["status"] == "ok") & (frame["significant"] == True)]  # noqa: E712

@@ -1,4 +1,4 @@
-"""Plan → analysis → report folder, in one call (what ``studyctl report`` runs)."""
+"""Loaded plan → one analysis result → report folder, in one call (what ``studyctl report`` runs)."""
 
 from __future__ import annotations
 
@@ -6,14 +6,14 @@ import contextlib
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
-from studyctl.analysis.plan import AnalysisPlan, load_plan
+from studyctl.analysis.plan import AnalysisPlan
 from studyctl.analysis.results import AnalysisResult
 from studyctl.analysis.run import analyze, open_stored_study
 from studyctl.report.build import ReportFiles, check_figure_formats, ensure_writable, write_report
-from studyctl.workflows.agreement import simulated_vs_published
+from studyctl.workflows.agreement import with_agreement
 
 
 @dataclass(frozen=True)
@@ -26,7 +26,7 @@ class ReportRun:
 
 
 def build_report(
-    plan: AnalysisPlan | str | Path,
+    plan: AnalysisPlan,
     out_dir: str | Path,
     *,
     db: str | None = None,
@@ -37,41 +37,27 @@ def build_report(
     figure_formats: tuple[str, ...] = ("png", "svg", "pdf"),
     effect_size_ci: bool = True,
 ) -> ReportRun:
-    """Analyse ``plan`` (database or CSV data) and write its report into ``out_dir``.
+    """Analyse ``plan`` (database or CSV data; loaded by the caller) and write its report into ``out_dir``.
 
-    The output folder is checked for writability before anything is computed. The plan is loaded and
-    the study opened once, here, for the tests, the figures' data and the comparison with the paper. A simulated
-    study's report gets a "simulated vs published" section and ``agreement.csv`` (``targets``: a targets file;
-    default: the protocol's shipped one). ``effect_size_ci``: bootstrap intervals of the effect sizes
-    (:mod:`studyctl.analysis.effect_ci`, ``effect_sizes.csv``) and the model tests' coefficients with Wald
-    intervals (:mod:`studyctl.analysis.model_ci`, ``model_coefficients.csv``).
+    The output folder is checked for writability before anything is computed. The study is opened once, here, for
+    the tests, the figures' data and the comparison with the paper; the analysis returns one result and the report
+    is written from it alone. A simulated study's report gets a "simulated vs published" section and
+    ``agreement.csv`` (``targets``: a targets file; default: the protocol's shipped one). ``effect_size_ci``:
+    bootstrap intervals of the effect sizes (``effect_sizes.csv``) and the model tests' coefficients with Wald
+    intervals (``model_coefficients.csv``).
     """
     created = not Path(out_dir).exists()
     ensure_writable(out_dir)
     try:
         check_figure_formats(figure_formats)
         t0 = time.perf_counter()
-        if not isinstance(plan, AnalysisPlan):
-            plan = load_plan(plan)
         with contextlib.ExitStack() as stack:
             stored = None
             if plan.data.source == "database":  # opened once: the tests, the figures' data and the comparison
                 stored = stack.enter_context(open_stored_study(plan, db=db, workspace=workspace, study=study))
-            result = analyze(plan, db=db, figures=True, on_step=on_step, stored=stored)
-            if stored is not None:
-                compared = simulated_vs_published(plan, result, stored.reader, targets=targets)
-                if compared is not None:  # a simulated study: its report compares it with the paper
-                    frame, info = compared
-                    extra = {"agreement_info": info} | ({} if frame is None else {"agreement": frame})
-                    result = replace(result, tables={**result.tables, **extra})
-        if effect_size_ci:
-            from studyctl.analysis.effect_ci import effect_size_intervals
-            from studyctl.analysis.model_ci import model_coefficient_intervals
-
-            if on_step:
-                on_step("effect-size intervals")
-            result = replace(result, tables={**result.tables, "effect_sizes": effect_size_intervals(result),
-                                             "model_coefficients": model_coefficient_intervals(result)})
+            result = analyze(plan, db=db, figures=True, intervals=effect_size_ci, on_step=on_step, stored=stored)
+            if stored is not None:  # a simulated study: its report compares it with the paper
+                result = with_agreement(result, stored.reader, targets=targets)
         t2 = time.perf_counter()
         files = write_report(result, out_dir, on_step=on_step, figure_formats=figure_formats)
         t3 = time.perf_counter()

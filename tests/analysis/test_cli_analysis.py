@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from studyctl.analysis import analyze
+from studyctl.analysis import analyze, load_plan
 from studyctl.cli.app import main
 from studyctl.errors import AnalysisError
 
@@ -88,7 +88,7 @@ def test_study_without_completed_trials(tmp_path, capsys):
 
     init_workspace(tmp_path / "ws", protocol="bio_inspired_palpation", seed=1)
     with pytest.raises(AnalysisError, match=r"study 'bio_inspired_palpation' has no completed trials .*run sessions"):
-        analyze("bio_inspired_palpation", workspace=tmp_path / "ws")
+        analyze(load_plan("bio_inspired_palpation"), workspace=tmp_path / "ws")
     code, _, err = run(capsys, "analyze", "bio_inspired_palpation", "--workspace", str(tmp_path / "ws"))
     assert code != 0 and err.startswith("Error: study 'bio_inspired_palpation' has no completed trials")
 
@@ -102,7 +102,7 @@ def test_plan_for_another_protocol_is_refused(tmp_path):
         match="analyses protocol 'needle_insertion', but study 'bio_inspired_palpation'"
         " ran protocol 'bio_inspired_palpation'",
     ):
-        analyze("needle_insertion", workspace=tmp_path / "ws")
+        analyze(load_plan("needle_insertion"), workspace=tmp_path / "ws")
 
 
 def test_piped_tables_are_whole(capsys, monkeypatch):

@@ -22,7 +22,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from studyctl.analysis import analyze
+from studyctl.analysis import analyze, load_plan
 from studyctl.workflows.simulate import simulate_study
 
 pytestmark = pytest.mark.slow  # whole virtual sessions (run by CI with -m '')
@@ -38,7 +38,7 @@ def _csv(frame: pd.DataFrame) -> str:
 
 
 def _outputs(workspace: Path) -> dict[str, str]:
-    result = analyze(PROTOCOL, workspace=workspace, figures=True)
+    result = analyze(load_plan(PROTOCOL), workspace=workspace, figures=True)
     out = {
         "tests.csv": _csv(result.to_frame()),
         "cells.csv": _csv(result.tables["cells"]),

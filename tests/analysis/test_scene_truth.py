@@ -7,7 +7,7 @@ import json
 import pytest
 from sqlalchemy import select
 
-from studyctl.analysis import analyze
+from studyctl.analysis import analyze, load_plan
 from studyctl.analysis.truth import SceneTruth
 from studyctl.engine.plan import SessionPlan
 from studyctl.store.models import Event, Session, Trial
@@ -40,5 +40,5 @@ def test_stored_truth_is_the_scene_truth_and_analysis_uses_it(tmp_path, monkeypa
         raise AssertionError("analysis rebuilt a scene although the trial stored its truth")
 
     monkeypatch.setattr(SceneTruth, "rebuild", no_rebuild)
-    result = analyze(protocol, workspace=tmp_path / "ws")
+    result = analyze(load_plan(protocol), workspace=tmp_path / "ws")
     assert len(result.data.frame) and result.data.missing.empty

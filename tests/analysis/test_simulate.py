@@ -5,7 +5,7 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from studyctl.analysis import analyze
+from studyctl.analysis import analyze, load_plan
 from studyctl.workflows.simulate import simulate_study
 
 
@@ -16,7 +16,7 @@ def test_same_seed_same_data(tmp_path):
         result = simulate_study("bio_inspired_palpation", 2, 5, tmp_path / f"run{k}")
         assert result.trials_completed == 8 and result.trials_not_completed == 0
         assert result.sessions_completed == 2
-        frame = analyze("bio_inspired_palpation", workspace=tmp_path / f"run{k}").data.frame
+        frame = analyze(load_plan("bio_inspired_palpation"), workspace=tmp_path / f"run{k}").data.frame
         tables.append(frame.drop(columns=["trial"]).reset_index(drop=True))
     pd.testing.assert_frame_equal(tables[0], tables[1])
     assert sorted(tables[0]["participant"].unique()) == ["BIP-V001", "BIP-V002"]

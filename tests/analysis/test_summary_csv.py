@@ -15,7 +15,7 @@ PLAN = "pseudo_haptic_palpation_published"
 
 @pytest.fixture(scope="module")
 def published():
-    return analyze(PLAN)
+    return analyze(load_plan(PLAN))
 
 
 def test_wilson_intervals_match_the_paper(published):
@@ -63,7 +63,7 @@ def test_pooled_counts_refuse_per_participant_tests(tmp_path):
     extra = "  - id: ranks\n    test: kruskal_wallis\n    metrics: [sensitivity]\n    compare: condition\nfigures:\n"
     p = tmp_path / "plan.yaml"
     p.write_text(text.replace("figures:\n", extra, 1))
-    result = analyze(p)
+    result = analyze(load_plan(p))
     (row,) = result.rows_for("ranks")
     assert row.status == "not_computed"
     assert "needs per-participant values; the data source has pooled counts" in row.warnings

@@ -114,11 +114,12 @@ def test_cli_calibrate_bad_free_parameter_is_one_error_line(tmp_path, protocol, 
 
 @pytest.mark.slow
 def test_simulated_report_compares_with_published(tmp_path, protocol):
+    from studyctl.analysis.plan import load_plan
     from studyctl.workflows.report import build_report
     from studyctl.workflows.simulate import simulate_study
 
     simulate_study(protocol, 4, 3, tmp_path / "ws", population=POPULATION)
-    rep = build_report(str(MINI_PLAN), tmp_path / "rep", workspace=tmp_path / "ws", targets=TARGETS)
+    rep = build_report(load_plan(MINI_PLAN), tmp_path / "rep", workspace=tmp_path / "ws", targets=TARGETS)
     agreement = tmp_path / "rep" / "agreement.csv"
     assert agreement in rep.files.tables
     frame = pd.read_csv(agreement)
@@ -130,7 +131,7 @@ def test_simulated_report_compares_with_published(tmp_path, protocol):
     summary = md[md.index("## Summary of findings"):md.index("## Statistical methods")]
     assert "Simulated vs published" in summary
     # without targets for its protocol the section says so
-    rep2 = build_report(str(MINI_PLAN), tmp_path / "rep2", workspace=tmp_path / "ws")
+    rep2 = build_report(load_plan(MINI_PLAN), tmp_path / "rep2", workspace=tmp_path / "ws")
     md2 = (tmp_path / "rep2" / "report.md").read_text()
     assert "none shipped for power_mini_palpation" in md2 and not (tmp_path / "rep2" / "agreement.csv").exists()
     assert rep2.files.html.is_file()
