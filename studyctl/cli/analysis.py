@@ -149,13 +149,13 @@ def register_sim(app: typer.Typer) -> None:
 
         # the protocol (and population) read before the engine and the store are imported: a hostile file is
         # refused by a small process (issue 19); check_simulation checks the rest
-        load_protocol(resolve_protocol(protocol))
+        proto = load_protocol(resolve_protocol(protocol))
         precheck_yaml_file(population, "population file")
         from studyctl.workflows.simulate import check_simulation, choose_population, simulate_study
 
         folder = out or Path(f"{Path(protocol).stem}-sim")
         # Every input checked before the progress bar starts: a mistake is one Error line, nothing else.
-        proto = load_protocol(check_simulation(protocol, participants, sim_rate_hz, out_dir=folder, db=db))
+        check_simulation(protocol, participants, sim_rate_hz, out_dir=folder, db=db)
         pop = choose_population(proto, population, say=lambda line: typer.echo(line, err=True))
         with Progress(
             TextColumn("{task.description}"),

@@ -27,13 +27,14 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
     ) -> None:
         """Create a study workspace: studyctl.toml plus its database at the newest schema."""
+        loaded = None
         if protocol is not None:  # read before the store is imported: a hostile protocol is refused by a small
-            from studyctl.protocol import load_protocol, resolve_protocol  # process (issue 19)
+            from studyctl.protocol import load_protocol, resolve_protocol  # process (issue 19); read once
 
-            load_protocol(resolve_protocol(protocol))
+            loaded = load_protocol(resolve_protocol(protocol))
         from studyctl.store.workspace import init_workspace
 
-        result = init_workspace(folder, protocol=protocol, name=name, db=db, seed=seed)
+        result = init_workspace(folder, protocol=loaded, name=name, db=db, seed=seed)
         if as_json:
             typer.echo(json.dumps({"study": result.study, "root": str(result.root), "database": str(result.database),
                                    "protocol": result.protocol_name, "protocol_sha256": result.protocol_sha256,

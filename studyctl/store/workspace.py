@@ -23,7 +23,7 @@ from sqlalchemy import URL
 from studyctl import __version__
 from studyctl.closing import Closeable
 from studyctl.errors import ConfigError, StoreError, StudyctlError, UsageError
-from studyctl.protocol import load_protocol, resolve_protocol
+from studyctl.protocol import Protocol, load_protocol, resolve_protocol
 from studyctl.store.db import Database, describe_url, parse_url, require_head
 from studyctl.store.models import Study
 from studyctl.store.repository import StudyStore, check_text
@@ -159,11 +159,10 @@ def _workspace_text(study: str, database: str) -> str:
     )
 
 
-def _load_protocol(protocol: str) -> tuple[str, str, str | None, int | None]:
-    """(text, name, study id, seed) of a protocol given by shipped name or file path, validated."""
-    path = resolve_protocol(protocol)
-    model = load_protocol(path)
-    return model.source_text, Path(path).stem, model.study.id, model.study.seed
+def _load_protocol(protocol: str | Protocol) -> tuple[str, str, str | None, int | None]:
+    """(text, name, study id, seed) of a protocol given loaded, or by shipped name or file path (validated here)."""
+    model = protocol if isinstance(protocol, Protocol) else load_protocol(resolve_protocol(protocol))
+    return model.source_text, Path(model.path).stem, model.study.id, model.study.seed
 
 
 def _link_new(src: Path, dst: Path) -> None:
@@ -201,7 +200,7 @@ def check_new_workspace(folder: Path, db: str | None) -> URL | None:
 def init_workspace(
     root: str | os.PathLike[str],
     *,
-    protocol: str | None = None,
+    protocol: str | Protocol | None = None,
     name: str | None = None,
     db: str | None = None,
     seed: int | None = None,

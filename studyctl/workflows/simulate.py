@@ -126,8 +126,9 @@ def create_cohort(
     (:data:`SHIPPED`) is the protocol's shipped population when there is one; None: the participant's defaults.
     """
     # the population is checked before anything is written: a bad file leaves no half-made workspace
-    population = cohort_population(load_protocol(check_simulation(protocol, participants, sim_rate_hz)), population)
-    init = init_workspace(out_dir, protocol=str(protocol), seed=int(seed), db=db)
+    loaded = load_protocol(check_simulation(protocol, participants, sim_rate_hz))  # read once, stored as read
+    population = cohort_population(loaded, population)
+    init = init_workspace(out_dir, protocol=loaded, seed=int(seed), db=db)
     with open_study(db, str(init.root), init.study) as opened:
         proto = study_protocol(opened.study)
         several = len(proto.participants.strata) > 1
