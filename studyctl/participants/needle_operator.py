@@ -16,6 +16,9 @@ scene. What it does, and why each part is there:
   the axial force for a rise above its running baseline (Weber fraction plus an absolute threshold): an
   enhanced tumour (ES/ESG) gives such a cue, the compliant one of BL does not. A cue means "at the tumour";
   it stops, reacting after a delay, and relaxes its push.
+* **Probes the guidance** (``probe_mm`` > 0): in a scenario's first trial, lined up over the incision, it pushes
+  its hand sideways and back, as people judge compliance by pressing (Lederman & Klatzky 1987); a steady hand
+  would otherwise stay inside the guidance's tolerance and never learn that a stiff channel holds it.
 * **Decides when to scan** from its own uncertainty (growing with movement, reset by scans, the lateral
   part reset by a perceived guidance force): before entering if unsure of the entry point, when it thinks
   it is close to the target unless it has learnt in this scenario that a force cue marks the target, and
@@ -59,6 +62,8 @@ from studyctl.participants.needle_trial import Line, MinJerk, Phase, TrialState,
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 
 __all__ = ["DEFAULTS", "PARAMS", "OperatorParams", "Phase", "VirtualNeedleOperator"]
+
+PROBE_S = 1.2  # CHOSEN: each leg of the sideways probe (s); peak speed 1.9 x probe_mm / PROBE_S
 class VirtualNeedleOperator(OperatorSenses, Participant):
     """Virtual participant for seed 001 (entry point ``virtual_needle_operator``); params: :data:`PARAMS`."""
 
@@ -76,6 +81,8 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         # the stiffness (N/m) it has felt the guidance channel to have, per scenario label (force rise over sideways
         # travel): sets how much faster it dares to advance inside the channel (:meth:`_channel_speed`)
         self.wall_k: dict[str, float] = {}
+        # scenario labels whose channel it has pushed against on purpose (``probe_mm``: once per scenario)
+        self.probed: set[str] = set()
         self.s: TrialState | None = None
 
     # ------------------------------------------------------------------ session and trial set-up
@@ -83,12 +90,14 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         """What it has learnt to trust per scenario, and its own trial record, stored by the engine with each
         finished trial: a session resumed in a new process goes on as the uninterrupted one would."""
         return {"trust_cue": dict(self.trust_cue), "trust_guide": dict(self.trust_guide),
-                "wall_k": dict(self.wall_k), "history": [dict(r) for r in self.history]}
+                "wall_k": dict(self.wall_k), "probed": sorted(self.probed),
+                "history": [dict(r) for r in self.history]}
 
     def recall(self, memory: Mapping[str, Any]) -> None:
         self.trust_cue = {str(k): float(v) for k, v in (memory.get("trust_cue") or {}).items()}
         self.trust_guide = {str(k): float(v) for k, v in (memory.get("trust_guide") or {}).items()}
         self.wall_k = {str(k): float(v) for k, v in (memory.get("wall_k") or {}).items()}
+        self.probed = {str(k) for k in (memory.get("probed") or [])}
         self.history = [dict(r) for r in (memory.get("history") or [])]
 
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
@@ -229,6 +238,9 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
             return ()
         if mv.elapsed >= mv.T + 0.3:
             st.move = None
+            st.probing = False
+            if self.p.probe_mm > 0.0 and st.button >= 0.5 and st.info.condition not in self.probed:
+                return self._probe()
             if st.scans_allowed and st.sense.sig_lat > self.p.entry_scan_mm:
                 return self._scan_then(t, Phase.INSERT)
             return self._enter_insert(percept)
@@ -329,6 +341,23 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         if st.next_phase is Phase.INSERT:
             return self._enter_insert(percept)
         return self._judge(t, percept)
+
+    def _probe(self) -> tuple[Request, ...]:
+        """Lined up over the incision in a scenario's first trial: push the hand ``probe_mm`` sideways (a random
+        direction across the pen) and back, to feel how firmly the channel holds it (judged by :meth:`_perceive`
+        like any growing lateral push)."""
+        st = self._st
+        self.probed.add(st.info.condition)
+        z, a = st.noise(), st.axis
+        along = z[0] * a[0] + z[1] * a[1] + z[2] * a[2]
+        side = (z[0] - along * a[0], z[1] - along * a[1], z[2] - along * a[2])
+        n = math.sqrt(side[0] ** 2 + side[1] ** 2 + side[2] ** 2) or 1.0
+        r, d = st.ref, self.p.probe_mm / n
+        st.probing = True
+        # slowly (PROBE_S each way): pushed fast, the channel's damper would push back whatever its stiffness
+        start_reach(self._st, r, (r[0] + d * side[0], r[1] + d * side[1], r[2] + d * side[2]),
+                    self.p.probe_mm / PROBE_S, then=r)
+        return ()
 
     def _enter_insert(self, percept: Mapping[str, Any]) -> tuple[Request, ...]:
         st, p = self._st, self.p

@@ -76,6 +76,12 @@ PARAMS = (
           source="CHOSEN: how readily it yields to a felt guidance force"),
     Param("wall_n", 0.3, 0.01, 5.0, unit="N",
           source="CHOSEN: a lateral force this strong feels like a firm channel wall"),
+    Param("probe_mm", 0.0, 0.0, 5.0, unit="mm",
+          source="CHOSEN: in the first trial of a scenario, lined up over the incision, it pushes its hand this far "
+                 "sideways and back to feel how firmly it is held (the pressure exploratory procedure by which "
+                 "people judge compliance: Lederman & Klatzky 1987, Cogn. Psychol. 19:342-368); 0: it never "
+                 "probes. Inside the guidance's 1 mm tolerance no force is felt, so a steady hand learns of a "
+                 "stiff channel only by pushing"),
     Param("wall_travel_mm", 0.6, 0.05, 5.0, unit="mm",
           source="CHOSEN: a lateral force that grows from just noticeable to wall_n while the hand moves sideways "
                  "less than this feels like a firm wall (stiff guidance), more like a soft pull: a stiffness "
@@ -136,6 +142,7 @@ class OperatorParams:
     radial_threshold_n: float
     follow_gain_mm_per_ns: float
     wall_n: float
+    probe_mm: float
     wall_travel_mm: float
     entry_scan_mm: float
     recheck_mm: float

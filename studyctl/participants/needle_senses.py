@@ -47,7 +47,7 @@ class OperatorSenses:
         mv = st.move
         if st.phase is Phase.INSERT:
             return True
-        return st.phase is Phase.APPROACH and isinstance(mv, MinJerk) and mv.then is None
+        return st.phase is Phase.APPROACH and isinstance(mv, MinJerk) and (mv.then is None or st.probing)
 
     def _channel_speed(self) -> float:
         """Advance speed inside a guidance channel it trusts.

@@ -110,6 +110,7 @@ class TrialState:
     guided: bool = False  # this insertion already runs at the guided speed
     line_checked: bool = False  # the one scan before feeling for the tumour was taken
     cue_on_correction: bool = False  # the last cue came while correcting towards a target seen on an image
+    probing: bool = False  # pushing sideways over the incision to feel the channel (``probe_mm``)
 
     def noise(self) -> np.ndarray:
         z = self.z[self.zi]

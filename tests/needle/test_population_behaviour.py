@@ -69,3 +69,31 @@ def test_esg_with_bl_physics_loses_its_advantage():
     broken_scans, broken_time = np.mean([r[0] for r in broken]), np.mean([r[1] for r in broken])
     assert real_time < 0.92 * broken_time  # same people, same trial streams: only the physics differs
     assert real_scans < broken_scans
+
+
+def _first_trial(label: str, person: dict) -> VirtualNeedleOperator:
+    """One person's first trial of a scenario, through the real controller, device and scene."""
+    op = VirtualNeedleOperator(person)
+    rng = np.random.default_rng([5, 0])
+    scene = NeedleLiverScene.build({}, {"sites": {"tumour": 2}}, frozenset({"layers", "view"}), rng)
+    ctrl = NeedleHybridController(condition_params(label), scene)
+    dev = SimulatedForceDevice({"device_class": "omega6"}, scene)
+    dev.open()
+    run_trial(info=TrialInfo(label, 90.0, 1000.0, "on_request"), controller=ctrl, device=dev, participant=op,
+              clock=SimulatedClock(), rng=rng, on_sample=lambda t, s: None, view=scene.view)
+    return op
+
+
+@pytest.mark.slow  # 5 whole needle trials
+def test_a_sideways_probe_finds_the_stiff_channel_and_not_the_compliant_one():
+    """A steady hand stays inside the guidance's 1 mm tolerance and never feels EG's channel; pushing sideways
+    over the incision (probe_mm), it feels EG's 1000 N/m as a firm wall, and BL's 100 N/m not."""
+    steady = {**_people(1, 3)[0], "motor_noise_mm": 0.1}
+    assert "EG" not in _first_trial("EG", {**steady, "probe_mm": 0.0}).wall_k  # never felt
+    probed = _first_trial("EG", {**steady, "probe_mm": 2.5})
+    assert probed.wall_k["EG"] > 400.0 and probed.trust_guide["EG"] > 0.0 and probed.s.guided
+    assert probed.memory()["probed"] == ["EG"]  # once per scenario, remembered across a resume
+    again = VirtualNeedleOperator({**steady, "probe_mm": 2.5})
+    again.recall(probed.memory())
+    assert again.probed == {"EG"}
+    assert "BL" not in _first_trial("BL", {**steady, "probe_mm": 2.5}).wall_k
