@@ -66,10 +66,11 @@ class _EntryRunner:
     """Runs one plan entry (one test family) for each of its metrics and split cells."""
 
     def __init__(self, plan: AnalysisPlan, prep: Prepared, entry: PlanTest, tables: dict[str, list],
-                 units: UnitSource | None = None) -> None:
+                 units: UnitSource | None = None, by_metric: dict[str, pd.DataFrame] | None = None) -> None:
         self.plan = plan
         self.units = units
         self.prep = prep
+        self.by_metric = by_metric
         self.entry = entry
         self.spec = catalog.TESTS[catalog.ALIASES.get(entry.test, entry.test)]
         self.alpha = entry.alpha if entry.alpha is not None else plan.alpha
@@ -142,11 +143,20 @@ class _EntryRunner:
             return [(a, b) for a, b in self.entry.pairs if a in levels and b in levels]
         return list(itertools.combinations(levels, 2))
 
+    def metric_rows(self, metric: str) -> pd.DataFrame:
+        """The prepared rows of ``metric`` (from the plan-wide split when the caller made one)."""
+        frame = self.prep.frame
+        if self.by_metric is None:
+            return frame[frame["metric"] == metric]
+        if metric not in self.by_metric:
+            self.by_metric[metric] = frame[frame["metric"] == metric]
+        return self.by_metric[metric]
+
     # -- main ------------------------------------------------------------------------------------
     def run(self) -> list[TestRow]:
         rows: list[TestRow] = []
         for metric in self.entry.metrics:
-            data = self.prep.frame[self.prep.frame["metric"] == metric]
+            data = self.metric_rows(metric)
             if data.empty:
                 rows.append(self.row(metric, "", status="not_computed", warnings="no values for this metric"))
                 continue
@@ -420,9 +430,10 @@ def hypothesis_rows(plan: AnalysisPlan, prep: Prepared, *, units: UnitSource | N
     """
     tables: dict[str, list] = {"percent_change": [], "descriptives": [], "likert": []}
     rows: list[TestRow] = []
+    by_metric: dict[str, pd.DataFrame] = {}  # each metric's rows filtered once, not once per entry
     for entry in plan.tests:
         if is_hypothesis_entry(entry):
-            rows.extend(_EntryRunner(plan, prep, entry, tables, units).run())
+            rows.extend(_EntryRunner(plan, prep, entry, tables, units, by_metric).run())
     return tuple(rows)
 
 

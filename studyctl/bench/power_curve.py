@@ -2,20 +2,25 @@
 for seed 000 and seed 001, from stored pools of their shipped (calibrated) populations.
 
 The pool (stage 1: people simulated through the full engine) is built once and stored; this bench times stage 2,
-the part a power curve repeats: ``curve_s_<protocol>`` is the wall time of 5 × 1,000 stage-2 replicates in this
-process (serial), ``curve_cpu_s_<protocol>`` its CPU seconds, beside the pool's own build cost as stored with it
+the part a power curve repeats, as ``studyctl power --two-stage`` runs it: batches of replicates as tasks on a local
+Dask cluster of ``$STUDYCTL_BENCH_WORKERS`` workers (default 2; 0: serially in this process). ``curve_s_<protocol>``
+is its wall time, ``curve_cpu_s_<protocol>`` the replicates' CPU seconds summed over the workers,
+``stage2_overhead_pct_<protocol>`` the share of the workers' wall time spent outside replicates (scheduling,
+transfers, each worker's one pool load), beside the pool's own build cost as stored with it
 (``pool_build_cpu_s_<protocol>``, summed over its chunks) and, as the peer, the full-engine CPU seconds per
 replicate of the same study measured in the same run (one replicate at the smallest size).
 
 Pools come from ``$STUDYCTL_BENCH_POOL_DIR`` (default ``reports/power-pools``, where ``studyctl power --two-stage``
 keeps them): the largest pool file of each protocol there. Stage-2 timing does not depend on how the pool's people
-were simulated, so a pool built by an earlier code version is used as it is (its key is in the notes); a pool
-below 20 × the largest size is used for timing only and the notes say so. ``--quick``: 50 replicates per size.
-"""
+were simulated, so a pool built by an earlier code version is used as it is (its key is in the notes). The sizes
+are the default ones when the pool holds 20 × their largest, else the five largest block-completing sizes it
+holds 20 × of; a pool too small even for that is used for timing only and the notes say so. ``--quick``: 50
+replicates per size."""
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import sqlite3
 import time
@@ -43,71 +48,118 @@ def _largest_pool(folder: Path, protocol: str) -> tuple[Path, int, int, dict] | 
     return best
 
 
-def curve(protocol: str, sizes: tuple[int, ...], replicates: int, folder: Path) -> tuple[dict, list, list]:
+def _sizes(default: tuple[int, ...], people: int) -> tuple[tuple[int, ...], bool]:
+    """The curve's sizes: the default ones when the pool holds 20 × their largest, else five evenly spaced sizes
+    from the smallest default one to the largest the pool holds 20 × of (False: the pool holds too few even for
+    that; the default sizes are then timed only)."""
+    from studyctl.power.pool import MIN_POOL_FACTOR
+
+    top, low = people // MIN_POOL_FACTOR, min(default)
+    if top >= max(default):
+        return default, True
+    if top < low + 4:
+        return default, False
+    return tuple(sorted({round(low + (top - low) * k / 4) for k in range(5)})), True
+
+
+def _stage2(spec: Any, path: Path, chunks: int, size: int, todo: list[tuple[int, int]], workers: int) -> dict:
+    """Run the stage-2 replicates ``todo`` as ``studyctl power --two-stage`` does: serially (workers 0) or as
+    batches of replicates on a local Dask cluster; wall, summed replicate CPU and busy seconds."""
+    from studyctl.power.twostage import batches, draw_batch
+
+    out: list[Any] = []
+    keep = lambda r: out.extend(r)  # noqa: E731 - a batch's list of replicates
+    if workers == 0:
+        t0 = time.perf_counter()
+        for n, a, b in batches(todo, len(todo)):
+            keep(draw_batch(spec, str(path), chunks, size, n, a, b))
+        wall, start_s = time.perf_counter() - t0, 0.0
+    else:
+        from studyctl.power.executor import DaskBackend
+        from studyctl.workflows.power_two_stage import STAGE2_BATCH
+
+        s0 = time.perf_counter()
+        backend = DaskBackend.local(workers, None)
+        start_s = time.perf_counter() - s0
+        try:
+            per_task = max(1, min(STAGE2_BATCH, math.ceil(len(todo) / (4 * workers))))
+            tasks = [(str(path), chunks, size, n, a, b) for n, a, b in batches(todo, per_task)]
+            t0 = time.perf_counter()
+            backend.map(draw_batch, spec, tasks, keep, tag="bench")
+            wall = time.perf_counter() - t0
+        finally:
+            backend.close()
+    busy = sum(r.seconds for r in out)
+    return {"wall": wall, "cpu": sum(r.cpu_seconds for r in out), "busy": busy, "count": len(out),
+            "start_s": start_s, "tasks": len(todo) if workers == 0 else len(tasks),
+            # what the workers' slots spent outside replicates (scheduling, transfers, each worker's pool load)
+            "overhead_pct": 100.0 * (1.0 - busy / (max(workers, 1) * wall)) if wall > 0 else math.nan}
+
+
+def curve(protocol: str, sizes: tuple[int, ...], replicates: int, folder: Path,
+          workers: int = 2) -> tuple[dict, list, list]:
     from studyctl.power import prepare_power
     from studyctl.power.executor import SerialBackend
-    from studyctl.power.pool import MIN_POOL_FACTOR, PoolFile
-    from studyctl.power.seeds import draw_rng
-    from studyctl.power.twostage import Stage2, composition, draw_members
 
     found = _largest_pool(folder, protocol)
     if found is None:
         return {}, [], [f"{protocol}: no pool in {folder}; build one with studyctl power {protocol} --two-stage "
                         f"--pool-dir {folder}"]
     path, chunks, size, key = found
-    pf = PoolFile(path, sqlite3.connect(path))
-    try:
-        pool = pf.load(chunks, size, 0)
-    finally:
-        pf.close()
+    people = chunks * size
+    sizes, valid = _sizes(sizes, people)
     spec = prepare_power(protocol, protocol, sizes=sizes, replicates=replicates, seed=key["seed"])
-    t0, c0 = time.perf_counter(), time.process_time()
-    stage2 = Stage2(spec, pool)
-    for n in sizes:
-        for r in range(replicates):
-            stage2.rows(draw_members(pool, composition(stage2.protocol, spec.seed, n, r), draw_rng(spec.seed, n, r)))
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    todo = [(n, r) for n in sizes for r in range(replicates)]
+    run = _stage2(spec, path, chunks, size, todo, workers)
+    with sqlite3.connect(path) as c:
+        build_cpu = c.execute("SELECT COALESCE(SUM(cpu_seconds), 0) FROM chunks WHERE chunk < ?",
+                              (chunks,)).fetchone()[0]
     # the peer: one full-engine replicate of the same study at the smallest size, same run
     e0 = time.perf_counter()
     done: list[Any] = []
     SerialBackend(None).run(spec, [(sizes[0], 0)], done.append)
     exact_wall = time.perf_counter() - e0
-    total = len(sizes) * replicates
+    total, wall, cpu = run["count"], run["wall"], run["cpu"]
     tag = protocol.split("_")[0]
     figures = {
         f"curve_s_{tag}": wall, f"curve_cpu_s_{tag}": cpu, f"curve_replicates_{tag}": float(total),
         f"stage2_replicates_per_s_{tag}": total / wall, f"stage2_cpu_s_per_replicate_{tag}": cpu / total,
-        f"pool_people_{tag}": float(pool.size), f"pool_build_cpu_s_{tag}": pool.build_cpu_seconds,
+        f"stage2_workers_{tag}": float(workers), f"stage2_overhead_pct_{tag}": run["overhead_pct"],
+        f"stage2_tasks_{tag}": float(run["tasks"]), f"cluster_start_s_{tag}": run["start_s"],
+        f"pool_people_{tag}": float(people), f"pool_build_cpu_s_{tag}": float(build_cpu),
         f"exact_cpu_s_per_replicate_{tag}_n{sizes[0]}": done[0].cpu_seconds,
         f"exact_s_per_replicate_{tag}_n{sizes[0]}": exact_wall,
     }
     rows = [{"protocol": protocol, "sizes": ",".join(map(str, sizes)), "replicates": total, "seconds": wall,
-             "cpu_seconds": cpu, "pool": pool.size}]
-    small = pool.size < MIN_POOL_FACTOR * max(sizes)
-    notes = [f"{protocol}: {pool.size}-person pool {path.name} (seed {key['seed']}, code "
-             f"{str(key.get('code_sha256'))[:12]}, population {str(key.get('traits_sha256'))[:12]})"
-             + (f"; below {MIN_POOL_FACTOR} × {max(sizes)}: timing only, not a valid power curve" if small else "")]
+             "cpu_seconds": cpu, "workers": workers, "overhead_pct": run["overhead_pct"], "pool": people}]
+    notes = [f"{protocol}: {people}-person pool {path.name} (seed {key['seed']}, code "
+             f"{str(key.get('code_sha256'))[:12]}, population {str(key.get('traits_sha256'))[:12]}); sizes "
+             f"{', '.join(map(str, sizes))}"
+             + ("" if valid else f"; below 20 × {max(sizes)}: timing only, not a valid power curve")]
     return figures, rows, notes
 
 
 def run(quick: bool = False) -> BenchResult:
     folder = Path(os.environ.get("STUDYCTL_BENCH_POOL_DIR", "reports/power-pools")).expanduser()
+    workers = int(os.environ.get("STUDYCTL_BENCH_WORKERS", "2"))
     replicates = 50 if quick else REPLICATES
     load_start = os.getloadavg()[0]
     figures: dict[str, float] = {"replicates_per_size": float(replicates), "load_1min_start": load_start}
     rows: list[dict] = []
-    notes = [f"stage 2 serial in this process; 5 sizes × {replicates} replicates per protocol; pool build is the "
-             "stored one-off cost (chunks' CPU seconds), not part of curve_s",
+    notes = [(f"stage 2 on a local Dask cluster of {workers} workers, batches of replicates per task (as studyctl "
+              "power --two-stage runs it)" if workers else "stage 2 serial in this process")
+             + f"; 5 sizes × {replicates} replicates per protocol; pool build is the stored one-off cost (chunks' "
+             "CPU seconds), not part of curve_s; overhead_pct: share of the workers' wall time outside replicates",
              f"2 cores, load (1-min) {load_start:.1f} at start: wall time depends on it, CPU seconds much less"]
     peers: dict[str, float] = {}
     for protocol, sizes in CURVES:
-        f, r, n = curve(protocol, sizes, replicates, folder)
+        f, r, n = curve(protocol, sizes, replicates, folder, workers)
         figures.update(f)
         rows += r
         notes += n
         tag = protocol.split("_")[0]
         if f:
-            peers[f"stage2_cpu_s_per_replicate_{tag}"] = f[f"exact_cpu_s_per_replicate_{tag}_n{sizes[0]}"]
+            peers[f"stage2_cpu_s_per_replicate_{tag}"] = next(v for k, v in f.items() if k.startswith("exact_cpu"))
     figures["load_1min_end"] = os.getloadavg()[0]
     if quick:
         notes.append("--quick: 50 replicates per size; curve_s is then not the issue's 5 × 1,000")

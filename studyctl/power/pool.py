@@ -66,25 +66,40 @@ def chunk_size(protocol: Any) -> int:
 #: the statistics and stage 2's own modules run on the stored rows every time, they never made them.
 _NOT_SIMULATION = ("bench", "cli", "report", "view", "workflows", "stats")
 _NOT_SIMULATION_FILES = tuple(f"power/{m}.py" for m in ("twostage", "units", "summary", "target", "results",
-                                                         "executor", "bootstrap", "fast"))
+                                                         "executor", "bootstrap", "fast", "arrays")) + \
+    tuple(f"analysis/{m}.py" for m in ("execute", "shape", "results", "run", "effect_ci", "model_ci",
+                                       "result_tables", "figure_data"))
+#: Folders of the package that only test stored rows (the plan's procedures; a pool keeps no test result).
+_NOT_SIMULATION_DIRS = ("analysis/procedures",)
 
 
 def simulation_code_digest() -> str:
     """sha256 of the package's source files that simulate and measure people (engine, participants, scenes,
-    controllers, devices, models, protocol, analysis, populations …). The version number alone does not change
-    while the code does: a pool grown in chunks across a code change would mix two kinds of virtual people (seen
-    while measuring issue 22: chunks built before and after a devices/engine change landed)."""
+    controllers, devices, models, protocol, the analysis's metrics, populations …); the analysis modules that
+    prepare and test stored metric rows (execute, shape, procedures …) run on a pool's rows, never made them.
+    The version number alone does not change while the code does: a pool grown in chunks across a code change
+    would mix two kinds of virtual people (seen while measuring issue 22: chunks built before and after a
+    devices/engine change landed)."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
+    for rel in simulation_files():
+        h.update(str(rel).encode())
+        h.update(hashlib.sha256((root / rel).read_bytes()).digest())
+    return h.hexdigest()
+
+
+def simulation_files() -> list[Path]:
+    """The package's files :func:`simulation_code_digest` reads (relative to the package), sorted."""
+    root = Path(__file__).resolve().parents[1]
+    out = []
     for path in sorted(root.rglob("*")):
         rel = path.relative_to(root)
         if not path.is_file() or path.suffix not in (".py", ".yaml", ".yml", ".json", ".npz") or \
                 rel.parts[0] in _NOT_SIMULATION or rel.as_posix() in _NOT_SIMULATION_FILES or \
-                "__pycache__" in rel.parts:
+                rel.parent.as_posix() in _NOT_SIMULATION_DIRS or "__pycache__" in rel.parts:
             continue
-        h.update(str(rel).encode())
-        h.update(hashlib.sha256(path.read_bytes()).digest())
-    return h.hexdigest()
+        out.append(rel)
+    return out
 
 
 def pool_key(spec: PowerSpec, size: int) -> dict[str, Any]:

@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from studyctl.analysis.results import rows_frame
+from studyctl.analysis.results import TestRow
 from studyctl.errors import UsageError
 from studyctl.power.pool import Pool
-from studyctl.power.replicate import ROW_COLUMNS, ReplicateResult, _rows
+from studyctl.power.replicate import ROW_COLUMNS, ReplicateResult
 from studyctl.power.seeds import draw_rng, replicate_seeds
-from studyctl.power.spec import PowerSpec
+from studyctl.power.spec import TEST_KINDS, PowerSpec
 from studyctl.power.units import PoolUnits, replicate_rows
 from studyctl.protocol import Planner, allocate_strata, load_protocol_text
 
@@ -45,19 +45,31 @@ def composition(protocol, seed: int, participants: int, replicate: int) -> dict[
     return cells
 
 
+def cell_ids(members: pd.DataFrame, stratum: str, seq: int | None) -> np.ndarray:
+    """The member ids of one (stratum, sequence) cell (sequence None: the whole stratum), in the pool's order."""
+    mask = members["stratum"] == stratum
+    if seq is not None:
+        mask &= members["sequence"] == seq
+    return members.loc[mask, "member"].to_numpy()
+
+
 def draw_members(pool: Pool, cells: dict[tuple[str, int | None], int], rng: np.random.Generator,
-                 members: pd.DataFrame | None = None) -> list[str]:
+                 members: pd.DataFrame | None = None,
+                 index: dict[tuple[str, int | None], np.ndarray] | None = None) -> list[str]:
     """Member ids for every cell, without replacement within the pool (UsageError if a cell runs short).
 
     ``members``: draw from these rows of the pool's people instead (a bootstrap pool, where a person's row can
-    repeat: the same person can then be drawn twice)."""
+    repeat: the same person can then be drawn twice). ``index``: a cache of :func:`cell_ids` of those members
+    (filled here), so a run of many replicates filters the pool once per cell, not once per replicate."""
     members = pool.members if members is None else members
     chosen: list[str] = []
     for (stratum, seq), count in cells.items():
-        mask = members["stratum"] == stratum
-        if seq is not None:
-            mask &= members["sequence"] == seq
-        ids = members.loc[mask, "member"].to_numpy()
+        if index is None:
+            ids = cell_ids(members, stratum, seq)
+        else:
+            if (stratum, seq) not in index:
+                index[(stratum, seq)] = cell_ids(members, stratum, seq)
+            ids = index[(stratum, seq)]
         if ids.size < count:
             raise UsageError(
                 f"the pool at {pool.path} has {ids.size} people of stratum {stratum!r}"
@@ -72,6 +84,41 @@ def member_frames(pool: Pool) -> dict[str, pd.DataFrame]:
     return dict(tuple(pool.metrics.groupby("participant", sort=False)))
 
 
+#: TestRow fields kept per power row, in :data:`studyctl.power.replicate.ROW_COLUMNS` order (after size, index).
+_KEEP = ROW_COLUMNS[2:]
+_FLOATS = frozenset({"p", "p_adj", "effect_size"})
+#: text fields a missing value of becomes "" (as :func:`studyctl.power.replicate._rows` makes them)
+_TEXT = frozenset({"parent", "effect_size_name", "split", "groups", "metric", "role", "test"})
+
+
+def _missing(v: object) -> bool:
+    return v is None or (isinstance(v, float) and math.isnan(v))
+
+
+def power_rows(rows: tuple[TestRow, ...]) -> tuple[tuple, ...]:
+    """The power rows of a replicate's test rows: what ``_rows(rows_frame(rows))`` gives (a full-engine
+    replicate's path, through a DataFrame), read straight from the rows — a stage-2 replicate makes ~100 of
+    them thousands of times (tests/power check both give the same tuples)."""
+    out = []
+    for r in rows:
+        if r.kind not in TEST_KINDS:
+            continue
+        row = []
+        for name in _KEEP:
+            v = getattr(r, name)
+            if hasattr(v, "item"):
+                v = v.item()
+            if name in _FLOATS:
+                v = math.nan if v is None else float(v)
+            elif name == "significant":
+                v = None if _missing(v) else bool(v)
+            elif name in _TEXT:
+                v = "" if _missing(v) else str(v)
+            row.append(v)
+        out.append(tuple(row))
+    return tuple(out)
+
+
 class Stage2:
     """What every stage-2 replicate of one pool shares: the protocol, each person's rows and the pool's units."""
 
@@ -80,10 +127,16 @@ class Stage2:
         self.protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
         self.by_member = member_frames(pool)
         self.units = PoolUnits(spec.plan, pool.metrics, spec.study_id)
+        self.index: dict[tuple[str, int | None], np.ndarray] = {}
 
     def rows(self, chosen: list[str]) -> tuple:
         """The replicate's test rows (:data:`studyctl.power.replicate.ROW_COLUMNS` without size and index)."""
-        return _rows(rows_frame(replicate_rows(self.units, chosen, self.by_member)))
+        return power_rows(replicate_rows(self.units, chosen, self.by_member))
+
+    def draw(self, participants: int, replicate: int) -> list[str]:
+        """The people of stage-2 replicate ``replicate`` at ``participants`` (as :func:`draw_replicate` draws)."""
+        cells = composition(self.protocol, self.spec.seed, participants, replicate)
+        return draw_members(self.pool, cells, draw_rng(self.spec.seed, participants, replicate), index=self.index)
 
     def rows_frame(self, members: pd.DataFrame, participants: int, replicate: int,
                    rng: np.random.Generator) -> pd.DataFrame:
@@ -95,19 +148,20 @@ class Stage2:
 
 
 def draw_replicate(spec: PowerSpec, pool: Pool, participants: int, replicate: int,
-                   protocol=None, by_member=None, pool_units: PoolUnits | None = None) -> ReplicateResult:  # noqa: ANN001
+                   protocol=None, by_member=None, pool_units: PoolUnits | None = None,  # noqa: ANN001
+                   index: dict | None = None) -> ReplicateResult:
     """Stage-2 replicate ``replicate`` at size ``participants``: draw people from ``pool``, run the plan's
-    hypothesis tests on their metric rows (``by_member``/``pool_units``: the pool's, prepared once by the caller
-    for a run of many replicates; built here when not given)."""
+    hypothesis tests on their metric rows (``by_member``/``pool_units``/``index``: the pool's, prepared once by
+    the caller for a run of many replicates; built here when not given)."""
     t0, c0 = time.perf_counter(), time.process_time()
     protocol = protocol or load_protocol_text(spec.protocol_text, spec.protocol_name)
     cells = composition(protocol, spec.seed, participants, replicate)
-    chosen = draw_members(pool, cells, draw_rng(spec.seed, participants, replicate))
+    chosen = draw_members(pool, cells, draw_rng(spec.seed, participants, replicate), index=index)
     groups = by_member if by_member is not None else member_frames(pool)
     units = pool_units if pool_units is not None else PoolUnits(spec.plan, pool.metrics, spec.study_id)
-    result = rows_frame(replicate_rows(units, chosen, groups))
+    rows = power_rows(replicate_rows(units, chosen, groups))
     return ReplicateResult(
-        participants=int(participants), replicate=int(replicate), rows=_rows(result), sessions_completed=0,
+        participants=int(participants), replicate=int(replicate), rows=rows, sessions_completed=0,
         trials_completed=0, trials_not_completed=0, clipped=0, seconds=time.perf_counter() - t0,
         cpu_seconds=time.process_time() - c0, peak_rss_mb=math.nan, worker=f"{socket.gethostname()}:{os.getpid()}",
     )
@@ -132,7 +186,7 @@ def _worker_pool(spec: PowerSpec, path: str, chunks: int, size: int) -> tuple:
         finally:
             pf.close()
         _LOADED[key] = (pool, member_frames(pool), PoolUnits(spec.plan, pool.metrics, spec.study_id),
-                        load_protocol_text(spec.protocol_text, spec.protocol_name))
+                        load_protocol_text(spec.protocol_text, spec.protocol_name), {})
     return _LOADED[key]
 
 
@@ -140,9 +194,9 @@ def draw_batch(spec: PowerSpec, path: str, chunks: int, size: int, participants:
                stop: int) -> list[ReplicateResult]:
     """Stage-2 replicates ``start`` … ``stop - 1`` at ``participants`` from the pool file at ``path`` (its first
     ``chunks`` chunks of ``size`` people): a Dask task, coarse enough that scheduling is a small part of it."""
-    pool, by_member, units, protocol = _worker_pool(spec, path, chunks, size)
-    return [draw_replicate(spec, pool, participants, r, protocol=protocol, by_member=by_member, pool_units=units)
-            for r in range(start, stop)]
+    pool, by_member, units, protocol, index = _worker_pool(spec, path, chunks, size)
+    return [draw_replicate(spec, pool, participants, r, protocol=protocol, by_member=by_member, pool_units=units,
+                           index=index) for r in range(start, stop)]
 
 
 def batches(todo: list[tuple[int, int]], per_task: int) -> list[tuple[int, int, int]]:

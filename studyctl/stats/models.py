@@ -25,11 +25,13 @@ How each term is tested (stated in every term's ``method``):
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -90,16 +92,26 @@ class ModelResult:
 
 
 def _clean(y: Sequence[float], factors: dict[str, Sequence], subject: Sequence | None) -> pd.DataFrame:
-    frame = pd.DataFrame({"y": np.asarray(y, dtype=float)})
+    yv = np.asarray(y, dtype=float)
     if not factors:
         raise StatsInputError("a model needs at least one factor")
+    columns: dict[str, Any] = {"y": yv}
     for name, values in factors.items():
-        if len(values) != len(frame):
-            raise StatsInputError(f"factor {name!r} has {len(values)} values for {len(frame)} observations")
-        frame[name] = pd.Series(list(values), dtype=object).astype(str).to_numpy()
-    frame["_subject"] = (pd.Series(list(subject), dtype=object).astype(str).to_numpy() if subject is not None
-                         else np.arange(len(frame)).astype(str))
-    return frame[np.isfinite(frame["y"])].reset_index(drop=True)
+        if len(values) != len(yv):
+            raise StatsInputError(f"factor {name!r} has {len(values)} values for {len(yv)} observations")
+        columns[name] = _text(values)
+    columns["_subject"] = _text(subject) if subject is not None else np.arange(len(yv)).astype(str)
+    frame = pd.DataFrame(columns)
+    finite = np.isfinite(yv)
+    return frame if finite.all() else frame[finite].reset_index(drop=True)
+
+
+def _text(values: Sequence) -> np.ndarray:
+    """The values as text (a factor's levels, a subject's id); text already is kept as it is (no conversion)."""
+    arr = np.asarray(values, dtype=object)
+    if all(type(v) is str for v in arr.tolist()):
+        return arr
+    return pd.Series(list(values), dtype=object).astype(str).to_numpy()
 
 
 def _terms(names: Sequence[str]) -> list[tuple[str, ...]]:
@@ -151,10 +163,11 @@ def _problem(frame: pd.DataFrame, names: Sequence[str], levels: dict[str, list])
     for n in names:
         if len(levels[n]) < 2:
             return f"factor {n} has one level ({', '.join(levels[n]) or 'none'}) in these data"
-    cells = frame.groupby(list(names)).size()
+    # the distinct level combinations present (what groupby(names).size() counts, without its machinery)
+    cells = len({tuple(r) for r in zip(*(frame[n].tolist() for n in names), strict=True)})
     expected = math.prod(len(levels[n]) for n in names)
-    if len(cells) < expected:
-        return (f"{expected - len(cells)} of {expected} cells of {' × '.join(names)} have no observation: the "
+    if cells < expected:
+        return (f"{expected - cells} of {expected} cells of {' × '.join(names)} have no observation: the "
                 "full-factorial model is singular")
     if len(frame) <= expected:
         return f"no replication: {len(frame)} observations for {expected} cells"
@@ -274,14 +287,21 @@ def _mixed_llf_iterative(y: np.ndarray, x: np.ndarray, groups: np.ndarray) -> fl
     return float(best.llf)
 
 
+def _term_df(x: np.ndarray, assign: list[int], t: int) -> int:
+    """Degrees of freedom of term ``t``: rank of X minus rank of X without the term's columns."""
+    keep = [j for j, a in enumerate(assign) if a != t]
+    return int(np.linalg.matrix_rank(x) - np.linalg.matrix_rank(x[:, keep]))
+
+
 def _mixed_lr(y: np.ndarray, x: np.ndarray, assign: list[int], t: int, groups: np.ndarray,
-              full_llf: float | None = None) -> tuple[float, float, float, float]:
-    """(χ², df, p, full llf) of the likelihood-ratio test of term ``t`` (ML fits with and without it)."""
+              full_llf: float | None = None, df: int | None = None) -> tuple[float, float, float, float]:
+    """(χ², df, p, full llf) of the likelihood-ratio test of term ``t`` (ML fits with and without it);
+    ``df``: the term's :func:`_term_df` when the caller tests it on several responses of one design."""
     from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
     keep = [j for j, a in enumerate(assign) if a != t]
     llf_f = _mixed_llf(y, x, groups) if full_llf is None else full_llf
     llf_r = _mixed_llf(y, x[:, keep], groups)
-    df = np.linalg.matrix_rank(x) - np.linalg.matrix_rank(x[:, keep])
+    df = _term_df(x, assign, t) if df is None else df
     chi2 = max(2.0 * (llf_f - llf_r), 0.0)
     return chi2, float(df), float(_st.chi2.sf(chi2, df)), llf_f
 
@@ -326,18 +346,50 @@ def mixed_model(y: Sequence[float], factors: dict[str, Sequence], subject: Seque
     return ModelResult("mixed_model", tuple(out), len(frame), int(frame["_subject"].nunique()))
 
 
-def aligned_responses(frame: pd.DataFrame, names: Sequence[str], term: tuple[str, ...]) -> np.ndarray:
+def _group_codes(frame: pd.DataFrame, names: Sequence[str]) -> dict[str, np.ndarray]:
+    """Each factor's values as integer codes (the groups of every margin are then integer combinations)."""
+    return {n: np.unique(frame[n].to_numpy(dtype=object), return_inverse=True)[1].ravel() for n in names}
+
+
+def _margin_mean(y: np.ndarray, codes: dict[str, np.ndarray], factors: Sequence[str]) -> np.ndarray:
+    """Each observation's mean of y over the observations sharing its levels of ``factors`` (none: the grand
+    mean), bit for bit what ``groupby(factors)["y"].transform("mean")`` gives: pandas sums each group in row
+    order with Kahan compensation, and the aligned ranks depend on the last bit (an aligned value that ties
+    another one exactly must still tie: discrete metrics such as an accuracy tie often). A plain loop over a
+    few hundred rows costs far less than pandas' groupby machinery (a power analysis aligns thousands)."""
+    if not factors:
+        return np.full(len(y), y.mean())
+    key = np.zeros(len(y), dtype=np.int64)
+    for n in factors:
+        key = key * (int(codes[n].max()) + 1) + codes[n]
+    _, idx = np.unique(key, return_inverse=True)
+    idx = idx.ravel()
+    k = int(idx.max()) + 1 if len(idx) else 0
+    sums, comp, count = [0.0] * k, [0.0] * k, [0] * k
+    for g, v in zip(idx.tolist(), y.tolist(), strict=True):
+        count[g] += 1
+        d = v - comp[g]
+        t = sums[g] + d
+        c = t - sums[g] - d
+        comp[g] = 0.0 if c != c else c  # an infinite value makes the compensation NaN (pandas GH#50367)
+        sums[g] = t
+    means = np.array([a / b for a, b in zip(sums, count, strict=True)])
+    return means[idx]
+
+
+def aligned_responses(frame: pd.DataFrame, names: Sequence[str], term: tuple[str, ...],
+                      codes: dict[str, np.ndarray] | None = None) -> np.ndarray:
     """Wobbrock et al. (2011) alignment for ``term``: residual from the full-factorial cell means plus the
-    term's estimated effect (inclusion–exclusion of marginal means of the observations)."""
-    y = frame["y"].to_numpy()
-    cell_mean = frame.groupby(list(names))["y"].transform("mean").to_numpy()
+    term's estimated effect (inclusion–exclusion of marginal means of the observations). ``codes``: the
+    factors' :func:`_group_codes` when the caller aligns several terms of one frame."""
+    y = frame["y"].to_numpy(dtype=float)
+    codes = _group_codes(frame, names) if codes is None else codes
+    cell_mean = _margin_mean(y, codes, list(names))
     effect = np.zeros(len(frame))
     for k in range(len(term) + 1):
         for sub in itertools.combinations(term, k):
             sign = (-1) ** (len(term) - k)
-            means = frame.groupby(list(sub))["y"].transform("mean").to_numpy() if sub else np.full(len(frame),
-                                                                                               y.mean())
-            effect += sign * means
+            effect += sign * _margin_mean(y, codes, sub)
     return (y - cell_mean) + effect
 
 
@@ -356,9 +408,10 @@ def art_anova(y: Sequence[float], factors: dict[str, Sequence], subject: Sequenc
     x, assign = design(frame, names, lv)
     repeated = _repeated(frame)
     groups = frame["_subject"].to_numpy()
+    codes = _group_codes(frame, names)
     out = []
     for t, term in enumerate(_terms(names)):
-        ranks = _st.rankdata(aligned_responses(frame, names, term))
+        ranks = _st.rankdata(aligned_responses(frame, names, term, codes))
         flat = _no_variation(ranks, "every aligned rank")
         if flat:  # the term's aligned responses are all tied: a fit would report rounding noise as an effect
             out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=flat))
@@ -412,17 +465,35 @@ def ordinal_model(y: Sequence[float], factor: Sequence, *, levels: Sequence[str]
     return ModelResult("ordinal", (term,), len(frame), int(frame["_subject"].nunique()))
 
 
+@functools.cache
+def _logit_model() -> type:
+    """statsmodels' OrderedModel with the logistic cdf evaluated as ``scipy.special.expit``: the value
+    ``scipy.stats.logistic.cdf`` returns, bit for bit (its generic wrapper subtracts loc 0, divides by scale 1,
+    gives 0/1 at ∓inf and NaN for NaN, as expit does, then calls expit), without the wrapper's argument checks,
+    which took ~85 % of an ordinal fit's time (the optimiser evaluates the likelihood hundreds of times). The
+    fit, its optimiser path and its result are unchanged (tests/stats compare both)."""
+    from scipy.special import expit
+    from statsmodels.miscmodels.ordinal_model import OrderedModel
+
+    class LogitOrderedModel(OrderedModel):
+        def cdf(self, x):  # noqa: ANN001, ANN202 - statsmodels' signature
+            return expit(np.asarray(x, dtype=float))
+
+    return LogitOrderedModel
+
+
 def ordinal_fit(values: np.ndarray, factor: np.ndarray, levels: list[str]) -> tuple[dict, float]:
     """The fitted cumulative logit model (treatment coding, first level as reference): coefficients,
     thresholds (R's clm parameterisation: logit P(Y ≤ j) = θ_j − xβ), log-likelihood; and the null llf."""
-    from statsmodels.miscmodels.ordinal_model import OrderedModel
-
+    # outside the block below: importing statsmodels installs its own "always" filter for ConvergenceWarning,
+    # which inside the block would be put before the "ignore"
+    model = _logit_model()
     cats = np.unique(values)
     yc = pd.Series(pd.Categorical(values, categories=cats, ordered=True))
     x = pd.DataFrame({f"factor{lv}": (factor == lv).astype(float) for lv in levels[1:]})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = OrderedModel(yc, x, distr="logit").fit(method="bfgs", disp=False, maxiter=5000, gtol=1e-10)
+        res = model(yc, x, distr="logit").fit(method="bfgs", disp=False, maxiter=5000, gtol=1e-10)
     k = x.shape[1]
     params = np.asarray(res.params)
     cut = params[k:]

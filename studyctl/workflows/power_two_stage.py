@@ -107,9 +107,10 @@ def run_two_stage(
 
             if isinstance(backend, SerialBackend):
                 by_member, pool_units = member_frames(built), PoolUnits(spec.plan, built.metrics, spec.study_id)
+                index: dict = {}  # each (stratum, sequence) cell's people, found once
                 for n, r in todo:
                     keep(draw_replicate(spec, built, n, r, protocol=protocol, by_member=by_member,
-                                        pool_units=pool_units))
+                                        pool_units=pool_units, index=index))
             else:  # batches of replicates on the workers, each loading the pool file once
                 per_task = max(1, min(STAGE2_BATCH, math.ceil(len(todo) / (4 * max(backend.info.workers, 1)))))
                 backend.map(draw_batch, spec, [(str(built.path), math.ceil(built.size / built.chunk_size),

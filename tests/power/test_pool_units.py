@@ -82,3 +82,21 @@ def test_other_people_change_the_rows(plan, pool):
     a = rows_frame(replicate_rows(units, members[:8], by_member))
     b = rows_frame(replicate_rows(units, members[1:9], by_member))
     assert not a["p"].equals(b["p"])
+
+
+@pytest.mark.slow
+def test_power_rows_read_straight_from_the_rows_are_the_frame_path(plan, pool):
+    """Stage 2 reads its power rows straight from the test rows; a full-engine replicate goes through a rows
+    frame. Both give the same tuples (NaN where the frame has NaN, "" for missing text, significance as bool)."""
+    from studyctl.power.replicate import _rows
+    from studyctl.power.twostage import power_rows
+
+    _, by_member, units = pool
+    members = list(by_member)
+    for seed in range(4):
+        chosen = [members[i] for i in np.random.default_rng(seed).choice(len(members), 8 + seed, replace=False)]
+        rows = replicate_rows(units, chosen, by_member)
+        direct, framed = power_rows(rows), _rows(rows_frame(rows))
+        assert len(direct) > 60
+        pd.testing.assert_frame_equal(pd.DataFrame(direct), pd.DataFrame(framed))
+        assert all(type(a) is type(b) for r, s in zip(direct, framed, strict=True) for a, b in zip(r, s, strict=True))

@@ -144,3 +144,17 @@ def test_pool_key_follows_the_simulation_code(spec12, monkeypatch):
     before = pool_mod.pool_key(spec12, 12)
     monkeypatch.setattr(pool_mod, "simulation_code_digest", lambda: "0" * 64)
     assert pool_mod.pool_key(spec12, 12) != before
+
+
+def test_pool_key_leaves_out_the_modules_that_only_test_stored_rows():
+    """Stage 2's statistics (the plan's execution, shaping, procedures) can change without invalidating a stored
+    pool; the modules that simulate and measure people (engine, metrics) stay in its key."""
+    from studyctl.power import pool as pool_mod
+
+    files = {p.as_posix() for p in pool_mod.simulation_files()}
+    for kept in ("analysis/metrics.py", "analysis/trials.py", "engine/api.py", "power/replicate.py",
+                 "power/pool.py"):
+        assert kept in files
+    for left in ("analysis/execute.py", "analysis/shape.py", "analysis/procedures/models.py", "stats/models.py",
+                 "power/twostage.py", "power/units.py"):
+        assert left not in files

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pandas as pd
 
 from studyctl.analysis.procedures.spec import BETWEEN, Cell, Finding, TestSpec, below
@@ -23,17 +24,18 @@ def factor_column(factor: str) -> str:
     return factor if factor in ("condition", "group") else "level"
 
 
-def _long(cell: Cell) -> tuple[pd.DataFrame, str, str | None]:
-    """The cell's units with the compared factor's column (``_level``) and the second factor's, if any."""
+def _long(cell: Cell) -> tuple[pd.DataFrame, np.ndarray, str, str | None]:
+    """The cell's units of the compared levels, the compared factor's level per unit (text) and the second
+    factor's name, if any."""
     units = cell.units
     if units is None or units.empty:
         raise StatsInputError("no units in this cell")
     compare = cell.compare or "condition"
     col = factor_column(compare)
     second = cell.options.get("factor")
-    data = units[units[col].isin(cell.levels)].copy()
-    data["_level"] = data[col].astype(str)
-    return data, compare, (str(second) if second else None)
+    inside = units[col].isin(cell.levels)
+    data = units if inside.all() else units[inside]  # read only: no copy needed
+    return data, data[col].astype(str).to_numpy(), compare, (str(second) if second else None)
 
 
 def _findings(res: models.ModelResult, alpha: float) -> list[Finding]:
@@ -46,8 +48,8 @@ def _findings(res: models.ModelResult, alpha: float) -> list[Finding]:
 
 
 def _factors(cell: Cell) -> tuple[pd.DataFrame, dict, dict]:
-    data, compare, second = _long(cell)
-    factors = {compare: data["_level"].to_numpy()}
+    data, level, compare, second = _long(cell)
+    factors = {compare: level}
     levels = {compare: list(cell.levels)}
     if second:
         col = factor_column(second)
@@ -70,8 +72,8 @@ def _mixed(cell: Cell) -> list[Finding]:
 
 
 def _ordinal(cell: Cell) -> list[Finding]:
-    data, compare, _ = _long(cell)
-    res = models.ordinal_model(data["value"], data["_level"], levels=list(cell.levels),
+    data, level, compare, _ = _long(cell)
+    res = models.ordinal_model(data["value"], level, levels=list(cell.levels),
                                subject=data["participant"])
     findings = _findings(res, cell.alpha)
     return [Finding(f.summary, f.significant, warnings=f.warnings, status=f.status, term=compare) for f in findings]
