@@ -98,8 +98,8 @@ def test_trial_tempo_varies_within_a_person_and_grows_with_practice():
 
 # a sharp-eyed person of the seed 003 population (its trait locations and fixed behaviour, visual_weber at the
 # range's low end)
-PERSON_003 = {"tempo": 3.2, "line_spacing_mm": 9.5, "press_spacing_mm": 9.5, "visual_weber": 0.02, "hand_weber": 0.0,
-              "ratio_window_mm": 1.0, "z_threshold": 3.5, "report_fraction": 0.15, "press_precision": 0.05,
+PERSON_003 = {"tempo": 2.16, "line_spacing_mm": 9.5, "press_spacing_mm": 9.5, "visual_weber": 0.02, "hand_weber": 0.0,
+              "ratio_window_mm": 1.0, "z_threshold": 2.0, "report_fraction": 0.15, "press_precision": 0.048,
               "judge_from_bottom": True}
 
 
