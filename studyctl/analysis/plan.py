@@ -51,7 +51,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from studyctl import yamlmarks
 from studyctl.analysis.metric_defs import BUILTIN
 from studyctl.analysis.plan_checks import check_names, dotted
-from studyctl.errors import ProtocolError, UnknownKeyError
+from studyctl.errors import ProtocolError, UnknownKeyError, ValueTypeError
 from studyctl.inputs import read_text
 from studyctl.problems import Problem
 from studyctl.suggest import did_you_mean
@@ -402,6 +402,16 @@ def load_plan(path_or_name: str | Path) -> AnalysisPlan:
 
     path = find_shipped("analysis", path_or_name)
     return parse_plan(load_plan_yaml(path))
+
+
+def require_loaded(plan: object, where: str) -> AnalysisPlan:
+    """``plan`` itself, or a one-line error for a caller who passed a plan's name or path (the old API)."""
+    if isinstance(plan, AnalysisPlan):
+        return plan
+    raise ValueTypeError(
+        f"{where} takes a loaded plan, got {type(plan).__name__} {plan!r}; "
+        f"load it first: {where}(load_plan({plan!r}), ...)"
+    )
 
 
 def load_plan_yaml(path: Path | str) -> MarkedData:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from studyctl.analysis.execute import run_plan
-from studyctl.analysis.plan import AnalysisPlan
+from studyctl.analysis.plan import AnalysisPlan, require_loaded
 from studyctl.analysis.results import AnalysisResult, FigureData
 from studyctl.analysis.table import MetricTable, read_summary_csv
 from studyctl.analysis.trials import StoredStudy
@@ -108,6 +108,7 @@ def analyze(
     """
     from studyctl.analysis.figure_data import collect, needs_figure_data
 
+    plan = require_loaded(plan, "analyze")
     want_figures = figures and needs_figure_data(plan)
     figure_data: dict[str, FigureData] = {}
     timings: dict[str, float] = {}

@@ -9,7 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from studyctl.analysis.plan import AnalysisPlan
+from studyctl.analysis.plan import AnalysisPlan, require_loaded
 from studyctl.analysis.results import AnalysisResult
 from studyctl.analysis.run import analyze, open_stored_study
 from studyctl.report.build import ReportFiles, check_figure_formats, ensure_writable, write_report
@@ -46,6 +46,7 @@ def build_report(
     bootstrap intervals of the effect sizes (``effect_sizes.csv``) and the model tests' coefficients with Wald
     intervals (``model_coefficients.csv``).
     """
+    plan = require_loaded(plan, "build_report")
     created = not Path(out_dir).exists()
     ensure_writable(out_dir)
     try:

@@ -173,3 +173,15 @@ def test_every_problem_is_reported_at_once(tmp_path):
     text = MINIMAL.replace("alpha", "x") + "alpah: 1\nfigurs: []\n"
     msgs = problems_of(tmp_path, text)
     assert len(msgs) == 2
+
+
+def test_a_plan_name_where_a_loaded_plan_is_needed_is_one_clear_error(tmp_path):
+    from studyctl.analysis.run import analyze
+    from studyctl.errors import StudyctlError
+    from studyctl.workflows.report import build_report
+
+    with pytest.raises(StudyctlError, match=r"analyze takes a loaded plan.*load_plan\('needle_insertion'\)"):
+        analyze("needle_insertion")
+    with pytest.raises(StudyctlError, match=r"build_report takes a loaded plan"):
+        build_report("needle_insertion", tmp_path / "out")
+    assert not (tmp_path / "out").exists()

@@ -12,6 +12,7 @@ import numpy as np
 from studyctl.store import StudyStore
 
 RATE = 1000
+BLOCK = 100  # rows per append_block
 CHANNELS = [f"ch{i}" for i in range(16)]
 
 
@@ -31,7 +32,7 @@ def main() -> None:
         store.update_trial(trial.id, status="running")
         writer = store.sample_writer(trial.id, CHANNELS, flush_interval_s=1.0)
         written = 0
-        block = 100
+        block = BLOCK
         while index < 2 and written < 2 * RATE or index == 2:
             t, v = values(index, written, block)
             before = writer.chunks_written
