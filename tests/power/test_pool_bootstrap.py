@@ -140,3 +140,15 @@ def test_curve_bench_picks_the_largest_complete_pool(tmp_path):
             c.executemany("INSERT INTO chunks VALUES (?, 1, 1, 'w')", [(k,) for k in chunks])
     path, chunks, size, _ = _largest_pool(tmp_path, "p")
     assert path.name == "p-b.sqlite" and chunks == 3 and size == 10
+
+
+def test_curve_bench_sizes_follow_the_pool():
+    """A pool below 20 × the default largest size gets five sizes it holds 20 × of (from the smallest default);
+    one too small even for that keeps the default sizes, flagged as timing only."""
+    from studyctl.bench.power_curve import _sizes
+
+    default = (8, 12, 16, 20, 25)
+    assert _sizes(default, 500) == (default, True)
+    assert _sizes(default, 400) == ((8, 11, 14, 17, 20), True)
+    assert _sizes(default, 320) == ((8, 10, 12, 14, 16), True)
+    assert _sizes(default, 36) == (default, False)
