@@ -71,6 +71,10 @@ _NOT_SIMULATION_FILES = tuple(f"power/{m}.py" for m in ("twostage", "units", "su
                                        "result_tables", "figure_data"))
 #: Folders of the package that only test stored rows (the plan's procedures; a pool keeps no test result).
 _NOT_SIMULATION_DIRS = ("analysis/procedures",)
+#: Shipped population and targets files: the pool's own population is in its key already (the spec's
+#: ``traits_sha256``); another protocol's population or a targets file never shapes its people, and hashing them
+#: made a fit of seed 003's population invalidate every stored seed-000 pool (issue 22, measured: a 460 s rebuild).
+_NOT_SIMULATION_DATA = ("populations",)
 
 
 def simulation_code_digest() -> str:
@@ -96,7 +100,8 @@ def simulation_files() -> list[Path]:
         rel = path.relative_to(root)
         if not path.is_file() or path.suffix not in (".py", ".yaml", ".yml", ".json", ".npz") or \
                 rel.parts[0] in _NOT_SIMULATION or rel.as_posix() in _NOT_SIMULATION_FILES or \
-                rel.parent.as_posix() in _NOT_SIMULATION_DIRS or "__pycache__" in rel.parts:
+                rel.parent.as_posix() in _NOT_SIMULATION_DIRS or "__pycache__" in rel.parts or \
+                (rel.parent.as_posix() in _NOT_SIMULATION_DATA and path.suffix != ".py"):
             continue
         out.append(rel)
     return out

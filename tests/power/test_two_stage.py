@@ -158,3 +158,16 @@ def test_pool_key_leaves_out_the_modules_that_only_test_stored_rows():
     for left in ("analysis/execute.py", "analysis/shape.py", "analysis/procedures/models.py", "stats/models.py",
                  "power/twostage.py", "power/units.py"):
         assert left not in files
+    # Population files are keyed by the spec's own population digest, not by the code digest: a refit of another
+    # protocol's population keeps this pool; the loader that turns a file into traits stays in.
+    assert "populations/loader.py" in files
+    assert not [f for f in files if f.startswith("populations/") and not f.endswith(".py")]
+
+
+def test_the_pools_own_population_file_is_in_its_key():
+    """Leaving population files out of the code digest is safe only because the pool's own population is keyed."""
+    from studyctl.power import pool as pool_mod
+
+    spec = prepare_power("bio_inspired_palpation", "bio_inspired_palpation", sizes="8", replicates=1, seed=SEED)
+    assert spec.traits is not None and spec.traits.sha256
+    assert pool_mod.pool_key(spec, 8)["traits_sha256"] == spec.traits.sha256
