@@ -19,7 +19,7 @@ import pandas as pd
 
 from studyctl.analysis import compute_metrics
 from studyctl.analysis.execute import hypothesis_rows
-from studyctl.analysis.results import rows_frame
+from studyctl.analysis.results import TestRow
 from studyctl.analysis.shape import prepare
 from studyctl.engine.api import run_session
 from studyctl.engine.factory import EntryPointFactory
@@ -111,27 +111,36 @@ def _check_memory(limit: int | None, where: str) -> float:
     return math.nan if rss is None else rss / 2**20
 
 
-def _clean(value: Any) -> Any:
-    """Plain Python values (numpy scalars → float/int/bool; NaN stays NaN)."""
-    if value is None:
-        return None
-    if hasattr(value, "item"):
-        value = value.item()
-    return value
+_FLOATS = frozenset({"p", "p_adj", "effect_size"})
+#: text fields a missing value of becomes ""
+_TEXT = frozenset({"parent", "effect_size_name", "split", "groups", "metric", "role", "test"})
 
 
-def _rows(frame: pd.DataFrame) -> tuple[tuple[Any, ...], ...]:
-    tests = frame[frame["kind"].isin(TEST_KINDS)]
+def _missing(v: object) -> bool:
+    return v is None or (isinstance(v, float) and math.isnan(v))
+
+
+def power_rows(rows: tuple[TestRow, ...]) -> tuple[tuple, ...]:
+    """The power rows (:data:`ROW_COLUMNS` without size and index) of a replicate's test rows, read straight from
+    the rows: NaN for a missing number, "" for missing text, significance as bool or None. Full-engine and stage-2
+    replicates both call it; a stage-2 run makes ~100 rows thousands of times, so no DataFrame is built
+    (tests/power check it against the rows frame's values)."""
     out = []
-    for rec in tests[list(_KEEP)].itertuples(index=False, name=None):
-        row = [_clean(v) for v in rec]
-        sig = row[_KEEP.index("significant")]
-        row[_KEEP.index("significant")] = (
-            None if sig is None or (isinstance(sig, float) and math.isnan(sig)) else bool(sig)
-        )
-        for col in ("parent", "effect_size_name", "split", "groups", "metric", "role", "test"):
-            i = _KEEP.index(col)
-            row[i] = "" if row[i] is None or (isinstance(row[i], float) and math.isnan(row[i])) else str(row[i])
+    for r in rows:
+        if r.kind not in TEST_KINDS:
+            continue
+        row = []
+        for name in _KEEP:
+            v = getattr(r, name)
+            if hasattr(v, "item"):
+                v = v.item()
+            if name in _FLOATS:
+                v = math.nan if v is None else float(v)
+            elif name == "significant":
+                v = None if _missing(v) else bool(v)
+            elif name in _TEXT:
+                v = "" if _missing(v) else str(v)
+            row.append(v)
         out.append(tuple(row))
     return tuple(out)
 
@@ -222,12 +231,12 @@ def simulate_replicate(
     if on_metrics is not None:
         on_metrics(study.table)
     # the plan's hypothesis tests only (what power counts; descriptive tables and intervals are not run)
-    frame = rows_frame(hypothesis_rows(spec.plan, prepare(spec.plan, study.table)))
+    rows = power_rows(hypothesis_rows(spec.plan, prepare(spec.plan, study.table)))
     trials, completed, clipped, peak = study.trials, study.completed, study.clipped, study.peak_rss_mb
     return ReplicateResult(
         participants=int(participants),
         replicate=int(replicate),
-        rows=_rows(frame),
+        rows=rows,
         sessions_completed=int(completed),
         trials_completed=trials.get("completed", 0),
         trials_not_completed=sum(v for k, v in trials.items() if k != "completed"),

@@ -24,12 +24,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from studyctl.analysis.results import TestRow
 from studyctl.errors import UsageError
 from studyctl.power.pool import Pool
-from studyctl.power.replicate import ROW_COLUMNS, ReplicateResult
+from studyctl.power.replicate import ROW_COLUMNS, ReplicateResult, power_rows
 from studyctl.power.seeds import draw_rng, replicate_seeds
-from studyctl.power.spec import TEST_KINDS, PowerSpec
+from studyctl.power.spec import PowerSpec
 from studyctl.power.units import PoolUnits, replicate_rows
 from studyctl.protocol import Planner, allocate_strata, load_protocol_text
 
@@ -82,41 +81,6 @@ def draw_members(pool: Pool, cells: dict[tuple[str, int | None], int], rng: np.r
 def member_frames(pool: Pool) -> dict[str, pd.DataFrame]:
     """Each pool person's metric rows (the table of a replicate is its people's rows, in draw order)."""
     return dict(tuple(pool.metrics.groupby("participant", sort=False)))
-
-
-#: TestRow fields kept per power row, in :data:`studyctl.power.replicate.ROW_COLUMNS` order (after size, index).
-_KEEP = ROW_COLUMNS[2:]
-_FLOATS = frozenset({"p", "p_adj", "effect_size"})
-#: text fields a missing value of becomes "" (as :func:`studyctl.power.replicate._rows` makes them)
-_TEXT = frozenset({"parent", "effect_size_name", "split", "groups", "metric", "role", "test"})
-
-
-def _missing(v: object) -> bool:
-    return v is None or (isinstance(v, float) and math.isnan(v))
-
-
-def power_rows(rows: tuple[TestRow, ...]) -> tuple[tuple, ...]:
-    """The power rows of a replicate's test rows: what ``_rows(rows_frame(rows))`` gives (a full-engine
-    replicate's path, through a DataFrame), read straight from the rows — a stage-2 replicate makes ~100 of
-    them thousands of times (tests/power check both give the same tuples)."""
-    out = []
-    for r in rows:
-        if r.kind not in TEST_KINDS:
-            continue
-        row = []
-        for name in _KEEP:
-            v = getattr(r, name)
-            if hasattr(v, "item"):
-                v = v.item()
-            if name in _FLOATS:
-                v = math.nan if v is None else float(v)
-            elif name == "significant":
-                v = None if _missing(v) else bool(v)
-            elif name in _TEXT:
-                v = "" if _missing(v) else str(v)
-            row.append(v)
-        out.append(tuple(row))
-    return tuple(out)
 
 
 class Stage2:

@@ -46,10 +46,9 @@ def small_pool(tmp_path_factory):
 def test_a_person_drawn_twice_is_two_participants(small_pool):
     """A replicate with a person twice equals the plan run on a table where the copy has its own code."""
     from studyctl.analysis.execute import hypothesis_rows
-    from studyctl.analysis.results import rows_frame
     from studyctl.analysis.shape import prepare
     from studyctl.analysis.table import MetricTable
-    from studyctl.power.replicate import _rows
+    from studyctl.power.replicate import power_rows
 
     spec, pool = small_pool
     stage2 = Stage2(spec, pool)
@@ -59,7 +58,7 @@ def test_a_person_drawn_twice_is_two_participants(small_pool):
     m = pool.metrics
     frame = pd.concat([m[m["participant"] == a], m[m["participant"] == b], m[m["participant"] == c],
                        m[m["participant"] == a].assign(participant=f"{a}~1")], ignore_index=True)
-    want = _rows(rows_frame(hypothesis_rows(spec.plan, prepare(spec.plan, MetricTable(frame=frame)))))
+    want = power_rows(hypothesis_rows(spec.plan, prepare(spec.plan, MetricTable(frame=frame))))
     pd.testing.assert_frame_equal(pd.DataFrame(got), pd.DataFrame(want))
     # and the copy counts: three distinct people give other rows
     assert not pd.DataFrame(stage2.rows([a, b, c])).equals(pd.DataFrame(got))

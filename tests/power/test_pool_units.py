@@ -3,6 +3,8 @@ table (the shipped seed-000 plan: rank-sum, Kruskal-Wallis + multcompare, Friedm
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -86,17 +88,37 @@ def test_other_people_change_the_rows(plan, pool):
 
 @pytest.mark.slow
 def test_power_rows_read_straight_from_the_rows_are_the_frame_path(plan, pool):
-    """Stage 2 reads its power rows straight from the test rows; a full-engine replicate goes through a rows
-    frame. Both give the same tuples (NaN where the frame has NaN, "" for missing text, significance as bool)."""
-    from studyctl.power.replicate import _rows
-    from studyctl.power.twostage import power_rows
+    """Power rows are read straight from the test rows; they are the rows frame's values (the path full-engine
+    replicates took before, kept here as the reference): NaN where the frame has NaN, "" for missing text,
+    significance as bool."""
+    from studyctl.power.replicate import power_rows
 
     _, by_member, units = pool
     members = list(by_member)
     for seed in range(4):
         chosen = [members[i] for i in np.random.default_rng(seed).choice(len(members), 8 + seed, replace=False)]
         rows = replicate_rows(units, chosen, by_member)
-        direct, framed = power_rows(rows), _rows(rows_frame(rows))
+        direct, framed = power_rows(rows), _framed(rows_frame(rows))
         assert len(direct) > 60
         pd.testing.assert_frame_equal(pd.DataFrame(direct), pd.DataFrame(framed))
         assert all(type(a) is type(b) for r, s in zip(direct, framed, strict=True) for a, b in zip(r, s, strict=True))
+
+
+def _framed(frame: pd.DataFrame) -> tuple[tuple, ...]:
+    """Power rows through a DataFrame of the test rows (the reference for :func:`power_rows`)."""
+    from studyctl.power.replicate import _KEEP
+    from studyctl.power.spec import TEST_KINDS
+
+    def missing(v: object) -> bool:
+        return v is None or (isinstance(v, float) and math.isnan(v))
+
+    out = []
+    for rec in frame[frame["kind"].isin(TEST_KINDS)][list(_KEEP)].itertuples(index=False, name=None):
+        row = [v.item() if hasattr(v, "item") else v for v in rec]
+        i = _KEEP.index("significant")
+        row[i] = None if missing(row[i]) else bool(row[i])
+        for col in ("parent", "effect_size_name", "split", "groups", "metric", "role", "test"):
+            i = _KEEP.index(col)
+            row[i] = "" if missing(row[i]) else str(row[i])
+        out.append(tuple(row))
+    return tuple(out)

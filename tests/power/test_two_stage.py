@@ -15,7 +15,7 @@ from studyctl.analysis.table import MetricTable
 from studyctl.errors import UsageError
 from studyctl.power import prepare_power
 from studyctl.power.pool import build_pool, check_pool_size, chunk_size
-from studyctl.power.replicate import _rows, simulate_study
+from studyctl.power.replicate import power_rows, simulate_study
 from studyctl.power.seeds import pool_seeds
 from studyctl.power.twostage import compare, composition, draw_members, draw_replicate
 from studyctl.protocol import load_protocol
@@ -50,12 +50,12 @@ def test_pool_rows_are_the_full_engine_study(spec12, one_chunk_pool):
     assert pool.size == 12 and pool.built_now == 1
     assert pool.members.groupby(["stratum", "sequence"]).size().tolist() == [3, 3, 3, 3]
     study = simulate_study(spec12, 12, pool_seeds(SEED, 12, 0), "again", "test")
-    direct = _rows(run_plan(spec12.plan, study.table).to_frame())
+    direct = power_rows(run_plan(spec12.plan, study.table).rows)
     drawn = draw_replicate(spec12, pool, 12, 0).rows
     pd.testing.assert_frame_equal(pd.DataFrame(drawn), pd.DataFrame(direct))
     # and a table from other people changes the answer (the comparison above can fail)
     other = study.table.frame[study.table.frame["participant"] != study.table.frame["participant"].iloc[0]]
-    fewer = pd.DataFrame(_rows(run_plan(spec12.plan, MetricTable(frame=other)).to_frame()))
+    fewer = pd.DataFrame(power_rows(run_plan(spec12.plan, MetricTable(frame=other)).rows))
     assert not fewer.equals(pd.DataFrame(direct))
 
 
