@@ -87,9 +87,7 @@ def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCO
     from studyctl.power.executor import SerialBackend
     from studyctl.power.pool import MIN_POOL_FACTOR, build_pool
     from studyctl.power.summary import summarise
-    from studyctl.power.twostage import compare, draw_replicate, member_frames
-    from studyctl.power.units import PoolUnits
-    from studyctl.protocol import load_protocol_text
+    from studyctl.power.twostage import Stage2, compare
 
     stage2_reps, exact_reps = (20, 2) if quick else (400, 20)
     spec = prepare_power(protocol, plan, sizes=(n,), replicates=stage2_reps, seed=seed)
@@ -97,12 +95,10 @@ def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCO
         t0, c0 = time.perf_counter(), time.process_time()
         pool = build_pool(spec, folder, MIN_POOL_FACTOR * n)
         build_s, build_cpu = time.perf_counter() - t0, time.process_time() - c0
-    proto = load_protocol_text(spec.protocol_text, spec.protocol_name)
     t0, c0 = time.perf_counter(), time.process_time()
     # the pool's per-person frames and units are prepared once per run (counted in the stage-2 time)
-    by_member, units = member_frames(pool), PoolUnits(spec.plan, pool.metrics, spec.study_id)
-    drawn = [draw_replicate(spec, pool, n, r, protocol=proto, by_member=by_member, pool_units=units)
-             for r in range(stage2_reps)]
+    stage2 = Stage2(spec, pool)
+    drawn = [stage2.replicate(n, r) for r in range(stage2_reps)]
     s2_s, s2_cpu = time.perf_counter() - t0, time.process_time() - c0
     exact, _, done = _timed(SerialBackend(None), spec, [(n, r) for r in range(exact_reps)])
     frame = lambda results: pd.concat([r.to_frame() for r in results], ignore_index=True)  # noqa: E731

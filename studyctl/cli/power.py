@@ -126,9 +126,8 @@ def register(app: typer.Typer) -> None:
 
         # the protocol and the plan read before the power stack (pandas, the engine, the statistics) is
         # imported: a hostile file is refused by a small process (issue 19); prepare_power checks the rest
-        load_protocol(resolve_protocol(protocol))
-        if plan is not None:
-            load_plan(plan)
+        loaded_protocol = load_protocol(resolve_protocol(protocol))
+        loaded_plan = None if plan is None else load_plan(plan)
         precheck_yaml_file(population, "population file")
 
         from studyctl.errors import SessionInterrupted
@@ -142,7 +141,7 @@ def register(app: typer.Typer) -> None:
 
         trait_file = _is_trait_file(population)
         pop = _population(None if trait_file else population, effect, group_effect, between_sd, baseline)
-        spec = prepare_power(protocol, plan, sizes=participants, replicates=replicates, seed=seed,
+        spec = prepare_power(loaded_protocol, loaded_plan, sizes=participants, replicates=replicates, seed=seed,
                              population=pop, memory_limit=memory_limit,
                              traits=population if trait_file else "shipped", target=target)
         console.print(describe_choice(spec.traits, spec.study_id, trait_file), markup=False)

@@ -31,7 +31,6 @@ from studyctl.power.replicate import simulate_study
 from studyctl.power.seeds import pool_seeds
 from studyctl.power.spec import PowerSpec
 from studyctl.power.target import block_period
-from studyctl.protocol import load_protocol_text
 
 #: The pool must hold at least this many people per participant of the largest sample size (issue 22): fewer,
 #: and stage-2 replicates share so many people that their power is too optimistic about its own precision.
@@ -243,7 +242,7 @@ def build_pool(spec: PowerSpec, folder: str | Path, people: int, backend: Any = 
     ``backend`` (from :func:`studyctl.power.executor.open_backend`) runs the chunks; None: serially here.
     ``on_chunk(done, total)`` is called after each chunk.
     """
-    protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
+    protocol = spec.load_protocol()
     size = chunk_size(protocol)
     chunks = math.ceil(people / size)
     pf = PoolFile.open(folder, pool_key(spec, size), spec.protocol_name)

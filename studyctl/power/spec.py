@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from studyctl import __version__
-from studyctl.analysis import load_plan
+from studyctl.analysis import AnalysisPlan, load_plan
 from studyctl.analysis.catalog import TESTS
 from studyctl.engine.factory import EntryPointFactory
 from studyctl.engine.planning import plan_for_participant
@@ -25,7 +25,7 @@ from studyctl.errors import UsageError
 from studyctl.power.population import Population, population_model
 from studyctl.power.seeds import check_master_seed
 from studyctl.power.target import check_complete_blocks, check_target
-from studyctl.protocol import Planner, load_protocol, resolve_protocol
+from studyctl.protocol import Planner, Protocol, load_protocol, load_protocol_text, resolve_protocol
 from studyctl.resources import shipped_names, shipped_plan_for
 
 #: Row kinds of a plan's result that are hypothesis tests (intervals and descriptives are not).
@@ -73,6 +73,10 @@ class PowerSpec:
             "sim_rate_hz": self.sim_rate_hz,
             "seed": self.seed,
         }
+
+    def load_protocol(self) -> Any:
+        """The protocol parsed from the spec's own text (what a worker process has; never the file again)."""
+        return load_protocol_text(self.protocol_text, self.protocol_name)
 
     def tasks(self) -> list[tuple[int, int]]:
         """Every (sample size, replicate index) of the run, smallest sample size first."""
@@ -189,8 +193,8 @@ def _preflight(protocol: Any) -> None:
 
 
 def prepare_power(
-    protocol: str | Path,
-    plan: str | Path | None = None,
+    protocol: str | Path | Protocol,
+    plan: str | Path | AnalysisPlan | None = None,
     *,
     sizes: str | tuple[int, ...] | list[int],
     replicates: int,
@@ -205,10 +209,10 @@ def prepare_power(
     Parameters
     ----------
     protocol
-        A shipped protocol name or a protocol file.
+        A shipped protocol name, a protocol file, or a protocol the caller has loaded (not read again).
     plan
-        A shipped plan name or a plan file; it must analyse that protocol from its database. None: the
-        shipped plan of the same name as a shipped protocol (UsageError when the protocol has none).
+        A shipped plan name, a plan file or a loaded plan; it must analyse that protocol from its database.
+        None: the shipped plan of the same name as a shipped protocol (UsageError when the protocol has none).
     sizes
         Sample sizes (``"8,12,16"`` or a sequence); each at least the number of counterbalancing
         sequences, so every sequence is used.
@@ -232,16 +236,20 @@ def prepare_power(
     UsageError, ProtocolError, NotFoundError, PluginError
         For anything that would fail later, before any simulation starts.
     """
-    path = resolve_protocol(protocol)
-    proto = load_protocol(path)
+    if isinstance(protocol, Protocol):
+        proto, path = protocol, Path(protocol.path)
+    else:
+        path = resolve_protocol(protocol)
+        proto = load_protocol(path)
     if plan is None:
         plan = shipped_plan_for(path)
         if plan is None:
             raise UsageError(f"--plan is needed: {protocol} is not a shipped protocol with a shipped analysis plan "
                              f"of the same name; give --plan FILE (an analysis plan for this protocol) or a shipped "
                              f"plan name ({', '.join(shipped_names('analysis'))})")
-    loaded = load_plan(plan)
-    label = f"{protocol}" if str(protocol) == proto.study.id else f"{protocol} ({path})"
+    loaded = plan if isinstance(plan, AnalysisPlan) else load_plan(plan)
+    given = str(path) if isinstance(protocol, Protocol) else str(protocol)
+    label = given if given in (proto.study.id, str(path)) else f"{given} ({path})"
     check_plan_matches(loaded, proto, label)
     size_tuple = parse_sizes(sizes)
     if isinstance(replicates, bool) or not isinstance(replicates, int) or not 1 <= replicates <= MAX_REPLICATES:

@@ -30,7 +30,7 @@ from studyctl.power.replicate import ROW_COLUMNS, ReplicateResult, power_rows
 from studyctl.power.seeds import draw_rng, replicate_seeds
 from studyctl.power.spec import PowerSpec
 from studyctl.power.units import PoolUnits, replicate_rows
-from studyctl.protocol import Planner, allocate_strata, load_protocol_text
+from studyctl.protocol import Planner, allocate_strata
 
 
 def composition(protocol, seed: int, participants: int, replicate: int) -> dict[tuple[str, int | None], int]:  # noqa: ANN001
@@ -61,14 +61,12 @@ def draw_members(pool: Pool, cells: dict[tuple[str, int | None], int], rng: np.r
     repeat: the same person can then be drawn twice). ``index``: a cache of :func:`cell_ids` of those members
     (filled here), so a run of many replicates filters the pool once per cell, not once per replicate."""
     members = pool.members if members is None else members
+    index = {} if index is None else index
     chosen: list[str] = []
     for (stratum, seq), count in cells.items():
-        if index is None:
-            ids = cell_ids(members, stratum, seq)
-        else:
-            if (stratum, seq) not in index:
-                index[(stratum, seq)] = cell_ids(members, stratum, seq)
-            ids = index[(stratum, seq)]
+        if (stratum, seq) not in index:
+            index[(stratum, seq)] = cell_ids(members, stratum, seq)
+        ids = index[(stratum, seq)]
         if ids.size < count:
             raise UsageError(
                 f"the pool at {pool.path} has {ids.size} people of stratum {stratum!r}"
@@ -84,11 +82,12 @@ def member_frames(pool: Pool) -> dict[str, pd.DataFrame]:
 
 
 class Stage2:
-    """What every stage-2 replicate of one pool shares: the protocol, each person's rows and the pool's units."""
+    """What every stage-2 replicate of one pool shares, prepared once: the protocol, each person's rows, the
+    pool's units and each (stratum, sequence) cell's people (found once per pool, not once per replicate)."""
 
     def __init__(self, spec: PowerSpec, pool: Pool) -> None:
         self.spec, self.pool = spec, pool
-        self.protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
+        self.protocol = spec.load_protocol()
         self.by_member = member_frames(pool)
         self.units = PoolUnits(spec.plan, pool.metrics, spec.study_id)
         self.index: dict[tuple[str, int | None], np.ndarray] = {}
@@ -98,9 +97,22 @@ class Stage2:
         return power_rows(replicate_rows(self.units, chosen, self.by_member))
 
     def draw(self, participants: int, replicate: int) -> list[str]:
-        """The people of stage-2 replicate ``replicate`` at ``participants`` (as :func:`draw_replicate` draws)."""
+        """The people of stage-2 replicate ``replicate`` at ``participants``: the full-engine replicate's
+        (stratum, sequence) composition, drawn from the pool with the replicate's own seed."""
         cells = composition(self.protocol, self.spec.seed, participants, replicate)
         return draw_members(self.pool, cells, draw_rng(self.spec.seed, participants, replicate), index=self.index)
+
+    def replicate(self, participants: int, replicate: int) -> ReplicateResult:
+        """Stage-2 replicate ``replicate`` at size ``participants``: draw its people, run the plan's hypothesis
+        tests on their metric rows."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        rows = self.rows(self.draw(participants, replicate))
+        return ReplicateResult(
+            participants=int(participants), replicate=int(replicate), rows=rows, sessions_completed=0,
+            trials_completed=0, trials_not_completed=0, clipped=0, seconds=time.perf_counter() - t0,
+            cpu_seconds=time.process_time() - c0, peak_rss_mb=math.nan,
+            worker=f"{socket.gethostname()}:{os.getpid()}",
+        )
 
     def rows_frame(self, members: pd.DataFrame, participants: int, replicate: int,
                    rng: np.random.Generator) -> pd.DataFrame:
@@ -111,32 +123,12 @@ class Stage2:
         return pd.DataFrame(data, columns=list(ROW_COLUMNS))
 
 
-def draw_replicate(spec: PowerSpec, pool: Pool, participants: int, replicate: int,
-                   protocol=None, by_member=None, pool_units: PoolUnits | None = None,  # noqa: ANN001
-                   index: dict | None = None) -> ReplicateResult:
-    """Stage-2 replicate ``replicate`` at size ``participants``: draw people from ``pool``, run the plan's
-    hypothesis tests on their metric rows (``by_member``/``pool_units``/``index``: the pool's, prepared once by
-    the caller for a run of many replicates; built here when not given)."""
-    t0, c0 = time.perf_counter(), time.process_time()
-    protocol = protocol or load_protocol_text(spec.protocol_text, spec.protocol_name)
-    cells = composition(protocol, spec.seed, participants, replicate)
-    chosen = draw_members(pool, cells, draw_rng(spec.seed, participants, replicate), index=index)
-    groups = by_member if by_member is not None else member_frames(pool)
-    units = pool_units if pool_units is not None else PoolUnits(spec.plan, pool.metrics, spec.study_id)
-    rows = power_rows(replicate_rows(units, chosen, groups))
-    return ReplicateResult(
-        participants=int(participants), replicate=int(replicate), rows=rows, sessions_completed=0,
-        trials_completed=0, trials_not_completed=0, clipped=0, seconds=time.perf_counter() - t0,
-        cpu_seconds=time.process_time() - c0, peak_rss_mb=math.nan, worker=f"{socket.gethostname()}:{os.getpid()}",
-    )
-
-
 #: The pool a worker process last loaded for :func:`draw_batch` (one at a time: a run uses one pool).
-_LOADED: dict[tuple, tuple] = {}
+_LOADED: dict[tuple, Stage2] = {}
 
 
-def _worker_pool(spec: PowerSpec, path: str, chunks: int, size: int) -> tuple:
-    """(pool, per-person frames, units, protocol) of the pool file at ``path``, loaded once per worker process."""
+def _worker_stage2(spec: PowerSpec, path: str, chunks: int, size: int) -> Stage2:
+    """The :class:`Stage2` of the pool file at ``path``, loaded once per worker process."""
     import sqlite3
 
     from studyctl.power.pool import PoolFile
@@ -149,8 +141,7 @@ def _worker_pool(spec: PowerSpec, path: str, chunks: int, size: int) -> tuple:
             pool = pf.load(chunks, size, 0)
         finally:
             pf.close()
-        _LOADED[key] = (pool, member_frames(pool), PoolUnits(spec.plan, pool.metrics, spec.study_id),
-                        load_protocol_text(spec.protocol_text, spec.protocol_name), {})
+        _LOADED[key] = Stage2(spec, pool)
     return _LOADED[key]
 
 
@@ -158,9 +149,8 @@ def draw_batch(spec: PowerSpec, path: str, chunks: int, size: int, participants:
                stop: int) -> list[ReplicateResult]:
     """Stage-2 replicates ``start`` … ``stop - 1`` at ``participants`` from the pool file at ``path`` (its first
     ``chunks`` chunks of ``size`` people): a Dask task, coarse enough that scheduling is a small part of it."""
-    pool, by_member, units, protocol, index = _worker_pool(spec, path, chunks, size)
-    return [draw_replicate(spec, pool, participants, r, protocol=protocol, by_member=by_member, pool_units=units,
-                           index=index) for r in range(start, stop)]
+    stage2 = _worker_stage2(spec, path, chunks, size)
+    return [stage2.replicate(participants, r) for r in range(start, stop)]
 
 
 def batches(todo: list[tuple[int, int]], per_task: int) -> list[tuple[int, int, int]]:

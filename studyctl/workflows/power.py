@@ -19,7 +19,6 @@ from studyctl.power.results import ResultsFile
 from studyctl.power.spec import PowerSpec
 from studyctl.power.summary import PowerTable, summarise
 from studyctl.power.target import TargetTable, smallest_sizes
-from studyctl.protocol import load_protocol_text
 from studyctl.report.power_figures import power_curve_figure, write_png
 
 ProgressFn = Callable[[int, int, ReplicateResult | None], None]  # (finished, total, the replicate just finished)
@@ -137,9 +136,7 @@ def run_power(
     table = summarise(rows, spec.sizes, per_size)
     target = None if spec.target is None else smallest_sizes(table.frame, spec.target)
 
-    population = population_model(
-        spec.population, load_protocol_text(spec.protocol_text, spec.protocol_name)
-    ).to_frame()
+    population = population_model(spec.population, spec.load_protocol()).to_frame()
     files = _write(out, spec, table, population, reps, backend_desc, figure, target)
     return PowerRun(
         table=table,

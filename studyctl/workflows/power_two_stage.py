@@ -20,9 +20,7 @@ from studyctl.power.results import ResultsFile
 from studyctl.power.spec import PowerSpec
 from studyctl.power.summary import summarise
 from studyctl.power.target import smallest_sizes
-from studyctl.power.twostage import PowerError, batches, compare, draw_batch, draw_replicate, member_frames
-from studyctl.power.units import PoolUnits
-from studyctl.protocol import load_protocol_text
+from studyctl.power.twostage import PowerError, Stage2, batches, compare, draw_batch
 from studyctl.workflows.power import PowerRun, _atomic, _write, run_power
 
 ERROR_FILE = "power_error.csv"
@@ -79,7 +77,6 @@ def run_two_stage(
         raise UsageError(f"--pool-bootstrap {boot_pools} with {boot_replicates} replicates each: the pool's error "
                          "needs 0 (not measured) or at least 2 bootstrap pools of at least 2 replicates; use e.g. "
                          "--pool-bootstrap 20")
-    protocol = load_protocol_text(spec.protocol_text, spec.protocol_name)
     backend = open_backend(scheduler, workers, spec.memory_limit)
     try:
         backend_desc = backend.info.describe()
@@ -106,11 +103,9 @@ def run_two_stage(
                         on_stage("stage 2", count[0], len(tasks))
 
             if isinstance(backend, SerialBackend):
-                by_member, pool_units = member_frames(built), PoolUnits(spec.plan, built.metrics, spec.study_id)
-                index: dict = {}  # each (stratum, sequence) cell's people, found once
+                stage2 = Stage2(spec, built)
                 for n, r in todo:
-                    keep(draw_replicate(spec, built, n, r, protocol=protocol, by_member=by_member,
-                                        pool_units=pool_units, index=index))
+                    keep(stage2.replicate(n, r))
             else:  # batches of replicates on the workers, each loading the pool file once
                 per_task = max(1, min(STAGE2_BATCH, math.ceil(len(todo) / (4 * max(backend.info.workers, 1)))))
                 backend.map(draw_batch, spec, [(str(built.path), math.ceil(built.size / built.chunk_size),
@@ -139,7 +134,7 @@ def run_two_stage(
                           lambda d, t, _r: on_stage("exact check", d, t))
         error = compare(table.frame, exact.table.frame, checks, None if boot is None else boot.to_frame())
     target = None if spec.target is None else smallest_sizes(table.frame, spec.target)
-    population = population_model(spec.population, protocol).to_frame()
+    population = population_model(spec.population, spec.load_protocol()).to_frame()
     note = _note(error, built.size)
     files = _write(out, spec, table, population, reps, f"two-stage: pool and stage 2 on {backend_desc}",
                    figure, target, note=note)

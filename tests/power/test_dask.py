@@ -130,11 +130,11 @@ def test_stage2_batches_on_a_scheduler_equal_serial_draws(scheduler_address, tmp
     from studyctl.power import prepare_power
     from studyctl.power.executor import open_backend
     from studyctl.power.pool import build_pool
-    from studyctl.power.twostage import batches, draw_batch, draw_replicate
+    from studyctl.power.twostage import Stage2, batches, draw_batch
 
     spec = prepare_power(PROTOCOL, PLAN, sizes="4", replicates=6, seed=SEED)
     pool = build_pool(spec, tmp_path / "pool", 12)
-    here = {(r.participants, r.replicate): r.rows for r in (draw_replicate(spec, pool, 4, i) for i in range(6))}
+    here = {(r.participants, r.replicate): r.rows for r in (Stage2(spec, pool).replicate(4, i) for i in range(6))}
     got: dict = {}
     backend = open_backend(scheduler_address, 2, None)
     try:

@@ -17,7 +17,7 @@ from studyctl.power import prepare_power
 from studyctl.power.pool import build_pool, check_pool_size, chunk_size
 from studyctl.power.replicate import power_rows, simulate_study
 from studyctl.power.seeds import pool_seeds
-from studyctl.power.twostage import compare, composition, draw_members, draw_replicate
+from studyctl.power.twostage import Stage2, compare, composition, draw_members
 from studyctl.protocol import load_protocol
 
 
@@ -51,7 +51,7 @@ def test_pool_rows_are_the_full_engine_study(spec12, one_chunk_pool):
     assert pool.members.groupby(["stratum", "sequence"]).size().tolist() == [3, 3, 3, 3]
     study = simulate_study(spec12, 12, pool_seeds(SEED, 12, 0), "again", "test")
     direct = power_rows(run_plan(spec12.plan, study.table).rows)
-    drawn = draw_replicate(spec12, pool, 12, 0).rows
+    drawn = Stage2(spec12, pool).replicate(12, 0).rows
     pd.testing.assert_frame_equal(pd.DataFrame(drawn), pd.DataFrame(direct))
     # and a table from other people changes the answer (the comparison above can fail)
     other = study.table.frame[study.table.frame["participant"] != study.table.frame["participant"].iloc[0]]
@@ -81,7 +81,7 @@ def test_draws_respect_strata_and_sequences(spec12, one_chunk_pool):
     assert len(set(picked)) == 4
     with pytest.raises(UsageError, match="use a larger --pool"):
         draw_members(pool, {("novice", 0): 4}, np.random.default_rng(1))
-    a, b = draw_replicate(spec12, pool, 4, 7), draw_replicate(spec12, pool, 4, 7)
+    a, b = Stage2(spec12, pool).replicate(4, 7), Stage2(spec12, pool).replicate(4, 7)
     pd.testing.assert_frame_equal(pd.DataFrame(a.rows), pd.DataFrame(b.rows))
 
 
@@ -130,9 +130,9 @@ def test_a_batch_loads_the_pool_file_and_draws_the_same_replicates(spec12, one_c
     _, pool = one_chunk_pool
     got = draw_batch(spec12, str(pool.path), 1, pool.chunk_size, 4, 2, 5)
     assert [r.replicate for r in got] == [2, 3, 4]
+    stage2 = Stage2(spec12, pool)
     for r in got:
-        pd.testing.assert_frame_equal(pd.DataFrame(r.rows), pd.DataFrame(draw_replicate(spec12, pool, 4,
-                                                                                         r.replicate).rows))
+        pd.testing.assert_frame_equal(pd.DataFrame(r.rows), pd.DataFrame(stage2.replicate(4, r.replicate).rows))
 
 
 def test_pool_key_follows_the_simulation_code(spec12, monkeypatch):
