@@ -77,7 +77,7 @@ def data_gaps(store: StudyStore, study: str | None = None) -> DataGaps:
     items = {i.id: len(i.items) for i in protocol.instruments} if protocol else {}
     manual = {c.id for c in protocol.conditions if c.manual} if protocol else set()
     roster = reader.roster()
-    people, sessions = roster.participants, roster.sessions
+    people = roster.participants
     trials = sorted(roster.trials, key=lambda t: t.id)  # gaps are listed in the order the trials were run
     stored = reader.stored_sample_rows([t.id for t in trials])
     # an answer is counted once per item and context; one given outside any session is not a session's answer
@@ -95,7 +95,7 @@ def data_gaps(store: StudyStore, study: str | None = None) -> DataGaps:
         if ticks > rows:
             gaps.append(Gap(code[t.participant_id], t.session_id, t.id, t.condition, "dropped_samples", ticks - rows,
                             f"{ticks - rows} samples dropped ({rows} of {ticks} stored)"))
-    latest = {x.participant_id: x for x in sessions}  # sessions by id within a participant: the last wins
+    latest = roster.latest_sessions()
     given = Counter(pid for pid, *_ in answers)
     given_by = Counter((pid, inst) for pid, inst, *_ in answers)
     for p in people:

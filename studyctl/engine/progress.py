@@ -80,7 +80,7 @@ def study_progress(store: StudyStore, study: str | None = None) -> StudyProgress
     reader = StudyReader(store, study)
     roster = reader.roster()  # rehearsals are not progress
     people = roster.participants
-    latest = {x.participant_id: x for x in roster.sessions}  # sessions by id within a participant: the last wins
+    latest = roster.latest_sessions()
     by_session: dict[int, list[TrialRow]] = defaultdict(list)
     for t in roster.trials:
         by_session[t.session_id].append(t)

@@ -171,6 +171,10 @@ class StudyRoster:
     sessions: tuple[SessionRow, ...]  # by participant, then id
     trials: tuple[TrialRow, ...]  # by participant, session, then id
 
+    def latest_sessions(self) -> dict[int, SessionRow]:
+        """Each participant's last session (the highest id; sessions come by participant, then id)."""
+        return {x.participant_id: x for x in self.sessions}
+
 
 @dataclass(frozen=True)
 class StudySnapshot:
@@ -178,7 +182,7 @@ class StudySnapshot:
 
     participants: tuple[ParticipantRow, ...]
     sessions: tuple[SessionRow, ...]
-    trials: tuple[TrialRow, ...]  # by id
+    trials: tuple[TrialRow, ...]  # by participant, session, then id
     participant_by_id: Mapping[int, ParticipantRow] = field(repr=False)
     session_by_id: Mapping[int, SessionRow] = field(repr=False)
 
@@ -359,7 +363,7 @@ class StudyReader(Closeable):
 
     @property
     def trials(self) -> tuple[TrialRow, ...]:
-        """Every trial of the study (any status), by id."""
+        """Every trial of the study (any status), by participant, session, then id."""
         return self.snapshot.trials
 
     def trial(self, trial_id: int) -> TrialRow:
@@ -369,7 +373,8 @@ class StudyReader(Closeable):
         raise UnknownKeyError(f"no trial {trial_id} in this study")
 
     def first_completed(self, conditions: tuple[str, ...] | list[str]) -> dict[str, TrialRow]:
-        """The first completed trial (by id) of each of ``conditions`` that has one."""
+        """The first completed trial of each of ``conditions`` that has one, in :attr:`trials` order (the
+        lowest-numbered participant's earliest: a figure's example trial stays the same as a study grows)."""
         wanted = set(conditions)
         out: dict[str, TrialRow] = {}
         for tr in self.snapshot.trials:
