@@ -25,14 +25,14 @@ Faults can be injected for rehearsals and tests (``faults: [{kind, start_s, end_
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from studyctl.devices.base import ParamDevice
 from studyctl.errors import DeviceError, ModelParameterError
-from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
+from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel, count_in_table
 from studyctl.plugins.interfaces import ChannelLimit, Channels, DeviceLimits, Observation
 from studyctl.plugins.params import Param
 from studyctl.scenes.sponge import SpongePhantomScene
@@ -96,6 +96,13 @@ class SimulatedPalpationDevice(ParamDevice):
         self.faults = tuple(_check_fault(f) for f in checked["faults"])
         self._open = False
         self._inputs: dict[str, float] = {}
+        # Per-tick constants (read() runs every tick): the sensor's inverse table and area, the scene's force
+        # function, and the actuators' lags. The same numbers the model methods compute, computed once.
+        self._table = self.sensor.count_table()
+        self._area_m2 = self.sensor.sensing_area_m2()
+        self._force_at = scene_force_function(self.scene) if self.scene is not None else None
+        self._noise = checked["sensor_noise_lsb"]
+        self._compliance = checked["instrument_compliance_mm_per_n"]
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -103,6 +110,9 @@ class SimulatedPalpationDevice(ParamDevice):
         self._psi = 0.0
         self._speed = 0.0
         self._t = None
+        # the lags' exp(-dt/tau) for the last tick length (a simulated loop repeats the same dt)
+        self._dt = None
+        self._decay = (1.0, 1.0)
         self._last_sample: tuple[float, dict[str, float]] | None = None
 
     # -- Device --------------------------------------------------------------------------------------
@@ -121,31 +131,35 @@ class SimulatedPalpationDevice(ParamDevice):
         if not self._open:
             raise DeviceError("sim_palpation device: read before open(); the engine must open the device first")
         self._advance(t)
-        fault = self._fault_at(t)
+        fault = self._fault_at(t) if self.faults else None
         if fault == "stale" and self._last_sample is not None:
             sample_t, values = self._last_sample
             return Observation(t, values, sample_t=sample_t)
         inputs = self._inputs
         x, y, depth = inputs.get("x_mm", -1.0), inputs.get("y_mm", -1.0), inputs.get("depth_mm", 0.0)
         force = 0.0
-        if self.scene is not None:
-            depth, force = forceps_contact(self.scene, x, y, depth, self.params["instrument_compliance_mm_per_n"])
-        noise = self.params["sensor_noise_lsb"]
-        counts = self.sensor.count_of_force(force)
+        force_at = self._force_at
+        if force_at is not None:
+            depth, force = contact(force_at, x, y, depth, self._compliance)
+        sensor = self.sensor
+        adc_max = sensor.adc_max
+        counts = count_in_table(self._table, force, adc_max)
+        noise = self._noise
         if noise > 0:
-            counts = int(min(max(round(counts + noise * self.rng.standard_normal()), 0), self.sensor.adc_max))
+            counts = int(min(max(round(counts + noise * self.rng.standard_normal()), 0), adc_max))
         faults: tuple[str, ...] = ()
         if fault == "adc_out_of_range":
-            counts = self.sensor.adc_max + 77  # what a glitching board might send
-        if 0 <= counts <= self.sensor.adc_max:
-            force_n = self.sensor.force_of_count(counts)
+            counts = adc_max + 77  # what a glitching board might send
+        if 0 <= counts <= adc_max:
+            force_n = sensor.force_of_count(counts)
         else:
             force_n = math.nan
-            faults = (f"adc_out_of_range: {counts} not in 0..{self.sensor.adc_max}",)
+            faults = (f"adc_out_of_range: {counts} not in 0..{adc_max}",)
         if fault == "nan":
             force_n = math.nan
+        # the pressure as SensorCalibration.pressure_kpa computes it (by the area, then by 1e3)
         values = {"adc": float(counts), "force_n": force_n,
-                  "pressure_kpa": self.sensor.pressure_kpa(force_n) if math.isfinite(force_n) else math.nan,
+                  "pressure_kpa": force_n / self._area_m2 / 1e3 if math.isfinite(force_n) else math.nan,
                   "probe_x_mm": x, "probe_y_mm": y, "depth_mm": depth}
         self._last_sample = (t, values)
         return Observation(t, values, sample_t=t, faults=faults)
@@ -162,10 +176,16 @@ class SimulatedPalpationDevice(ParamDevice):
     # -- internals -----------------------------------------------------------------------------------
     def _advance(self, t: float) -> None:
         """Run the actuator dynamics from the previous read to ``t`` under the last command."""
-        if self._t is not None and t > self._t:
-            dt = t - self._t
-            self._psi = self.balloon.step(self._psi, self._command["balloon_pct"], dt)
-            self._speed = self.motor.step(self._speed, self._command["vibration_pct"], dt)
+        last = self._t
+        if last is not None and t > last:
+            dt = t - last
+            if dt != self._dt:
+                self._dt = dt
+                self._decay = (self.balloon.decay(dt), self.motor.decay(dt))
+            decay_psi, decay_speed = self._decay
+            command = self._command
+            self._psi = self.balloon.step_decayed(self._psi, command["balloon_pct"], decay_psi)
+            self._speed = self.motor.step_decayed(self._speed, command["vibration_pct"], decay_speed)
         self._t = t
 
     def _fault_at(self, t: float) -> str | None:
@@ -175,21 +195,33 @@ class SimulatedPalpationDevice(ParamDevice):
         return None
 
 
-def _scene_force(scene: Any, x: float, y: float, depth: float) -> float:
-    if isinstance(scene, SpongePhantomScene):  # its direct path skips two dicts per tick
-        return scene.force_n(x, y, depth)
-    return float(scene.sense({"x_mm": x, "y_mm": y, "depth_mm": depth}).get("force_n", 0.0))
+def scene_force_function(scene: Any) -> Callable[[float, float, float], float]:
+    """The scene's force (N) on the probe at (x, y, depth): the sponge's direct path (no dicts per tick), or
+    its ``sense`` for any other scene."""
+    if isinstance(scene, SpongePhantomScene):
+        return scene.force_n
+
+    def sensed(x: float, y: float, depth: float) -> float:
+        return float(scene.sense({"x_mm": x, "y_mm": y, "depth_mm": depth}).get("force_n", 0.0))
+
+    return sensed
+
+
+def contact(force_at: Callable[[float, float, float], float], x: float, y: float, depth: float,
+            compliance: float) -> tuple[float, float]:
+    """(tip depth, force) of the forceps pressed to commanded ``depth`` mm at (x, y), the scene's force given by
+    ``force_at``: the wrist yields until tip force and deflection agree, d = d_cmd − c·F(d) with F linear in d."""
+    force = force_at(x, y, depth)
+    if compliance > 0 and force > 0 and depth > 0:
+        depth = depth / (1.0 + compliance * force / depth)
+        force = force_at(x, y, depth)
+    return depth, force
 
 
 def forceps_contact(scene: Any, x: float, y: float, depth: float, compliance: float) -> tuple[float, float]:
-    """(tip depth, force) of the forceps pressed to commanded ``depth`` mm at (x, y) of ``scene``: the wrist
-    yields until tip force and deflection agree, d = d_cmd − c·F(d) with F linear in d. Shared by the simulated
-    device and the emulated world of a virtual rehearsal (:mod:`studyctl.devices.world`)."""
-    force = _scene_force(scene, x, y, depth)
-    if compliance > 0 and force > 0 and depth > 0:
-        depth = depth / (1.0 + compliance * force / depth)
-        force = _scene_force(scene, x, y, depth)
-    return depth, force
+    """:func:`contact` in ``scene``. Shared by the simulated device and the emulated world of a virtual rehearsal
+    (:mod:`studyctl.devices.world`)."""
+    return contact(scene_force_function(scene), x, y, depth, compliance)
 
 
 def _check_fault(f: Any) -> dict[str, Any]:

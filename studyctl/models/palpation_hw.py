@@ -85,16 +85,10 @@ class SensorCalibration:
 
     def count_of_force(self, force_n: float) -> int:
         """Scalar fast path of :meth:`counts`: nearest ADC count for a finite force, saturating."""
-        table = self._table_list()
-        i = bisect.bisect_left(table, force_n)
-        if i <= 0:
-            return 0
-        if i >= len(table):
-            return self.adc_max
-        lo, hi = table[i - 1], table[i]
-        return i if (force_n - lo) >= (hi - force_n) else i - 1
+        return count_in_table(self.count_table(), force_n, self.adc_max)
 
-    def _table_list(self) -> list[float]:
+    def count_table(self) -> list[float]:
+        """The force (N) of every ADC count, as a list for :func:`count_in_table` (cached per calibration)."""
         cached = _LISTS.get(self)
         if cached is None:
             cached = _LISTS[self] = self._table().tolist()
@@ -109,10 +103,24 @@ class SensorCalibration:
             _TABLES[self] = table
         return table
 
+    def sensing_area_m2(self) -> float:
+        return math.pi * (self.sensing_diameter_mm * 1e-3 / 2) ** 2
+
     def pressure_kpa(self, force_n: float) -> float:
         """Mean pressure (kPa) over the sensing area for a force (N)."""
-        area_m2 = math.pi * (self.sensing_diameter_mm * 1e-3 / 2) ** 2
-        return force_n / area_m2 / 1e3
+        return force_n / self.sensing_area_m2() / 1e3
+
+
+def count_in_table(table: list[float], force_n: float, adc_max: int) -> int:
+    """The nearest ADC count for a finite force in ``table`` (:meth:`SensorCalibration.count_table`), saturating
+    at 0 and ``adc_max``: what a device calls every tick with its calibration's table in hand."""
+    i = bisect.bisect_left(table, force_n)
+    if i <= 0:
+        return 0
+    if i >= len(table):
+        return adc_max
+    lo, hi = table[i - 1], table[i]
+    return i if (force_n - lo) >= (hi - force_n) else i - 1
 
 
 _TABLES: dict[SensorCalibration, np.ndarray] = {}
@@ -128,6 +136,17 @@ def first_order_step(value: float, target: float, dt: float, tau_s: float) -> fl
     if tau_s <= 0 or dt <= 0:
         return target if dt > 0 or tau_s <= 0 else value
     return target + (value - target) * math.exp(-dt / tau_s)
+
+
+def lag_decay(dt: float, tau_s: float) -> float | None:
+    """The factor ``exp(-dt/tau_s)`` of :func:`first_order_step` for a step of ``dt`` > 0 seconds (None: ``tau_s
+    <= 0``, a jump to the target), to be reused by :func:`decayed_step` while the step length repeats."""
+    return math.exp(-dt / tau_s) if tau_s > 0 else None
+
+
+def decayed_step(value: float, target: float, decay: float | None) -> float:
+    """:func:`first_order_step` for ``dt`` > 0 with its :func:`lag_decay` factor given: the same value."""
+    return target if decay is None else target + (value - target) * decay
 
 
 # --------------------------------------------------------------------------------------------------
@@ -159,6 +178,13 @@ class BalloonModel:
     def step(self, psi: float, control: float, dt: float) -> float:
         """Pressure after ``dt`` seconds at ``control``, starting from ``psi`` (exact first-order step)."""
         return first_order_step(psi, self.static_psi(control), dt, self.tau_s)
+
+    def decay(self, dt: float) -> float | None:
+        return lag_decay(dt, self.tau_s)
+
+    def step_decayed(self, psi: float, control: float, decay: float | None) -> float:
+        """:meth:`step` for ``dt`` > 0 given its :meth:`decay` factor (a loop of equal ticks computes it once)."""
+        return decayed_step(psi, self.static_psi(control), decay)
 
 
 # PSI → N/mm²; the paper's K_psi (6.896e-3), i.e. 0.454 kgf·9.8 / 25.4² as in the BHF code.
@@ -201,6 +227,13 @@ class VibrationMotorModel:
     def step(self, speed: float, duty: float, dt: float) -> float:
         """Normalised speed x after ``dt`` seconds at ``duty`` (exact first-order step)."""
         return first_order_step(speed, self._x(duty), dt, self.tau_s)
+
+    def decay(self, dt: float) -> float | None:
+        return lag_decay(dt, self.tau_s)
+
+    def step_decayed(self, speed: float, duty: float, decay: float | None) -> float:
+        """:meth:`step` for ``dt`` > 0 given its :meth:`decay` factor (a loop of equal ticks computes it once)."""
+        return decayed_step(speed, self._x(duty), decay)
 
     def output(self, speed: float) -> tuple[float, float]:
         """(frequency Hz, acceleration m/s²) at normalised speed x."""

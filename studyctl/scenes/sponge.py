@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -31,6 +32,8 @@ import numpy as np
 from studyctl.errors import ModelParameterError
 from studyctl.plugins.interfaces import Channels, Scene
 from studyctl.plugins.params import Param, problems_with_rules, validate_params
+
+_NONE: Mapping[str, Any] = MappingProxyType({})
 
 TUMOUR_MODULUS_KPA = {"soft": 58.0, "medium": 70.0, "hard": 120.0}  # paper, Methods D.2
 
@@ -115,6 +118,7 @@ class SpongePhantomScene(Scene):
         self.sigma_mm = float(params["lateral_sigma_mm"])
         g = params["grid"]
         self.grid = Grid(int(g["columns"]), int(g["rows"]), float(g["cell_mm"]), tuple(g.get("origin_mm", (0.0, 0.0))))
+        self._grid_view = self.grid.as_dict()
         self.sensing_area_m2 = math.pi * (params["sensing_diameter_mm"] * 1e-3 / 2) ** 2
         # What was built, for inspection and tests: the sponge, one model per placed tumour, the view.
         self.parts = frozenset({"sponge", *(f"tumour:{t.cls}" for t in tumours), *({"view"} & needs)})
@@ -185,10 +189,19 @@ class SpongePhantomScene(Scene):
 
     def view(self, inputs: Channels) -> Mapping[str, Any] | None:
         """Top view (probe position and grid; the tumours are hidden under the sponge), if built."""
+        return self.view_parts(inputs, _NONE, _NONE)
+
+    def view_parts(self, a: Channels, b: Channels, c: Channels) -> Mapping[str, Any] | None:
+        """``view({**a, **b, **c})`` without merging the three mappings (a channel in a later one wins): the
+        trial loop's real-time view asks this every tick with the participant's inputs, the device's
+        observation and the controller's diagnostics."""
         if "view" not in self.parts:
             return None
-        x, y = float(inputs.get("x_mm", -1.0)), float(inputs.get("y_mm", -1.0))
-        return {"probe_mm": (x, y), "depth_mm": float(inputs.get("depth_mm", 0.0)), "grid": self.grid.as_dict(),
+        x = c["x_mm"] if "x_mm" in c else b["x_mm"] if "x_mm" in b else a.get("x_mm", -1.0)
+        y = c["y_mm"] if "y_mm" in c else b["y_mm"] if "y_mm" in b else a.get("y_mm", -1.0)
+        depth = c["depth_mm"] if "depth_mm" in c else b["depth_mm"] if "depth_mm" in b else a.get("depth_mm", 0.0)
+        # the grid is the same every frame: one dict for all frames (read it, never change it), not one per tick
+        return {"probe_mm": (float(x), float(y)), "depth_mm": float(depth), "grid": self._grid_view,
                 "size_mm": self.size_mm}
 
     # -- knowledge -----------------------------------------------------------------------------------

@@ -225,3 +225,52 @@ def test_effect_of_the_chosen_lateral_spread():
         assert s.force_n(x, y, 2.0) == pytest.approx(scene({"sites": {"hard": 7}}).force_n(x, y, 2.0))  # on top
     assert 1.0 <= ratio[4.0] < ratio[8.0] < ratio[16.0]
     assert ratio[16.0] > 1.2
+
+
+# -- per-tick fast paths: the same numbers as the model methods --------------------------------------------
+
+
+def test_view_parts_draws_the_view_of_the_merged_channels():
+    s = scene(needs=frozenset({"view"}))
+    rng = np.random.default_rng(3)
+    keys = ("x_mm", "y_mm", "depth_mm", "force_n")
+    for _ in range(200):
+        parts = [{k: float(rng.uniform(-5, 150)) for k in keys if rng.random() < 0.5} for _ in range(3)]
+        assert s.view_parts(*parts) == s.view({**parts[0], **parts[1], **parts[2]})
+    assert scene().view_parts({}, {}, {}) is None  # no view built
+
+
+def test_device_read_equals_the_model_methods_tick_by_tick():
+    """read() keeps the sensor table, the scene's force function and the lags' decay between ticks; each
+    tick must equal what the model methods compute from scratch (with the same noise draws)."""
+    from studyctl.devices.palpation import forceps_contact
+    from studyctl.models.palpation_hw import A201, BalloonModel, VibrationMotorModel
+
+    s = scene()
+    dev = SimulatedPalpationDevice({}, scene=s, rng=np.random.default_rng(11))
+    noise = np.random.default_rng(11)
+    balloon, motor = BalloonModel(), VibrationMotorModel()
+    dev.open()
+    rng = np.random.default_rng(5)
+    psi = speed = 0.0
+    command = {"balloon_pct": 0.0, "vibration_pct": 0.0}
+    t, last = 0.0, None
+    for k in range(3000):
+        t += 0.02 if k % 7 else 0.02 * (1 + rng.random())  # mostly equal ticks, some not
+        inputs = {"x_mm": float(rng.uniform(0, 140)), "y_mm": float(rng.uniform(0, 140)),
+                  "depth_mm": float(rng.uniform(-2, 12))}
+        dev.apply_input(inputs)
+        got = dev.read(t).values
+        if last is not None:
+            psi = balloon.step(psi, command["balloon_pct"], t - last)
+            speed = motor.step(speed, command["vibration_pct"], t - last)
+        last = t
+        depth, force = forceps_contact(s, inputs["x_mm"], inputs["y_mm"], inputs["depth_mm"], 0.5)
+        counts = int(min(max(round(A201.count_of_force(force) + 0.5 * noise.standard_normal()), 0), A201.adc_max))
+        force_n = A201.force_of_count(counts)
+        assert got == {"adc": float(counts), "force_n": force_n, "pressure_kpa": A201.pressure_kpa(force_n),
+                       "probe_x_mm": inputs["x_mm"], "probe_y_mm": inputs["y_mm"], "depth_mm": depth}
+        assert dev.feedback() == {"balloon_psi": psi, "vibration_hz": motor.output(speed)[0],
+                                  "vibration_ms2": motor.output(speed)[1]}
+        command = {"balloon_pct": float(rng.uniform(0, 110)), "vibration_pct": float(rng.uniform(0, 100))}
+        dev.write(command)
