@@ -15,7 +15,8 @@ look-up-table interpolation; also ``nearest``, ``cubic``, ``powerlaw``), ``subsa
 while the indentation depth decreases), ``retract_deadband_mm`` (0.02), ``horizontal`` (``oppose``;
 ``along``; ``off`` as in seed 002, which fed back the normal force only), ``min_motion_mm`` (0.05),
 ``workspace_scale`` (1.0: device mm → tissue mm), ``workspace_offset_mm`` ([0, 0, 0]).
-PHF and PHF+FF add ``r0`` (1.0, the default ratio R₀), ``resync_mm_per_s`` (10) and ``delta_threshold_n`` (0),
+PHF and PHF+FF add ``r0`` (1.0, the default ratio R₀), ``resync_mm_per_s`` (10), ``delta_threshold_n`` (0) and
+``lateral_ratio`` (``horizontal``: equation 3; ``normal``: Table 1),
 see :class:`~studyctl.models.pseudo_haptics.PseudoHapticParams`.
 """
 
@@ -28,7 +29,7 @@ from typing import Any, ClassVar
 from studyctl.errors import ModelParameterError
 from studyctl.models.force_lookup import INTERPOLATIONS
 from studyctl.models.force_render import ForceRenderer, RenderParams
-from studyctl.models.pseudo_haptics import PseudoHapticCursor, PseudoHapticParams
+from studyctl.models.pseudo_haptics import LATERAL_RATIOS, PseudoHapticCursor, PseudoHapticParams
 from studyctl.plugins.interfaces import Controller, Observation, Scene
 from studyctl.plugins.params import Param, validate_params
 
@@ -50,6 +51,8 @@ PHF_PARAMS = (
     Param("r0", 1.0, low=1e-3, high=100.0, source="seed 003: default cursor/input ratio R0 (value not printed)"),
     Param("resync_mm_per_s", 10.0, low=0.0, high=1000.0, unit="mm/s", source="chosen, see pseudo_haptics"),
     Param("delta_threshold_n", 0.0, low=0.0, high=10.0, unit="N", source="seed 003 Table 1: Δf_n > 0"),
+    Param("lateral_ratio", "horizontal", choices=LATERAL_RATIOS, kind=str,
+          source="seed 003: horizontal = eq. 3 (R_h from f_h), normal = Table 1 (R_n for x, y too)"),
 )
 
 

@@ -10,8 +10,14 @@ absolute position, so a change of force changes the cursor's *speed*, never its 
   getting stiffer), else ``R₀``.
 
 ``f_n``, ``f_h`` are the table forces (N, clamped ≥ 0) at the current cursor and ``f_nl`` the normal force at
-the previous cursor position. Table 1 prints ``R_n`` in its (x, y) rows too; we follow equation (3) and the
-text ("R_h is the modified horizontal cursor/user input ratio"), which define ``R_h`` for horizontal motion.
+the previous cursor position. The paper is not consistent here: equation (3) and the text ("R_h is the modified
+horizontal cursor/user input ratio") define ``R_h`` for horizontal motion, while Table 1 — which the text calls
+the summary of the rules — prints ``d_m(x, y) = R_n · D(x, y)``. ``lateral_ratio`` chooses: ``horizontal``
+(equation 3, the default) or ``normal`` (Table 1). It matters: the rolling-indentation tables' horizontal force
+is a rolling resistance (on seed 003's synthetic block 0.04 N over the tissue, 0.06 N over a nodule at 5 mm), so
+by equation 3 a cursor slid sideways at depth slows by at most ~5 % anywhere, below the 6 % pseudo-haptic JND
+(Lécuyer et al. 2000); by Table 1 it slows as a press does, by ``f_n + 1`` (~1.9 over the tissue, ~2.2 over
+nodule A at 5 mm): the sideways slowing towards a hard area that §2.4 describes.
 
 The ratios make the cursor lag the hand, and Table 1 alone never gives the lag back. Out of contact the
 cursor therefore drifts back towards the hand's ``R₀``-mapped position at most ``resync_mm_per_s``
@@ -39,17 +45,22 @@ import numpy as np
 from studyctl.errors import ModelParameterError
 from studyctl.models.param_block import ParamBlock
 
+LATERAL_RATIOS = ("horizontal", "normal")
+
 
 @dataclass(frozen=True)
 class PseudoHapticParams(ParamBlock):
     """r0 : default cursor/input ratio R₀ (> 0).
     resync_mm_per_s : out-of-contact speed at which the cursor returns towards the hand's R₀-mapped position.
     delta_threshold_n : Δf_n must exceed this for the reduced ratios to apply (0 = the paper's rule).
+    lateral_ratio : the force that slows horizontal increments: ``horizontal`` (f_h, equation 3) or ``normal``
+        (f_n, Table 1).
     """
 
     r0: float = 1.0
     resync_mm_per_s: float = 10.0
     delta_threshold_n: float = 0.0
+    lateral_ratio: str = "horizontal"
 
     def validate(self, where: str = "pseudo-haptic parameters") -> None:
         if not (isinstance(self.r0, int | float) and math.isfinite(self.r0) and self.r0 > 0):
@@ -58,6 +69,11 @@ class PseudoHapticParams(ParamBlock):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise ModelParameterError(f"{where}: {name} is {value!r}; it must be ≥ 0")
+        if self.lateral_ratio not in LATERAL_RATIOS:
+            raise ModelParameterError(
+                f"{where}: lateral_ratio is {self.lateral_ratio!r}; allowed: {', '.join(LATERAL_RATIOS)} "
+                "(horizontal: equation 3, R_h from the horizontal force; normal: Table 1, R_n for x and y too)"
+            )
 
 
 def ratio(r0: float, force_n: float) -> float:
@@ -76,6 +92,7 @@ class PseudoHapticCursor:
     def __init__(self, params: PseudoHapticParams | None = None) -> None:
         self.params = params or PseudoHapticParams()
         self.params.validate()
+        self._lateral_normal = self.params.lateral_ratio == "normal"
         self.reset((0.0, 0.0, 0.0))
 
     def reset(self, input_mm: tuple[float, float, float], cursor_mm: tuple[float, float, float] | None = None) -> None:
@@ -106,7 +123,7 @@ class PseudoHapticCursor:
         stiffer = f_prev is not None and (f_n - f_prev) > p.delta_threshold_n
         self._f_prev = f_n if in_contact else 0.0
         rn = ratio(r0, f_n) if stiffer else r0
-        rh = ratio(r0, f_h) if stiffer else r0
+        rh = (rn if self._lateral_normal else ratio(r0, f_h)) if stiffer else r0
         self.last_ratio_n, self.last_ratio_h = rn, rh
         cx, cy, cz = self._cursor
         cx += rh * dx

@@ -45,6 +45,22 @@ def test_table_1_normal_and_horizontal_rules():
     assert np.subtract(cur3, cur2) == pytest.approx((0.0, 1.0, 1.0))
 
 
+def test_lateral_ratio_table_1_slows_sideways_moves_by_the_normal_force():
+    """Table 1 prints R_n for (x, y) moves; equation 3 defines R_h from the (small, rolling) horizontal force.
+    By Table 1 a cursor slid sideways onto stiffer tissue slows as a press does; by equation 3 hardly at all."""
+    eq3 = PseudoHapticCursor(PseudoHapticParams(r0=1.0, resync_mm_per_s=0.0))
+    table1 = PseudoHapticCursor(PseudoHapticParams(r0=1.0, resync_mm_per_s=0.0, lateral_ratio="normal"))
+    for c in (eq3, table1):
+        c.reset((0.0, 0.0, 10.0))
+        c.step((0.0, 0.0, 10.0), 0.87, 0.04, True, 0.004)
+    # 1 mm sideways at constant depth onto tissue whose normal force rose (0.87 -> 1.19 N, nodule A at 5 mm)
+    assert eq3.step((1.0, 0.0, 10.0), 1.19, 0.06, True, 0.004)[0] == pytest.approx(1.0 / 1.06)
+    assert table1.step((1.0, 0.0, 10.0), 1.19, 0.06, True, 0.004)[0] == pytest.approx(1.0 / 2.19)
+    assert table1.last_ratio_h == pytest.approx(table1.last_ratio_n)
+    # sliding on to softer tissue (Δf_n < 0): the default ratio either way
+    assert table1.step((2.0, 0.0, 10.0), 1.0, 0.05, True, 0.004)[0] == pytest.approx(1.0 / 2.19 + 1.0)
+
+
 def test_increments_not_positions_cursor_never_jumps_when_force_changes():
     c = PseudoHapticCursor(PseudoHapticParams(r0=1.0, resync_mm_per_s=0.0))
     c.reset((5.0, 5.0, 5.0))
@@ -98,6 +114,8 @@ def test_parameters_are_validated():
         PseudoHapticParams(r0=0.0).validate()
     with pytest.raises(ModelParameterError, match="resync_mm_per_s"):
         PseudoHapticParams(resync_mm_per_s=-1.0).validate()
+    with pytest.raises(ModelParameterError, match="lateral_ratio is 'tangential'; allowed: horizontal, normal"):
+        PseudoHapticParams(lateral_ratio="tangential").validate()
 
 
 def test_demarcation_depths_of_figure_3c():
