@@ -299,9 +299,10 @@ class SessionRunner(TrialSteps):
         return {"elapsed_s": res.elapsed_s, "ended_early": res.ended_early, "paused_s": res.paused_s}
 
     def _can_practise(self, step: Step) -> bool:
-        """A person practises with the condition's feedback running (device and controller live)."""
+        """A person practises with the condition's feedback running (device and controller live): a person at the
+        terminal, or a virtual participant that practises (it learns what the feedback tells it on the example)."""
         cond = self.plan.conditions.get(step.condition) if step.condition else None
-        return (not self.virtual and self.ui.interactive and cond is not None and not cond.manual
+        return ((self.virtual or self.ui.interactive) and cond is not None and not cond.manual
                 and bool(getattr(self.participant, "practises", False)) and bool(step.duration_s))
 
     def _practice_placement(self, step: Step) -> dict[str, Any]:

@@ -150,6 +150,9 @@ class TrialExecutor:
         if scene is not None and callable(getattr(scene, "public", None)):
             # what a participant may know about the scene (grid, visible surface), never its hidden truth
             info = replace(info, public={**dict(scene.public() or {}), **dict(info.public)})
+            if info.public.get("practice") and callable(getattr(scene, "marks", None)):
+                # the example phantom has its items marked on it (seed 000: the 3 tumour sites are marked)
+                info = replace(info, public={**dict(info.public), "marks": list(scene.marks())})
         # a manual trial has no instrument to log; practice is not data
         sink = None if cond.manual or not samples else self.rec.samples(tid, [])
         if servo:

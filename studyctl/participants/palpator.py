@@ -34,6 +34,13 @@ as quickly as possible):
    cells; then ``finish``. When nothing stood out, it reports ``guesses`` cells: distinct random ones, or with
    ``guess: best`` those whose evidence was strongest (a forced choice by the max rule).
 
+**Familiarisation** (``familiarise``, off by default): the paper gave each subject up to 5 min before each trial on an
+example phantom with the 3 tumour sites marked. With it on, the engine runs that time as a practice through the
+condition's device and controller (``info.public["practice"]``, the marks in ``info.public["marks"]``): the person
+presses each mark and as many plain cells ``practice_presses`` times, learns which notes told tumour from sponge and
+by how much (:mod:`studyctl.participants.palpator_practice`), and in the trial that follows judges each cell by those
+notes weighted together instead of by its strongest note.
+
 Between people, every perceptual, motor and decision parameter may differ (a population file draws them);
 within a person, the press speed varies from trial to trial (``speed_trial_cv``) and the depth from press to
 press (``depth_cv``), and perceptual noise shrinks with practice over trials (``learning``).
@@ -50,6 +57,7 @@ import numpy as np
 
 from studyctl.errors import ModelParameterError
 from studyctl.models.perception import Sense
+from studyctl.participants.palpator_practice import CueWeights, learn_cue_weights
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 from studyctl.plugins.params import Param, validate_params
 
@@ -82,6 +90,7 @@ class _CellEvidence:
     logs: dict[tuple[str, str], list[float]] = field(default_factory=dict)  # (channel, checkpoint) -> log percepts
     felt: dict[tuple[str, str], int] = field(default_factory=dict)
     presses: int = 0
+    combined: list[float] = field(default_factory=list)  # each press's evidence by the cue weights learnt in practice
 
 
 def _scipy_stats():  # noqa: ANN202 - the scipy.stats module
@@ -171,6 +180,14 @@ class VirtualPalpator(Participant):
               "an observer picks the alternative with the largest observation, the max rule of signal detection "
               "theory, Green & Swets 1966; the instruction was to report the tumours, so weak evidence still "
               "guides where)"),
+        Param("familiarise", False, kind=bool, source="CITED: before each trial the paper's subjects had up to 5 min "
+              "on an example phantom with the 3 tumour sites marked, to get used to the feedback (Methods II.D.3). "
+              "True: the person practises there through the condition's device and controller (the engine's practice "
+              "run), pressing each marked site and plain sponge practice_presses times, and then judges cells by the "
+              "cues that told tumour from sponge, weighted by how much and how reliably they did "
+              "(studyctl.participants.palpator_practice). False: no practice; cells judged by their strongest cue"),
+        Param("practice_presses", 4, 1, 20, kind=int, source="CHOSEN: presses on each marked site in practice (and as "
+              "many on plain sponge, at different cells); 3 sites x 4 + 12 plain presses take ~20 s of the 5 min"),
         Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "
               "trials had 3 tumours; subjects were told to report)"),
         Param("cell_mm", 20.0, 1.0, 100.0, unit="mm", source="used when the trial's public info has no grid size"),
@@ -216,23 +233,33 @@ class VirtualPalpator(Participant):
                                       "release, hold or tap")
         self._rng: np.random.Generator | None = None
         self.trials_done = 0
+        self.practises = bool(p["familiarise"])  # the engine runs the familiarisation as a practice for this person
+        self.cues: CueWeights | None = None  # learnt in the last practice: applies to the trial that follows it
 
     # -- memory (what carries over between trials: practice) ----------------------------------------------
     def memory(self) -> Mapping[str, Any]:
-        return {"trials_done": self.trials_done}
+        out: dict[str, Any] = {"trials_done": self.trials_done}
+        if self.cues is not None:
+            out["cues"] = self.cues.to_json()
+        return out
 
     def recall(self, memory: Mapping[str, Any]) -> None:
         self.trials_done = int(memory.get("trials_done", 0))
+        cues = memory.get("cues")
+        self.cues = CueWeights.from_json(cues) if isinstance(cues, Mapping) else None
 
     # -- trial --------------------------------------------------------------------------------------
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
         self._rng = rng
         self.info = info
         p = self.params
-        # Practice: perceptual noise shrinks over the first trials (Weber fractions scale down).
+        self._practice = bool(info.public.get("practice")) if isinstance(info.public, Mapping) else False
+        # Practice: perceptual noise shrinks over the first trials (Weber fractions scale down); the example
+        # phantom's practice is not a trial (the learning trait counts trials, as fitted).
         gain = 1.0 - p["learning"] * min(self.trials_done, 3) / 3.0
         self.senses = {k: Sense(s.name, s.threshold, s.weber * gain, s.unit) for k, s in self.base_senses.items()}
-        self.trials_done += 1
+        if not self._practice:
+            self.trials_done += 1
         # Within-person pace of this trial.
         self._pace = max(1.0 + p["speed_trial_cv"] * rng.standard_normal(), 0.3)
         self.columns, self.rows, self.cell_mm, self.origin = _grid(info.public, p)
@@ -250,10 +277,15 @@ class VirtualPalpator(Participant):
         self._usual: dict[str, float] = {}  # their running median: what pressing normal tissue feels like
         self._finished = False
         self._rounds = 0  # rounds of re-probing done
-        for row in range(1, self.rows + 1):
-            cols = range(1, self.columns + 1) if row % 2 else range(self.columns, 0, -1)  # boustrophedon
-            for col in cols:
-                self._queue_probe((col, row))
+        self._press_logs: list[tuple[tuple[int, int], dict[tuple[str, str], float]]] = []  # practice: each press
+        self._ref_combined: float | None = None
+        if self._practice:
+            self._queue_practice(info.public.get("marks") or ())
+        else:
+            for row in range(1, self.rows + 1):
+                cols = range(1, self.columns + 1) if row % 2 else range(self.columns, 0, -1)  # boustrophedon
+                for col in cols:
+                    self._queue_probe((col, row))
         self._seg_index = 0
         self._seg_t0 = 0.0
 
@@ -265,6 +297,8 @@ class VirtualPalpator(Participant):
         if t >= self.info.time_limit_s - 2.0 / max(self.info.rate_hz, 1.0) - 1.0:
             return self._decide_and_finish()
         while True:
+            if self._seg_index >= len(self._plan) and self._practice:
+                return self._learn_and_finish()
             if self._seg_index >= len(self._plan):
                 more = self._phase == "confirm" and self._rounds < self.params["confirm_rounds"]
                 if self._phase == "sweep" or more:
@@ -304,11 +338,49 @@ class VirtualPalpator(Participant):
         return Action(inputs={"x_mm": pose[0], "y_mm": pose[1], "depth_mm": pose[2]})
 
     # -- planning -----------------------------------------------------------------------------------
-    def _queue_probe(self, cell: tuple[int, int]) -> None:
+    def _queue_practice(self, marks: Any) -> None:
+        """Press each marked site and as many plain cells (two cells or more from every mark), practice_presses
+        times each site; the marks are drawn on the example phantom (positions, or their grid cells)."""
+        n = self.params["practice_presses"]
+        sites = []
+        for m in marks:
+            xy = (m.get("x_mm"), m.get("y_mm")) if isinstance(m, Mapping) else (None, None)
+            if all(isinstance(v, int | float) for v in xy):
+                x, y = float(m["x_mm"]), float(m["y_mm"])
+                cell = (int(math.floor((x - self.origin[0]) / self.cell_mm)) + 1,
+                        int(math.floor((y - self.origin[1]) / self.cell_mm)) + 1)
+                sites.append((cell, (x, y)))
+        if not sites:
+            raise ModelParameterError("virtual_palpator: the practice phantom shows no marks (x_mm, y_mm of each "
+                                      "marked site in the trial's public 'marks'); familiarise needs them")
+        self._marked = {cell for cell, _ in sites}
+        plain = [(c, r) for r in range(1, self.rows + 1) for c in range(1, self.columns + 1)
+                 if all(max(abs(c - m[0]), abs(r - m[1])) >= 2 for m in self._marked)]
+        for cell, at in sites:
+            for _ in range(n):
+                self._queue_probe(cell, at)
+        count = min(n * len(sites), len(plain))
+        for i in sorted(self._rng.choice(len(plain), size=count, replace=False)):
+            self._queue_probe(plain[i])
+
+    def _learn_and_finish(self) -> Action:
+        """End of practice: learn the cue weights from the presses on the marks and on plain sponge, then finish."""
+        tumour = [logs for cell, logs in self._press_logs if cell in self._marked]
+        plain = [logs for cell, logs in self._press_logs if cell not in self._marked]
+        floor = {ch: sense.sigma**2 for ch, sense in self.senses.items()}
+        floor[VISUAL[0]] = self.senses["view"].sigma ** 2
+        self.cues = learn_cue_weights(tumour, plain, floor)
+        self._finished = True
+        return Action(inputs={"x_mm": self._pose[0], "y_mm": self._pose[1], "depth_mm": -5.0},
+                      requests=(Request("finish"),))
+
+    def _queue_probe(self, cell: tuple[int, int], at: tuple[float, float] | None = None) -> None:
         rng = self._rng
         p = self.params
-        cx = self.origin[0] + (cell[0] - 0.5) * self.cell_mm + p["aim_sd_mm"] * rng.standard_normal()
-        cy = self.origin[1] + (cell[1] - 0.5) * self.cell_mm + p["aim_sd_mm"] * rng.standard_normal()
+        if at is None:
+            at = (self.origin[0] + (cell[0] - 0.5) * self.cell_mm, self.origin[1] + (cell[1] - 0.5) * self.cell_mm)
+        cx = at[0] + p["aim_sd_mm"] * rng.standard_normal()
+        cy = at[1] + p["aim_sd_mm"] * rng.standard_normal()
         scale = max(1.0 + p["depth_cv"] * rng.standard_normal(), 0.05)
         depth = p["depth_mm"] * scale
         last = self._plan[-1].end if self._plan else self._pose
@@ -401,23 +473,33 @@ class VirtualPalpator(Participant):
         rng = self._rng
         notes = self._notes
         hand, seen = notes.pop(("view", "hand"), 0.0), notes.pop(("view", "seen"), 0.0)
+        press: dict[tuple[str, str], float] = {}  # this press's log-percepts, note by note
         for key, value in notes.items():
             observed = self.senses[key[0]].observe(value, rng)
             if observed > 0:
                 ev.felt[key] = ev.felt.get(key, 0) + 1
-                ev.logs.setdefault(key, []).append(math.log(observed))
+                press[key] = math.log(observed)
+                ev.logs.setdefault(key, []).append(press[key])
         if hand > 0 and seen > 0 and self.params["visual_trust"] > 0:
             # the instrument yields more on stiffer tissue: hand depth / seen depth grows over a tumour
             observed = self.senses["view"].observe(seen, rng)
-            ev.logs.setdefault(VISUAL, []).append(math.log(hand / observed))
+            press[VISUAL] = math.log(hand / observed)
+            ev.logs.setdefault(VISUAL, []).append(press[VISUAL])
             ev.felt[VISUAL] = ev.felt.get(VISUAL, 0) + 1
         if seg.stopped:
             ev.felt[STOP] = ev.felt.get(STOP, 0) + 1
             # how far the hand had gone when the feedback said enough: less travel over stiffer tissue
             travel = self.senses["travel"].observe(max(seg.end[2] / seg.scale, 1e-3), rng)
             if travel > 0:
-                ev.logs.setdefault(TRAVEL, []).append(-math.log(travel))
+                press[TRAVEL] = -math.log(travel)
+                ev.logs.setdefault(TRAVEL, []).append(press[TRAVEL])
                 ev.felt[TRAVEL] = ev.felt.get(TRAVEL, 0) + 1
+        if self._practice:
+            self._press_logs.append((seg.cell, press))
+        elif self.cues is not None:
+            combined = self.cues.combine(press)
+            if combined is not None:
+                ev.combined.append(combined)
         elif self._stop_ratio:
             for ch in CHANNELS:  # only unstopped presses show what pressing all the way usually feels like
                 peaks = self._peaks[ch]
@@ -450,10 +532,20 @@ class VirtualPalpator(Participant):
             felt = sum(1 for ev in self.evidence.values() if ev.felt.get(key, 0)) if key == STOP else sum(
                 1 for v in first if math.isfinite(v))
             self._felt_rate[key] = (felt + 1) / (n + 2)
+        firsts = [ev.combined[0] for ev in self.evidence.values() if ev.combined]
+        # what plain sponge gives by the learnt cues in this trial: the median over the surveyed cells
+        self._ref_combined = float(np.median(firsts)) if firsts else None
         return ref
 
     def _score(self, ev: _CellEvidence, ref: dict[tuple[str, str], float | None]) -> float:
-        """Evidence that a cell differs from normal tissue, in noise SDs of its mean (inf: felt only here)."""
+        """Evidence that a cell differs from normal tissue, in noise SDs of its mean (inf: felt only here).
+
+        After practice (``familiarise``): the combined evidence of the learnt cues against this trial's plain
+        level, in SDs of its mean (the practice's plain-sponge spread over the cell's presses)."""
+        if self.cues is not None:
+            if not ev.combined or self._ref_combined is None:
+                return -math.inf
+            return (float(np.mean(ev.combined)) - self._ref_combined) / (self.cues.spread / math.sqrt(len(ev.combined)))
         stats = _scipy_stats()
         best = -math.inf
         for key in self._keys:

@@ -208,6 +208,12 @@ class SpongePhantomScene(Scene):
     def public(self) -> Mapping[str, Any]:
         return {"grid": self.grid.as_dict(), "size_mm": list(self.size_mm), "holes": len(self.params["holes_mm"])}
 
+    def marks(self) -> tuple[dict[str, Any], ...]:
+        """The sites as drawn on an example phantom (seed 000: "the locations of 3 different types of tumors were
+        marked"): class, centre and grid cell of each placed tumour. The engine shows them only in practice."""
+        return tuple({"class": t.cls, "x_mm": t.x_mm, "y_mm": t.y_mm, "col": self.grid.cell_of(t.x_mm, t.y_mm)[0],
+                      "row": self.grid.cell_of(t.x_mm, t.y_mm)[1]} for t in self.tumours)
+
     def truth(self) -> Mapping[str, Any]:
         return {
             "tumours": [

@@ -207,7 +207,10 @@ def test_practice_sharpens_perception_and_is_remembered():
 @pytest.mark.slow
 def test_a_broken_controller_is_noticed_by_the_shipped_population():
     """`none` in place of the bio-inspired controller: the population's typical person (every trait at its
-    location), on the same tumours and seeds, finds fewer tumours."""
+    location), on the same tumours and seeds, finds fewer tumours. A person who familiarises practises first with
+    the controller of the trial, on the example phantom, as the engine runs it."""
+    from palpation.practice_support import practise
+
     from studyctl.controllers.bio_inspired import BioInspiredController
     from studyctl.populations import load_population_file, shipped_population_path
 
@@ -217,12 +220,15 @@ def test_a_broken_controller_is_noticed_by_the_shipped_population():
     for k in range(4):
         sites = SITES[k % len(SITES)]
         for controller_cls in (BioInspiredController, NoFeedback):
+            person = VirtualPalpator(params)
+            if person.practises:
+                practise(person, controller_cls, seed=100 + k)
             scene = SpongePhantomScene.build({}, {"sites": sites}, frozenset({"view"}), np.random.default_rng(k))
             device = SimulatedPalpationDevice({}, scene, np.random.default_rng(k + 1))
             device.open()
             out = run_trial(info=TrialInfo(controller_cls.name, 600.0, 50.0, public=dict(scene.public()),
                                            visual="realtime"),
-                            controller=controller_cls({}, scene), device=device, participant=VirtualPalpator(params),
+                            controller=controller_cls({}, scene), device=device, participant=person,
                             clock=SimulatedClock(), rng=np.random.default_rng(k + 2), view=scene.view)
             n = sum(found(out, scene).values())
             if controller_cls is NoFeedback:

@@ -1,0 +1,101 @@
+"""What a palpator learns on the example phantom: which felt and seen cues tell a tumour from sponge, and how much.
+
+Seed 000 gave every participant up to 5 minutes before each trial on an example phantom "on which the locations of
+3 different types of tumors were marked", to get used to the feedback being tested (Methods II.D.3). A person who
+has pressed the marked sites and plain sponge with this feedback knows, cue by cue (each note the palpator takes:
+balloon and vibration at checkpoints of the press and at their peaks, the camera's yield), how far a tumour moves it
+and how much it varies from press to press, and judges a cell by all of them together.
+
+The combination is the ideal observer of independent Gaussian cues: the weight of a cue is its mean difference over
+its variance (the linear discriminant with a diagonal covariance; Ernst & Banks 2002 for cue combination by
+reliability). The variances are what the person felt over the practice presses — the senses' Weber noise and the
+press-to-press variation of the hand and the feedback together — so a cue that varies a lot on plain sponge gets
+little weight. Because the notes of one press are correlated (checkpoints of one channel), the spread of the
+combined evidence is taken from the plain practice presses themselves, not from the sum of the cue variances.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+Key = tuple[str, str]
+
+MIN_SHARE = 0.8  # a cue is learnt only when it was noted on this share of both kinds of practice press
+MIN_PRESSES = 3  # and on at least this many of each
+MIN_T = 2.0  # a cue counts only when its practice difference stood out from its press-to-press spread (t ≥ 2):
+# with ~12 presses of each kind the mean differences of many cues are mostly noise, and a person does not rely on
+# a cue they never noticed to differ (the weights of unnoticed cues are 0: shrinkage by selection)
+
+
+@dataclass(frozen=True)
+class CueWeights:
+    """Learnt weights, plain-sponge centres and the spread of the combined evidence on plain sponge."""
+
+    keys: tuple[Key, ...]
+    weights: tuple[float, ...]
+    centres: tuple[float, ...]
+    spread: float  # SD of one plain press's combined evidence
+    separation: float  # mean tumour-minus-plain combined evidence of one practice press, in spreads
+
+    def combine(self, logs: Mapping[Key, float]) -> float | None:
+        """One press's combined evidence (a cue not noted in this press counts as plain: adds 0); None when no
+        learnt cue was noted at all."""
+        total = 0.0
+        seen = False
+        for key, w, c in zip(self.keys, self.weights, self.centres, strict=True):
+            v = logs.get(key)
+            if v is not None:
+                total += w * (v - c)
+                seen = True
+        return total if seen else None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"keys": [list(k) for k in self.keys], "weights": list(self.weights), "centres": list(self.centres),
+                "spread": self.spread, "separation": self.separation}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> CueWeights:
+        return cls(tuple((str(a), str(b)) for a, b in data["keys"]), tuple(float(v) for v in data["weights"]),
+                   tuple(float(v) for v in data["centres"]), float(data["spread"]), float(data["separation"]))
+
+
+def learn_cue_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Mapping[Key, float]],
+                      floor: Mapping[str, float]) -> CueWeights | None:
+    """Weights from the log-notes of practice presses on marked tumours and on plain sponge (one mapping per press).
+
+    ``floor``: per channel, the variance no cue of it can go below (the sense's own Weber noise squared). None when
+    no cue was noted often enough or the combined evidence does not vary on plain sponge.
+    """
+    keys: list[Key] = []
+    weights: list[float] = []
+    centres: list[float] = []
+    candidates = sorted({k for press in (*tumour, *plain) for k in press})
+    for key in candidates:
+        t = [p[key] for p in tumour if key in p]
+        s = [p[key] for p in plain if key in p]
+        if min(len(t), len(s)) < MIN_PRESSES or len(t) < MIN_SHARE * len(tumour) or len(s) < MIN_SHARE * len(plain):
+            continue
+        mt, ms = sum(t) / len(t), sum(s) / len(s)
+        pooled = (sum((v - mt) ** 2 for v in t) + sum((v - ms) ** 2 for v in s)) / max(len(t) + len(s) - 2, 1)
+        var = max(pooled, floor.get(key[0], 0.0), 1e-12)
+        if abs(mt - ms) < MIN_T * math.sqrt(var * (1 / len(t) + 1 / len(s))):
+            continue
+        keys.append(key)
+        weights.append((mt - ms) / var)
+        centres.append(ms)
+    if not keys:
+        return None
+    draft = CueWeights(tuple(keys), tuple(weights), tuple(centres), 1.0, 0.0)
+    s_plain = [v for v in (draft.combine(p) for p in plain) if v is not None]
+    s_tumour = [v for v in (draft.combine(p) for p in tumour) if v is not None]
+    if len(s_plain) < MIN_PRESSES or not s_tumour:
+        return None
+    mean_p = sum(s_plain) / len(s_plain)
+    spread = math.sqrt(sum((v - mean_p) ** 2 for v in s_plain) / (len(s_plain) - 1))
+    if not spread > 0:
+        return None
+    separation = (sum(s_tumour) / len(s_tumour) - mean_p) / spread
+    return CueWeights(draft.keys, draft.weights, draft.centres, spread, separation)

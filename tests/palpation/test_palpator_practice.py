@@ -1,0 +1,97 @@
+"""Familiarisation (seed 000, Methods II.D.3): the virtual palpator practises on the example phantom, whose tumour
+sites are marked, through the condition's own device and controller, and then judges cells by the cues that told
+tumour from sponge there."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from palpation.practice_support import EXAMPLE, practise
+
+from studyctl.controllers.palpation import LinearController, NoFeedback
+from studyctl.errors import ModelParameterError
+from studyctl.participants.palpator import VirtualPalpator
+from studyctl.participants.palpator_practice import CueWeights, learn_cue_weights
+from studyctl.scenes.sponge import SpongePhantomScene
+
+
+def test_weights_go_to_the_cues_that_told_tumour_from_sponge():
+    rng = np.random.default_rng(0)
+    a, b = ("vibration_ms2", "peak"), ("balloon_psi", "1")
+    plain = [{a: rng.normal(0.0, 0.2), b: rng.normal(1.0, 0.2)} for _ in range(12)]
+    tumour = [{a: rng.normal(0.6, 0.2), b: rng.normal(1.0, 0.2)} for _ in range(12)]
+    cues = learn_cue_weights(tumour, plain, {"vibration_ms2": 0.01, "balloon_psi": 0.01})
+    assert cues is not None and cues.keys == (a,) and cues.weights[0] > 0  # b never differed: no weight
+    assert cues.separation > 2.0
+    # a press is judged against plain sponge: plain presses centre on 0, tumour presses above
+    assert abs(np.mean([cues.combine(p) for p in plain])) < 1e-9 < np.mean([cues.combine(p) for p in tumour])
+    assert cues.combine({b: 3.0}) is None  # no learnt cue noted in this press
+    assert CueWeights.from_json(cues.to_json()) == cues
+    # nothing differed: nothing learnt
+    assert learn_cue_weights(plain[:6], plain[6:], {"vibration_ms2": 0.01, "balloon_psi": 0.01}) is None
+
+
+def test_practice_presses_the_marks_and_plain_sponge_then_finishes():
+    person = VirtualPalpator({"familiarise": True, "practice_presses": 3})
+    assert person.practises and person.cues is None
+    out, scene, positions = practise(person, LinearController, seed=3)
+    assert out.reports == [] and out.duration_s < 300.0  # it finished by itself, reporting nothing
+    assert person.trials_done == 0  # practice is not one of the trials the learning trait counts
+    pressed = [(x, y) for x, y, d in positions if d > 0.5]
+    for mark in scene.marks():  # each marked site was pressed
+        assert min(np.hypot(x - mark["x_mm"], y - mark["y_mm"]) for x, y in pressed) < 5.0
+    # with linear feedback the learnt cues include what the actuators delivered, not only the camera
+    assert person.cues is not None and any(k[0] in ("balloon_psi", "vibration_ms2") for k in person.cues.keys)
+    assert person.memory()["cues"] == person.cues.to_json()
+    fresh = VirtualPalpator({"familiarise": True})
+    fresh.recall(person.memory())
+    assert fresh.cues == person.cues
+
+
+def test_without_feedback_only_the_camera_can_be_learnt():
+    person = VirtualPalpator({"familiarise": True})
+    practise(person, NoFeedback, seed=4)
+    assert person.cues is None or set(person.cues.keys) <= {("view", "yield")}
+
+
+def test_practice_without_marks_is_refused():
+    with pytest.raises(ModelParameterError, match="shows no marks"):
+        practise(VirtualPalpator({"familiarise": True}), LinearController, seed=5, marks=False)
+
+
+def test_marks_are_the_placed_sites():
+    scene = SpongePhantomScene.build({}, {"sites": EXAMPLE}, frozenset(), np.random.default_rng(0))
+    truth = {t["class"]: t for t in scene.truth()["tumours"]}
+    marks = scene.marks()
+    assert {m["class"] for m in marks} == set(EXAMPLE)
+    for m in marks:
+        t = truth[m["class"]]
+        assert (m["x_mm"], m["y_mm"], m["col"], m["row"]) == (t["x_mm"], t["y_mm"], t["col"], t["row"])
+
+
+@pytest.mark.slow
+def test_the_engine_runs_the_familiarisation_as_practice_for_a_virtual_palpator(tmp_path):
+    """Before each condition's trial the engine runs the protocol's familiarisation as a practice on the example
+    phantom for a virtual palpator that familiarises (it used to end at once for every virtual participant), and
+    what it learnt is kept in its session memory."""
+    from studyctl.engine.recorder import MEMORY_EVENT
+    from studyctl.populations import load_population_file, shipped_population_path
+    from studyctl.store.workspace import open_study
+    from studyctl.workflows.simulate import simulate_study
+
+    text = shipped_population_path("bio_inspired_palpation").read_text()
+    counts = {}
+    for flag in ("true", "false"):
+        path = tmp_path / f"pop_{flag}.yaml"
+        fixed = f"fixed:\n  familiarise: {flag}\n"
+        path.write_text(text.replace("  familiarise: true\n", "").replace("fixed:\n", fixed))
+        result = simulate_study("bio_inspired_palpation", 1, 5, tmp_path / f"ws_{flag}",
+                                population=load_population_file(path))
+        with open_study(workspace=result.workspace) as o:
+            person = o.store.list_participants(o.study.id)[0]
+            sid = o.store.list_sessions(person.id)[0].id
+            events = o.store.events_frame(sid)
+        counts[flag] = int((events.kind == "practice_trial_loop_end").sum())
+        memory = events[events.kind == MEMORY_EVENT].payload.iloc[-1]["memory"]
+        assert ("cues" in memory) == (flag == "true")
+    assert counts == {"true": 4, "false": 0}  # one practice before each of the 4 conditions
