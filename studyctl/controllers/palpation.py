@@ -55,6 +55,9 @@ class PalpationController(Controller):
                 "set the controller's sensor_channel"
             )
         value = obs.values[self.channel]
+        if type(value) is float and value - value == 0.0:  # the usual tick: a finite float, kept as it is
+            self._last_force = value
+            return value
         if not isinstance(value, int | float) or not math.isfinite(value):
             return None
         self._last_force = float(value)
@@ -128,18 +131,16 @@ class LinearController(_Windowed):
                 raise ModelParameterError(
                     f"linear controller: {act}_c_max ({p[f'{act}_c_max']}) must be ≥ {act}_c_min ({p[f'{act}_c_min']})"
                 )
+        # eq. 1's constants for the tick: the sensor range and each actuator's (output channel, c_min, c_max)
+        self._s_min, self._s_span = p["s_min_n"], p["s_max_n"] - p["s_min_n"]
+        self._ranges = tuple((f"{act}_pct", p[f"{act}_c_min"], p[f"{act}_c_max"]) for act in ("balloon", "vibration"))
 
     def step(self, obs: Observation) -> dict[str, float]:
         s = self.mean_force(obs)
         if s is None:
             return self.safe()
-        p = self.params
-        x = (s - p["s_min_n"]) / (p["s_max_n"] - p["s_min_n"])
-        out = {}
-        for act in ("balloon", "vibration"):
-            lo, hi = p[f"{act}_c_min"], p[f"{act}_c_max"]
-            out[f"{act}_pct"] = min(max(x * (hi - lo) + lo, lo), hi)
-        return out
+        x = (s - self._s_min) / self._s_span
+        return {channel: min(max(x * (hi - lo) + lo, lo), hi) for channel, lo, hi in self._ranges}
 
 
 class PiecewiseController(_Windowed):

@@ -100,6 +100,7 @@ class SimulatedPalpationDevice(ParamDevice):
         # function, and the actuators' lags. The same numbers the model methods compute, computed once.
         self._table = self.sensor.count_table()
         self._area_m2 = self.sensor.sensing_area_m2()
+        self._adc_max = self.sensor.adc_max
         self._force_at = scene_force_function(self.scene) if self.scene is not None else None
         self._noise = checked["sensor_noise_lsb"]
         self._compliance = checked["instrument_compliance_mm_per_n"]
@@ -142,7 +143,7 @@ class SimulatedPalpationDevice(ParamDevice):
         if force_at is not None:
             depth, force = contact(force_at, x, y, depth, self._compliance)
         sensor = self.sensor
-        adc_max = sensor.adc_max
+        adc_max = self._adc_max
         counts = count_in_table(self._table, force, adc_max)
         noise = self._noise
         if noise > 0:
