@@ -95,3 +95,53 @@ def test_the_engine_runs_the_familiarisation_as_practice_for_a_virtual_palpator(
         memory = events[events.kind == MEMORY_EVENT].payload.iloc[-1]["memory"]
         assert ("cues" in memory) == (flag == "true")
     assert counts == {"true": 4, "false": 0}  # one practice before each of the 4 conditions
+
+
+@pytest.mark.slow
+def test_a_session_resumed_after_a_practice_goes_on_with_what_was_learnt(tmp_path):
+    """Interrupted right after the second condition's practice: the resumed session (a new participant instance, as
+    in a new process) runs that condition's trial with what the practice taught, as the uninterrupted one does.
+    Before, memory was stored only at the end of a trial, so the resumed trial used the previous condition's cues."""
+    import sqlite3
+
+    from studyctl.engine.api import resume_session, run_session
+    from studyctl.errors import SessionInterrupted
+    from studyctl.populations import load_population_file, shipped_population_path
+    from studyctl.store.workspace import open_study
+    from studyctl.workflows.simulate import create_cohort
+
+    path = tmp_path / "pop.yaml"
+    text = shipped_population_path("bio_inspired_palpation").read_text()
+    path.write_text(text.replace("  familiarise: true\n", "").replace("fixed:\n", "fixed:\n  familiarise: true\n"))
+    population = load_population_file(path)
+
+    def trials(database):
+        con = sqlite3.connect(database)
+        rows = con.execute("select plan_position, condition, json_extract(outcome, '$.duration_s'), "
+                           "json_extract(outcome, '$.ticks'), json_extract(outcome, '$.reports') from trial "
+                           "where status != 'aborted' order by plan_position, id").fetchall()
+        con.close()
+        return rows
+
+    whole = create_cohort("bio_inspired_palpation", 1, 3, tmp_path / "whole", population=population)
+    split = create_cohort("bio_inspired_palpation", 1, 3, tmp_path / "split", population=population)
+    with open_study(workspace=whole.workspace) as o:
+        run_session(o.store, whole.codes[0], virtual=True, population=population)
+    seen = {"practices": 0}
+
+    def stop_after_second_practice(_done, _total, step) -> None:
+        if step.kind == "familiarisation":
+            seen["practices"] += 1
+            if seen["practices"] == 2:
+                raise KeyboardInterrupt
+
+    with open_study(workspace=split.workspace) as o:
+        with pytest.raises(SessionInterrupted):
+            run_session(o.store, split.codes[0], virtual=True, progress=stop_after_second_practice,
+                        population=population)
+        sid = o.store.list_sessions(o.store.get_participant(o.study.id, split.codes[0]).id)[0].id
+        resume_session(o.store, sid)
+        events = o.store.events_frame(sid)
+    assert int((events.kind == "practice_trial_loop_end").sum()) == 4  # the resume did not practise again
+    got, want = trials(split.database), trials(whole.database)
+    assert len(want) == 4 and got == want
