@@ -22,7 +22,9 @@ class SpotDecision:
         """A targeted searcher ends its survey once it has felt as many clear spots as it expects nodules (known
         from the practice run): ``expect_spots`` spots each above ``stop_z`` SDs. Checked every third press."""
         p = self.params
-        if p["expect_spots"] <= 0 or len(self._presses) < p["stop_min_presses"] or len(self._presses) % 3:
+        if p["expect_spots"] <= 0 or len(self._presses) < p["stop_min_presses"]:
+            return False
+        if len(self._presses) % 3 and not self._slide_mode:  # a slide adds many records at once: check each line
             return False
         ev = self._evidence()
         if ev is None:
@@ -74,6 +76,12 @@ class SpotDecision:
             if cs.size < 5:
                 continue
             sigma = max(1.4826 * float(np.median(np.abs(cs - np.median(cs)))), 1e-3)
+            if self._slide_mode:
+                # A slide's cursor cue reads how the slowing changes along the line, not how much stiffer a spot
+                # is: its contrasts are on another scale than the push's, so averaging the two as estimates of one
+                # contrast lets the push (small contrast, small noise) drown a clear slowing. Each cue counts as
+                # evidence in its own SDs instead (Stouffer's combination, weighted by trust).
+                contrast, sigma = contrast / sigma, 1.0
             w = trust[name] / sigma**2  # a cue believed less weighs less, and its evidence counts less
             if w <= 0:
                 continue

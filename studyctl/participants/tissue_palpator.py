@@ -21,6 +21,10 @@ Perception per press (noise multiplicative, drawn from the trial's rng):
 
 * force cue (FF, PHF+FF): the largest force felt at the bottom over the indentation seen there, the way
   people judge stiffness (force per displacement; ``force_weber``, ``depth_weber``);
+* sliding survey (``slide_survey``; PHF, PHF+FF with the controller's ``lateral_ratio: normal``): once a press
+  shows the cursor lagging the hand, each remaining survey line is slid at depth and read every
+  ``slide_window_mm`` of cursor travel (hand over cursor travel sideways; the push with force feedback), see
+  :mod:`.tissue_slide`;
 * cursor cue (PHF, PHF+FF): hand travel over cursor travel during the last ``ratio_window_mm`` of the
   cursor's descent into the tissue (summed over the ticks in which the cursor descends),
   ``q ≈ 1/R_n = (f_n + 1)/R₀``, read as a force ``R₀·q − 1`` with ``R₀`` taken from how the cursor follows the
@@ -71,6 +75,7 @@ from studyctl.participants.tissue_decision import SpotDecision
 from studyctl.participants.tissue_params import PARAMS
 from studyctl.participants.tissue_perception import PressPerception
 from studyctl.participants.tissue_questionnaire import Questionnaire
+from studyctl.participants.tissue_slide import SlideSurvey
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 from studyctl.plugins.params import Param, validate_params
 
@@ -109,7 +114,7 @@ def _surface_sampler(surface: Mapping[str, Any]):
     return height, (float(xs[0]), float(xs[-1]), float(ys[0]), float(ys[-1])), np.isfinite(h), xs, ys
 
 
-class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Participant):
+class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Questionnaire, Participant):
     """Presses a grid over the visible tissue, perceives force and cursor resistance, reports stiff spots."""
 
     name = "virtual_tissue_palpator"
@@ -156,6 +161,12 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
         # how far the watched point has gone into the tissue per millimetre the hand was told to press, as learnt
         # over this trial's presses (1: as in the air); the press is steered with the inverse as extra gain
         self._press_yield = 1.0
+        # a sliding survey (slide_survey, where the cursor slows): the line each start point slides to
+        self._slide_mode = False
+        self._slide_ends: dict[tuple[float, float], tuple[float, float]] = {}
+        self._slide_points: list[tuple[float, float]] = []
+        self._slide_checked = False
+        self._slide_probe_lag = 0.0
         self.perceived: dict[str, Any] = {}
         self._motor = self._trial_motor(info, rng)
 
@@ -210,7 +221,8 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
             self._stopped_early = True
         if not self._plan and self._stage == "survey":
             self._stage = "follow_up"
-            self._spots = self._follow_up_spots()
+            # a slid survey is not re-palpated by presses: their cue is read another way (a descent, not a slide)
+            self._spots = [] if self._slide_mode else self._follow_up_spots()
         if self._stage == "follow_up":
             self._plan = self._next_follow_up()
         if not self._plan:
@@ -310,7 +322,7 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
             # pseudo-haptic slowing, the hand pushed back by rendered force): the press keeps its planned pace
             kz /= self._press_yield
         vx, vy, vz = ex * k, ey * k, ez * kz
-        lateral = m["move"] * dt
+        lateral = (self.params["slide_speed_mm_s"] * m["tempo"] if self._phase == "slide" else m["move"]) * dt
         vertical = m["press"] * dt
         lat = math.hypot(vx, vy)
         if lat > lateral:
@@ -398,6 +410,8 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
                 press["in_at"] = (ctrl[2], self._hand[2])  # the watched point enters the tissue (adaptation only)
             if near or timed_out or force >= p["max_press_force_n"]:
                 self._adapt_press_gain(press, ctrl)
+                if self._slide_start(press, ctrl):
+                    return
                 self._phase, self._phase_t = "dwell", 0.0
                 press["bx"], press["by"], press["bz"] = ctrl[0], ctrl[1], ctrl[2]
                 press["hold"] = self._hold_time(press, force)
@@ -427,6 +441,13 @@ class VirtualTissuePalpator(PressPerception, SpotDecision, Questionnaire, Partic
                 done = held >= press["hold"]
             if done or self._phase_t >= press["hold"] + p["phase_timeout_s"]:
                 self._record(press)
+                self._slide_switch(press)
+                self._target = (ctrl[0], ctrl[1], press["h"] + p["hover_mm"])
+                self._phase, self._phase_t = "lift", 0.0
+                self._replan = True
+        elif phase == "slide":
+            if self._slide_tick(press, ctrl, cursor, handle, force):
+                self._slide_check(press["slide_from"])
                 self._target = (ctrl[0], ctrl[1], press["h"] + p["hover_mm"])
                 self._phase, self._phase_t = "lift", 0.0
                 self._replan = True

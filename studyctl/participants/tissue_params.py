@@ -87,6 +87,15 @@ PARAMS = (
           "is believed less than a felt one (the pseudo-haptic illusion weakens with exposure, Front VR 2024)"),
     Param("ratio_window_mm", 2.0, low=0.2, high=20.0, unit="mm",
           source="CHOSEN: the cursor's slowing is judged over the last part of its travel"),
+    Param("slide_survey", False, kind=bool,
+          source="CITED: the behaviour: where a press shows the cursor lagging the hand (pseudo-haptics), the rest "
+          "of the survey slides the tool along each line at depth and reads the cursor's sideways slowing (seed 003 "
+          "§2.4: people palpate by sliding and pressing; a cursor slowing sideways reads as a bump, Lécuyer, "
+          "Burkhardt & Etienne 2004); it needs the controller's lateral_ratio: normal; false: presses only"),
+    Param("slide_speed_mm_s", 30.0, low=1.0, high=500.0, unit="mm/s",
+          source="CHOSEN: the hand's sliding speed before tempo (seed 003's rolling indentation scanned at 30 mm/s)"),
+    Param("slide_window_mm", 4.0, low=0.5, high=50.0, unit="mm",
+          source="CHOSEN: one sideways-slowing judgement per this much cursor travel (under the 6 mm nodule's size)"),
     Param("max_press_force_n", 3.0, low=0.1, high=20.0, unit="N", source="CHOSEN: below the Omni's 3.3 N"),
     # ---- decision
     Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm",

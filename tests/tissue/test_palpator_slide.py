@@ -1,0 +1,130 @@
+"""The tissue palpator's sliding survey (slide_survey): it starts only where a press saw the cursor lag the hand,
+turns the rest of the survey into one slide per line, and reads the cursor's sideways slowing per window."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from studyctl.participants.tissue_palpator import VirtualTissuePalpator
+from studyctl.plugins.interfaces import TrialInfo
+
+EXACT = {"visual_weber": 0.0, "depth_weber": 0.0, "force_weber": 0.0}
+
+
+def _person(**params) -> VirtualTissuePalpator:
+    p = VirtualTissuePalpator(params)
+    p.begin_trial(TrialInfo(condition="PHF", time_limit_s=10.0, rate_hz=250.0, visual="realtime", public={}),
+                  np.random.default_rng(0))
+    p._dt = 0.004
+    p._stage = "survey"
+    return p
+
+
+def _probe(person: VirtualTissuePalpator, hand_per_cursor: float) -> dict:
+    """The first survey press at (10, 10) has been recorded; the plan holds the rest of two lines."""
+    person._plan = [(10.0, 20.0), (20.0, 20.0), (30.0, 20.0), (30.0, 10.0), (20.0, 10.0)]  # popped from the end
+    person._presses = [{"x": 10.0, "y": 10.0, "force": math.nan, "ratio": 1.6, "stage": "survey"}]
+    return {"x": 10.0, "y": 10.0, "h": 25.0, "track": [(0.0, 0.0), (2.0, 2.0 * hand_per_cursor)]}
+
+
+def test_the_survey_turns_into_one_slide_per_line_only_where_the_cursor_lags():
+    sliding = _person(slide_survey=True)
+    sliding._slide_switch(_probe(sliding, 1.8))
+    assert sliding._slide_mode
+    assert sliding._plan == [(30.0, 20.0), (10.0, 10.0)]  # line starts, the probe's line first (popped from the end)
+    assert sliding._slide_ends == {(10.0, 10.0): (30.0, 10.0), (30.0, 20.0): (10.0, 20.0)}
+    assert sliding._presses == []  # the probe press is not one of the slide's records
+    for person, lag in ((_person(slide_survey=True), 1.0), (_person(), 1.8)):  # no lag seen; a presser
+        before = list(person._plan if person._plan else [])
+        person._slide_switch(_probe(person, lag))
+        assert not person._slide_mode
+        assert len(person._presses) == 1 and person._plan != before
+
+
+def test_a_slide_records_the_sideways_slowing_per_window_of_cursor_travel():
+    person = _person(slide_survey=True, slide_window_mm=4.0, **EXACT)
+    person._slide_mode = True
+    person._slide_ends = {(10.0, 10.0): (40.0, 10.0)}
+    person._target = (10.0, 10.0, 20.0)
+    press = {"x": 10.0, "y": 10.0, "h": 25.0}
+    assert person._slide_start(press, (10.0, 10.0, 20.0))
+    assert person._phase == "slide" and person._target == (40.0, 10.0, 20.0)
+    hand, cursor = 10.0, 10.0
+    done = False
+    for k in range(400):
+        slowed = 18.0 <= cursor < 22.0  # the cursor moves half as far as the hand here (stiffer ahead)
+        hand += 0.2
+        cursor += 0.1 if slowed else 0.2
+        person._phase_t = (k + 1) * 0.004
+        done = person._slide_tick(press, (cursor, 10.0, 20.0), (cursor, 10.0, 20.0), (hand, 10.0, 20.0), 0.0)
+        if done:
+            break
+    assert done
+    rows = person._presses
+    assert [r["stage"] for r in rows] == ["survey"] * len(rows)
+    assert len(rows) == 7  # 27 mm of cursor travel, a record per 4 mm (a window closes on the tick past it)
+    slowest = max(rows, key=lambda r: r["ratio"])
+    assert slowest["x"] == pytest.approx(20.0, abs=1.0)  # at the window's middle, where the cursor slowed
+    assert slowest["ratio"] > 1.8  # the hand went nearly twice as far as the cursor there
+    assert all(r["ratio"] == pytest.approx(1.0) for r in rows if abs(r["x"] - 20.0) > 4.0)
+    assert all(r["ratio_seen"] == pytest.approx(5.0) for r in rows)  # the cursor 5 mm into the tissue
+    assert all(math.isnan(r["force"]) for r in rows)  # nothing pushed back (no force feedback)
+
+
+def test_a_slide_that_shows_no_sideways_slowing_goes_back_to_pressing():
+    """By equation 3 (lateral_ratio: horizontal) a slid cursor nearly keeps pace with the hand (a lag of 0.05, under
+    a quarter of the probe press's): after that first line the person presses the remaining points, the slid line's
+    included, and keeps none of the slide's records."""
+    for q, slides in ((1.05, False), (1.4, True)):  # against a probe press that lagged by 0.8
+        person = _person(slide_survey=True)
+        person._slide_switch(_probe(person, 1.8))
+        person._plan.pop()  # the first line's start is taken and slid
+        person._presses = [{"x": 10.0 + k, "y": 10.0, "ratio": q, "stage": "survey"} for k in range(5)]
+        person._slide_check(0)
+        assert person._slide_mode is slides
+        if slides:
+            assert len(person._presses) == 5 and person._plan == [(30.0, 20.0)]
+        else:
+            assert person._presses == []
+            assert person._plan[::-1] == [(20.0, 10.0), (30.0, 10.0), (30.0, 20.0), (20.0, 20.0), (10.0, 20.0)]
+            person._slide_switch(_probe(person, 1.8))  # it does not try sliding again
+            assert not person._slide_mode
+
+
+def _survey(person: VirtualTissuePalpator) -> None:
+    """A 7 x 7 survey of uniform tissue with one nodule press in the middle: the push 1.5 % stiffer there (its
+    noise 1 %: a small nodule pressed from the side), the sideways slowing of a slide 60 % stronger (noise 25 %)."""
+    rng = np.random.default_rng(3)
+    rows = []
+    for i in range(7):
+        for j in range(7):
+            nodule = i == 3 and j == 3
+            e1, e2 = (0.0, 0.0) if nodule else rng.normal(size=2)  # the nodule press reads its mean contrasts
+            felt = 1.0 * (1.015 if nodule else 1.0) * (1.0 + 0.01 * e1)
+            lag = 0.4 * (1.6 if nodule else 1.0) * (1.0 + 0.25 * e2)
+            depth = 4.5 + rng.random()  # the depths scatter; neither cue depends on them here
+            rows.append({"x": 8.0 * i, "y": 8.0 * j, "force": felt / depth, "felt": felt, "seen": depth,
+                         "ratio": 1.0 + lag, "ratio_seen": depth, "stage": "survey"})
+    person._presses = rows
+    person._air_dc.extend([1.0] * 10)
+    person._air_dh.extend([1.0] * 10)
+
+
+def test_a_slid_survey_adds_each_cue_as_evidence_not_as_one_contrast():
+    """Averaged as estimates of one contrast, the push (small contrast, tiny noise) drowns the slide's clear
+    slowing: the nodule press stands out by little more than the push's own 1.5 SDs; counted as evidence in each
+    cue's own SDs (Stouffer) it stands out by more than either cue alone."""
+    zs = {}
+    for mode in (False, True):
+        person = _person(slide_survey=True, baseline_radius_mm=100.0)
+        person._slide_mode = mode
+        _survey(person)
+        pts, contrast, sigma = person._evidence()
+        middle = int(np.argmin(np.hypot(pts[:, 0] - 24.0, pts[:, 1] - 24.0)))
+        zs[mode] = contrast[middle] / sigma[middle]
+        assert person.perceived["cues"] == ["force", "cursor"]
+    assert zs[False] < 2.2
+    assert zs[True] > 1.5 * zs[False]
