@@ -74,6 +74,9 @@ class OperatorSenses:
             # the belief moved, the hand did not: keep the set-point where it is
             st.ref = (r[0] + c[0] - old[0], r[1] + c[1] - old[1], r[2] + c[2] - old[2])
             st.prev_ref = st.ref
+            st.blind_at = None
+        elif st.plan is not None:  # a check that showed no tip: where the hand was (see _scan_can_show_tip)
+            st.blind_at = st.sense.felt(percept, st.last_cmd)
         if st.plan is None and reading.tumour_mm is not None and reading.marker_mm is not None:
             self._make_plan(reading.tumour_mm, reading.marker_mm)
         return reading

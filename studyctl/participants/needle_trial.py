@@ -111,6 +111,7 @@ class TrialState:
     line_checked: bool = False  # the one scan before feeling for the tumour was taken
     cue_on_correction: bool = False  # the last cue came while correcting towards a target seen on an image
     probing: bool = False  # pushing sideways over the incision to feel the channel (``probe_mm``)
+    blind_at: Vec | None = None  # felt hand position of the last scan that did not show the tip
 
     def noise(self) -> np.ndarray:
         z = self.z[self.zi]

@@ -12,6 +12,7 @@ from studyctl.errors import ModelParameterError
 from studyctl.participants import needle_operator as op_mod
 from studyctl.participants.needle_operator import PARAMS, OperatorParams, Phase, VirtualNeedleOperator
 from studyctl.participants.needle_perception import AxialCueDetector, PositionSense, feel_force
+from studyctl.plugins.interfaces import TrialInfo
 
 
 def test_params_record_holds_every_declared_param():
@@ -75,3 +76,33 @@ def test_a_deliberate_speed_up_is_not_a_cue_but_the_tumour_after_it_is():
     for k in range(100):
         det2.update(0.3, depth=k * 0.1, half_length=5.0, moving_s=1.0, dt=dt, threshold_n=0.1, weber=0.1)
     assert any(det2.update(0.5, 30.0, 5.0, 1.0, dt, 0.1, 0.1) for _ in range(100))
+
+
+def _blank_frame() -> dict:
+    """A CT frame in which nothing shows: the tip above the slices' field (two 64 x 64 px panels, 2 mm/px)."""
+    panel = {"size_px": 64, "mm_per_px": 2.0, "center_h_mm": 0.0, "center_v_mm": 0.0}
+    return {"image": np.zeros((64, 128), dtype=np.uint8),
+            "panels": [{**panel, "col0": 0, "h_axis": "x", "v_axis": "y"},
+                       {**panel, "col0": 64, "h_axis": "x", "v_axis": "z"}]}
+
+
+def test_a_check_scan_that_shows_no_tip_is_not_asked_for_again_before_the_hand_moves():
+    """Unsure where the tip is, over the incision but above the slices' field, a check scan shows no tip and leaves it
+    as unsure: it used to ask for the same view again at once, forever (26 identical scans until the 90 s ran out
+    in one EG trial at seed 99). Now it asks again only once its hand has moved BLIND_MOVE_MM."""
+    op = VirtualNeedleOperator({"recheck_mm": 0.9})
+    op.begin_trial(TrialInfo("BL", 90.0, 1000.0, "on_request"), np.random.default_rng(1))
+    st = op.s
+    op._make_plan((0.0, 0.0, -20.0), (0.0, 0.0, 35.0))
+    st.sense.sig_lat = 2.0
+    st.phase, st.next_phase, st.busy_until, st.frame = Phase.READ, Phase.INSERT, 0.0, _blank_frame()
+    percept = {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 44.0}  # the hand stays where it is (no device)
+    scans = 0
+    for k in range(3000):  # 3 s at 1 kHz
+        scans += sum(r.kind == "scan" for r in op.act(k / 1000.0, percept).requests)
+        if st.frame is None and st.phase is Phase.READ and st.busy_until == float("inf"):
+            st.frame = _blank_frame()  # the scan it asked for arrives, as empty as the last
+            st.busy_until = k / 1000.0 + 0.2
+    assert scans == 0 and st.blind_at is not None
+    far = {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 44.0 - op_mod.BLIND_MOVE_MM - 3.0}
+    assert op._scan_can_show_tip(far) and st.blind_at is None  # moved on: a new view may show it
