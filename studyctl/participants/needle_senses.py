@@ -140,8 +140,9 @@ class OperatorSenses:
             st.felt_radial_s = 0.0
         if st.button >= 0.5 and self._trusts_guide():
             # inside a channel it has felt to be firm (the guidance acts from before the incision on), it takes
-            # the tip to be on the path laterally
-            st.sense.sig_lat = min(st.sense.sig_lat, 0.9 * p.finish_mm)
+            # the tip to be on the path laterally: below both its criteria, so it neither stops to check the line
+            # on the way (recheck_mm) nor needs a scan to confirm it (finish_mm)
+            st.sense.sig_lat = min(st.sense.sig_lat, 0.9 * min(p.finish_mm, p.recheck_mm))
         # axial cue: a rise above the running baseline while advancing deep in the liver
         mv = st.move
         if st.phase is Phase.INSERT and st.plan is not None and st.button >= 0.5 and isinstance(mv, Line):

@@ -106,3 +106,20 @@ def test_a_check_scan_that_shows_no_tip_is_not_asked_for_again_before_the_hand_m
     assert scans == 0 and st.blind_at is not None
     far = {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 44.0 - op_mod.BLIND_MOVE_MM - 3.0}
     assert op._scan_can_show_tip(far) and st.blind_at is None  # moved on: a new view may show it
+
+
+def test_inside_a_trusted_channel_it_does_not_stop_to_check_the_line():
+    """A person whose recheck criterion lies below its finishing one (recheck_mm 0.5, finish_mm 1.5) kept stopping to
+    check the line inside a guidance channel it trusted: the channel capped its lateral uncertainty at 0.9 x finish_mm
+    only. It now stays below both criteria."""
+    op = VirtualNeedleOperator({"recheck_mm": 0.5, "finish_mm": 1.5})
+    op.begin_trial(TrialInfo("EG", 90.0, 1000.0, "on_request"), np.random.default_rng(1))
+    op.trust_guide["EG"] = 1.0
+    op.s.sense.sig_lat = 2.0
+    op._perceive(0.0, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0, "fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0})
+    assert op.s.sense.sig_lat <= 0.9 * 0.5
+    untrusted = VirtualNeedleOperator({"recheck_mm": 0.5, "finish_mm": 1.5})
+    untrusted.begin_trial(TrialInfo("EG", 90.0, 1000.0, "on_request"), np.random.default_rng(1))
+    untrusted.s.sense.sig_lat = 2.0
+    untrusted._perceive(0.0, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0, "fx_n": 0.0, "fy_n": 0.0, "fz_n": 0.0})
+    assert untrusted.s.sense.sig_lat == 2.0  # no channel it trusts: as unsure as before
