@@ -12,6 +12,10 @@ reliability). The variances are what the person felt over the practice presses â
 press-to-press variation of the hand and the feedback together â€” so a cue that varies a lot on plain sponge gets
 little weight. Because the notes of one press are correlated (checkpoints of one channel), the spread of the
 combined evidence is taken from the plain practice presses themselves, not from the sum of the cue variances.
+
+:class:`Familiarisation` is the palpator's side of it (a mixin of
+:class:`~studyctl.participants.palpator.VirtualPalpator`): which sites the practice presses, and the learning once
+they are pressed.
 """
 
 from __future__ import annotations
@@ -20,6 +24,10 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
+
+from studyctl.errors import ModelParameterError
+from studyctl.participants.palpator_perception import VISUAL
+from studyctl.plugins.interfaces import Action, Request
 
 Key = tuple[str, str]
 
@@ -99,3 +107,44 @@ def learn_cue_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Map
         return None
     separation = (sum(s_tumour) / len(s_tumour) - mean_p) / spread
     return CueWeights(draft.keys, draft.weights, draft.centres, spread, separation)
+
+
+class Familiarisation:
+    """Mixin of :class:`~studyctl.participants.palpator.VirtualPalpator`: the practice run on the example phantom
+    (``familiarise``): which sites it presses, and what it learns from them when the presses are done."""
+
+    def _queue_practice(self, marks: Any) -> None:
+        """Press each marked site and as many plain cells (two cells or more from every mark), practice_presses
+        times each site; the marks are drawn on the example phantom (positions, or their grid cells)."""
+        n = self.params["practice_presses"]
+        sites = []
+        for m in marks:
+            xy = (m.get("x_mm"), m.get("y_mm")) if isinstance(m, Mapping) else (None, None)
+            if all(isinstance(v, int | float) for v in xy):
+                x, y = float(m["x_mm"]), float(m["y_mm"])
+                cell = (int(math.floor((x - self.origin[0]) / self.cell_mm)) + 1,
+                        int(math.floor((y - self.origin[1]) / self.cell_mm)) + 1)
+                sites.append((cell, (x, y)))
+        if not sites:
+            raise ModelParameterError("virtual_palpator: the practice phantom shows no marks (x_mm, y_mm of each "
+                                      "marked site in the trial's public 'marks'); familiarise needs them")
+        self._marked = {cell for cell, _ in sites}
+        plain = [(c, r) for r in range(1, self.rows + 1) for c in range(1, self.columns + 1)
+                 if all(max(abs(c - m[0]), abs(r - m[1])) >= 2 for m in self._marked)]
+        for cell, at in sites:
+            for _ in range(n):
+                self._queue_probe(cell, at)
+        count = min(n * len(sites), len(plain))
+        for i in sorted(self._rng.choice(len(plain), size=count, replace=False)):
+            self._queue_probe(plain[i])
+
+    def _learn_and_finish(self) -> Action:
+        """End of practice: learn the cue weights from the presses on the marks and on plain sponge, then finish."""
+        tumour = [logs for cell, logs in self._press_logs if cell in self._marked]
+        plain = [logs for cell, logs in self._press_logs if cell not in self._marked]
+        floor = {ch: sense.sigma**2 for ch, sense in self.senses.items()}
+        floor[VISUAL[0]] = self.senses["view"].sigma ** 2
+        self.cues = learn_cue_weights(tumour, plain, floor)
+        self._finished = True
+        return Action(inputs={"x_mm": self._pose[0], "y_mm": self._pose[1], "depth_mm": -5.0},
+                      requests=(Request("finish"),))

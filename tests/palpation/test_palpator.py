@@ -145,7 +145,7 @@ def view_trial(sites, seed, params):
 
 
 def test_without_feedback_the_camera_cue_points_at_the_hard_tumour():
-    from studyctl.participants.palpator import VISUAL
+    from studyctl.participants.palpator_perception import VISUAL
 
     hard_z, soft_z = [], []
     for seed, sites in enumerate(SITES):
@@ -289,7 +289,7 @@ def test_taps_fill_the_time_a_stopped_press_saved():
     assert presses(tap) > presses(release) + 49  # most sweep presses were stopped and followed by taps
     assert out_t.duration_s > out_r.duration_s
     # each tap is noted: how far the hand went before the cue said enough (the stiffness cue with a force target)
-    from studyctl.participants.palpator import TRAVEL
+    from studyctl.participants.palpator_perception import TRAVEL
 
     assert sum(len(ev.logs.get(TRAVEL, [])) for ev in tap.evidence.values()) >= presses(release)
     with pytest.raises(ModelParameterError, match="after_stop 'wait' must be release, hold or tap"):
@@ -324,7 +324,7 @@ def test_judged_against_the_spread_of_plain_tissue():
     """With ``judge_spread`` a cell's evidence is measured against how much the note varied over the survey's
     cells when that is more than the senses' noise: a feedback that varies a lot on plain sponge makes a cell that
     stands out by the same amount count for less."""
-    from studyctl.participants.palpator import _CellEvidence
+    from studyctl.participants.palpator_perception import _CellEvidence
 
     rng = np.random.default_rng(3)
     key = ("vibration_ms2", "peak")

@@ -1,0 +1,100 @@
+"""The seed-000 virtual palpator's parameters (:mod:`studyctl.participants.palpator`): every motor, perception and
+decision parameter with its unit, range and source (CITED, CHOSEN or FITTED), as the population file
+(``studyctl/populations/bio_inspired_palpation.yaml``) draws them per person and ``protocol check`` validates them."""
+
+from __future__ import annotations
+
+from studyctl.plugins.params import Param
+
+NEVER = 30.0  # a stop level this high is never reached (the regulator gives ≤ 20 psi, the motor ≤ 12 m/s²)
+
+PARAMS = (
+    # -- motor ----------------------------------------------------------------------------------------
+    Param("depth_mm", 4.0, 0.2, 20.0, unit="mm", source="FITTED: intended press depth (~2 N on the sponge; "
+          "Pugh 2015: examiners differ widely in palpation force)"),
+    Param("checkpoints", (0.4, 0.6, 0.8, 1.0), kind=tuple, source="CHOSEN: fractions of the target depth "
+          "at which the feel is noted"),
+    Param("depth_cv", 0.08, 0.0, 0.5, source="CHOSEN: press-to-press variability of depth (motor noise)"),
+    Param("aim_sd_mm", 2.0, 0.0, 10.0, unit="mm", source="CHOSEN: scatter of the probe about the cell centre"),
+    Param("press_speed_mm_s", 6.0, 0.5, 100.0, unit="mm/s", source="FITTED: indentation speed"),
+    Param("speed_trial_cv", 0.10, 0.0, 1.0, source="CHOSEN: trial-to-trial variation of a person's pace "
+          "(speed and move time), within person"),
+    Param("hold_s", 0.4, 0.0, 5.0, unit="s", source="FITTED: dwell at the bottom of a press"),
+    Param("move_s", 0.3, 0.02, 5.0, unit="s", source="FITTED: time to move to the next 20 mm cell "
+          "(Fitts-type pointing with a robot master, ~0.3-1 s)"),
+    Param("stop_balloon_psi", 30.0, 0.0, 30.0, unit="psi", source="FITTED: a balloon pressure felt as firm "
+          "enough ends the descent (instruction: least force; a person presses until the feedback says enough, "
+          "so a cue that grows early, as the bio-inspired balloon does, ends presses at a lower force); felt "
+          "with the person's balloon Weber noise per press; 30 = never (the regulator gives ≤ 20)"),
+    Param("stop_vibration_ms2", 30.0, 0.0, 30.0, unit="m/s²", source="FITTED: as stop_balloon_psi for "
+          "vibration; 30 = never (the motor gives ≤ 12)"),
+    Param("stop_min_seen_mm", 0.0, 0.0, 10.0, unit="mm", source="CHOSEN: a haptic cue only ends a press once "
+          "the endoscope shows the tip has dented the sponge at least this deep (felt with the person's visual "
+          "Weber noise each press): people press until they see contact, then stop where the feedback says "
+          "enough, so a cue that is already strong at touch-down does not end a press before the tissue "
+          "under the probe has been deformed (0 = no visual minimum; without a view the hand's believed depth "
+          "is used)"),
+    Param("stop_ratio", 0.0, 0.0, 10.0, source="FITTED: a press also stops when a cue exceeds this multiple of "
+          "what normal tissue gave at its strongest (the running median of earlier presses; 0 = never): "
+          "something under the probe already feels different, so pressing on only adds force"),
+    Param("after_stop", "release", kind=str, source="CHOSEN: what a person does with the rest of a press's "
+          "planned time when a strong cue ended the descent early: release (go on), hold (stay at that depth) "
+          "or tap (re-probe the same spot, each tap ending where the cue says enough: feedback felt during "
+          "the dynamic phase invites probing, paper §IV; people palpate at a steady rhythm, and the paper "
+          "found no effect of the feedback on completion time, p = 0.684)"),
+    Param("max_taps", 2, 0, 10, kind=int, source="CHOSEN: most extra taps after one stopped press"),
+    Param("look_s", 0.0, 0.0, 5.0, unit="s", source="FITTED: extra dwell to judge the instrument's yield by eye "
+          "when a press gave no haptic sensation (visual judgement of deformation takes time)"),
+    # -- perception -----------------------------------------------------------------------------------
+    Param("balloon_threshold_psi", 0.19, 0.0, 20.0, unit="psi",
+          source="CITED: static one-point pressure threshold of the index finger 0.13 ± 0.06 g/mm² "
+                 "(= 0.19 ± 0.09 psi, CV 46 %, n = 35; research/virtual_participants.md §1)"),
+    Param("balloon_weber", 0.10, 0.01, 2.0,
+          source="CITED: force JND 7 % (Pang 1991), 10 % (Allin 2002), 18-19 % passive (Gueorguiev 2020)"),
+    Param("vibration_threshold_ms2", 0.2, 0.0, 20.0, unit="m/s²",
+          source="CITED: ~0.1 µm at 150-250 Hz (Brisben 1999; Verrillo) = 0.16-0.25 m/s²; varies with age"),
+    Param("vibration_weber", 0.20, 0.01, 2.0, source="CITED: vibrotactile amplitude discrimination ≈ 20 %"),
+    Param("visual_weber", 0.10, 0.01, 2.0,
+          source="CITED: visual speed Weber ≈ 7 % (Vision Res 1988), pseudo-haptic stiffness JND 6-13.4 % "
+                 "(Lécuyer); fractions vary considerably between people (J Vis 2018)"),
+    Param("travel_weber", 0.22, 0.01, 2.0,
+          source="CITED: compliance resolution 22 % once work and terminal-force cues are separated (Tan, "
+                 "Durlach, Beauregard & Srinivasan 1995, Percept Psychophys 57:495): with a force target the "
+                 "hand's travel is the stiffness cue (Fu, van Paassen & Mulder 2017)"),
+    Param("visual_trust", 1.0, 0.0, 1.0, source="FITTED: weight a person gives the camera cue (0 ignores it)"),
+    Param("learning", 0.0, 0.0, 0.8, source="CITED: most practice gain in lump detection comes within 1-2 "
+          "sessions (Adams et al.); fraction of perceptual noise lost by the 4th trial"),
+    # -- decision -------------------------------------------------------------------------------------
+    Param("judge_spread", False, kind=bool, source="CHOSEN: whether a cell's evidence is judged against how "
+          "much normal tissue varied over the survey (the robust SD of the first presses' percepts) when that "
+          "exceeds the senses' own noise: in signal detection the criterion is set against the total noise of "
+          "the non-signal stimuli, external and internal (Green & Swets 1966; Lu & Dosher 2008, external noise); "
+          "a feedback that varies from press to press on plain sponge (the hand's depth varies by depth_cv) "
+          "marks fewer plain cells as different. False: only the Weber noise of the senses"),
+    Param("screen_z", 2.0, 0.0, 10.0, source="FITTED: re-probe a cell whose evidence exceeds this"),
+    Param("report_z", 3.5, 0.0, 10.0, source="FITTED: confidence needed to report a cell"),
+    Param("confirm_presses", 2, 0, 10, kind=int, source="CHOSEN: re-probes of a candidate cell"),
+    Param("confirm_rounds", 1, 1, 10, kind=int, source="CHOSEN: a candidate whose evidence is still between "
+          "screen_z and report_z after a round of re-probes is probed again, up to this many rounds "
+          "(sequential sampling: weak cues are checked more often, Wald 1947); 1 = one round"),
+    Param("max_reports", 0, 0, 49, kind=int, source="CHOSEN: at most this many cells are reported, the strongest "
+          "first (0 = no limit); the example phantom shows 3 tumours, so people expect about that many"),
+    Param("guess", "random", kind=str, source="CHOSEN: which cells a person reports when nothing stood out: "
+          "random (distinct cells at random) or best (the cells whose evidence was strongest: in a forced choice "
+          "an observer picks the alternative with the largest observation, the max rule of signal detection "
+          "theory, Green & Swets 1966; the instruction was to report the tumours, so weak evidence still "
+          "guides where)"),
+    Param("familiarise", False, kind=bool, source="CITED: before each trial the paper's subjects had up to 5 min "
+          "on an example phantom with the 3 tumour sites marked, to get used to the feedback (Methods II.D.3). "
+          "True: the person practises there through the condition's device and controller (the engine's practice "
+          "run), pressing each marked site and plain sponge practice_presses times, and then judges cells by the "
+          "cues that told tumour from sponge, weighted by how much and how reliably they did "
+          "(studyctl.participants.palpator_practice). False: no practice; cells judged by their strongest cue"),
+    Param("practice_presses", 4, 1, 20, kind=int, source="CHOSEN: presses on each marked site in practice (and as "
+          "many on plain sponge, at different cells); 3 sites x 4 + 12 plain presses take ~20 s of the 5 min"),
+    Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "
+          "trials had 3 tumours; subjects were told to report)"),
+    Param("cell_mm", 20.0, 1.0, 100.0, unit="mm", source="used when the trial's public info has no grid size"),
+    Param("columns", 7, 1, 50, kind=int, source="used when the trial's public info has no grid"),
+    Param("rows", 7, 1, 50, kind=int, source="used when the trial's public info has no grid"),
+)
