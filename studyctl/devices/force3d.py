@@ -1,7 +1,9 @@
 """A simulated 3-DoF force-feedback device (PHANToM Omni or omega.6 class) with a simulated hand.
 
 Inputs (from a virtual participant): ``x_mm``, ``y_mm``, ``z_mm`` — where the hand wants the handle —
-and optionally the pen axis ``dir_x``/``dir_y``/``dir_z`` and a ``button`` (0/1), passed through.
+and optionally the pen axis ``dir_x``/``dir_y``/``dir_z`` and a ``button`` (0/1), passed through, and ``grip_damping``:
+how steadily the hand holds the handle, a factor on the hand's damping (1, the default, is the relaxed hold of
+the parameters; a value persists until the next one is given).
 Outputs (from the controller): ``fx_n``, ``fy_n``, ``fz_n`` in the device frame.
 
 With ``hand = "spring"`` (default) the handle is a mass held by the hand through a spring-damper towards
@@ -98,6 +100,7 @@ class SimulatedForceDevice(ParamDevice):
         self._force = [0.0, 0.0, 0.0]
         self._dir = (0.0, 0.0, -1.0)
         self._button = 1.0
+        self._grip_b = 1.0
         self._t_last: float | None = None
         self.fault: str | None = None
         self.faults: list[dict[str, Any]] = []
@@ -146,6 +149,12 @@ class SimulatedForceDevice(ParamDevice):
         b = inputs.get("button")
         if b is not None:
             self._button = b
+        g = inputs.get("grip_damping")
+        if g is not None:
+            if not (g > 0.0 and g - g == 0.0):  # non-positive, NaN or ±inf
+                self._enter_safe_state(f"grip_damping {g} is not a finite positive factor")
+                return
+            self._grip_b = float(g)
 
     def _substeps(self, n: int) -> None:
         """``n`` device ticks under the held force, the encoder sampled after each but the last (``read`` takes
@@ -162,7 +171,7 @@ class SimulatedForceDevice(ParamDevice):
         dt = self._dt
         g = dt * 1000.0 / self._m
         k = self._kh * 1e-3
-        den = 1.0 + dt * self._bh / self._m
+        den = 1.0 + dt * self._bh * self._grip_b / self._m
         pos, vel = self._pos, self._vel
         p0, p1, p2 = pos
         v0, v1, v2 = vel
@@ -206,7 +215,7 @@ class SimulatedForceDevice(ParamDevice):
             return
         g = dt * 1000.0 / self._m  # N → mm/s per step
         k = self._kh * 1e-3  # N per mm
-        den = 1.0 + dt * self._bh / self._m
+        den = 1.0 + dt * self._bh * self._grip_b / self._m
         v0 = (vel[0] + g * (k * (tgt[0] - pos[0]) + f[0])) / den
         v1 = (vel[1] + g * (k * (tgt[1] - pos[1]) + f[1])) / den
         v2 = (vel[2] + g * (k * (tgt[2] - pos[2]) + f[2])) / den

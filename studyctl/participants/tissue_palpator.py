@@ -167,6 +167,7 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self._slide_points: list[tuple[float, float]] = []
         self._slide_checked = False
         self._slide_probe_lag = 0.0
+        self._grip_held = 1.0  # the grip last given to the device (slide_grip)
         self.perceived: dict[str, Any] = {}
         self._motor = self._trial_motor(info, rng)
 
@@ -290,6 +291,9 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self._advance(ctrl, cursor, handle, force)
         self._move_hand(ctrl, dt)
         h = self._hand
+        grip = self._grip(force)
+        if grip is not None:
+            return Action({"x_mm": h[0], "y_mm": h[1], "z_mm": h[2], "grip_damping": grip})
         # positional: a frozen dataclass built from keywords costs twice as much, once per tick
         return Action({"x_mm": h[0], "y_mm": h[1], "z_mm": h[2]})
 

@@ -96,6 +96,15 @@ PARAMS = (
           source="CHOSEN: the hand's sliding speed before tempo (seed 003's rolling indentation scanned at 30 mm/s)"),
     Param("slide_window_mm", 4.0, low=0.5, high=50.0, unit="mm",
           source="CHOSEN: one sideways-slowing judgement per this much cursor travel (under the 6 mm nodule's size)"),
+    Param("slide_damping", 1.0, low=1.0, high=10.0, unit="x",
+          source="CHOSEN: how much more steadily the stylus is held while sliding against a felt push: a factor on "
+          "the device hand's damping (its grip_damping input; 3 makes the relaxed 300 N/m, 8 N·s/m, 0.5 kg hold about "
+          "critically damped, damping ratio 0.33 -> 1.0), its stiffness unchanged. Direction from motor control: "
+          "people co-contract to stabilise an unstable interaction (Burdet, Osu, Franklin, Milner & Kawato 2001, "
+          "Nature 414:446) and the hand's viscosity rises with muscle activation (Tsuji, Morasso, Goto & Ito 1995, "
+          "Biol Cybern 72:475). Measured (trial loop, Table 1, one person of v5's means, 32 seeds, PHF+FF nodules "
+          "found of 96): 1 -> 67, 3 -> 69, 6 -> 72 (PHF 85); tripling the stiffness with the damping did not help "
+          "(8 seeds). 1: off"),
     Param("max_press_force_n", 3.0, low=0.1, high=20.0, unit="N", source="CHOSEN: below the Omni's 3.3 N"),
     # ---- decision
     Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm",

@@ -15,6 +15,13 @@ watched, evidence growing as 1/√time, so a window slid past quickly is read co
 at, and with force feedback the strongest push felt over the window with the depth then. With no cursor slowing
 (force feedback alone, by hand) nothing changes. A slid survey ends without re-palpation: its records are not
 comparable with a press's.
+
+With ``slide_damping`` above 1 the person holds the stylus more steadily while sliding against a felt push
+(the device's ``grip_damping`` input raises the hand's damping, not its stiffness): a spring-held stylus slid over
+rendered force otherwise bounces on it (the relaxed hold's damping ratio is 0.33), and with Table 1 every downward
+bounce slows the cursor sideways too, so the slowing follows the bounce as much as the tissue. People co-contract
+against such instability (Burdet et al. 2001), and the hand's viscosity rises with muscle activation (Tsuji et al.
+1995).
 """
 
 from __future__ import annotations
@@ -82,6 +89,18 @@ class SlideSurvey:
         del self._presses[first_record:]
         self._slide_mode = False
         self._plan = self._slide_points[::-1]  # nothing of it was pressed yet; pop() from the end
+
+    def _grip(self, force: float) -> float | None:
+        """The damping factor to give the device this tick, or None (unchanged): ``slide_damping`` while sliding
+        with a push felt, the relaxed 1 otherwise; None throughout when ``slide_damping`` is 1 (nothing sent)."""
+        firm = self.params["slide_damping"]
+        if firm == 1.0:
+            return None
+        grip = firm if self._phase == "slide" and (force > 0.0 or self._grip_held != 1.0) else 1.0
+        if grip == self._grip_held:
+            return None
+        self._grip_held = grip
+        return grip
 
     def _slide_tick(self, press: dict[str, Any], ctrl, cursor, handle, force: float) -> bool:
         """One tick of a slide: travel added to the current window, a window closed every ``slide_window_mm`` of

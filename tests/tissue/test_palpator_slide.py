@@ -128,3 +128,38 @@ def test_a_slid_survey_adds_each_cue_as_evidence_not_as_one_contrast():
         assert person.perceived["cues"] == ["force", "cursor"]
     assert zs[False] < 2.2
     assert zs[True] > 1.5 * zs[False]
+
+
+def test_a_steadier_hold_while_sliding_against_a_push_only_when_asked():
+    """slide_damping: the device's grip_damping goes up while a slide meets a push, back to 1 after it; with the
+    default nothing is ever sent (the device keeps its relaxed hold), nor without a push (no force feedback)."""
+    off, pushless, steady = _person(), _person(slide_damping=3.0), _person(slide_damping=3.0)
+    for person in (off, pushless, steady):
+        person._phase = "slide"
+    assert off._grip(0.8) is None and pushless._grip(0.0) is None
+    assert steady._grip(0.8) == 3.0
+    assert steady._grip(0.0) is None  # still sliding: the steadier hold is kept when the push drops for a tick
+    steady._phase = "lift"
+    assert steady._grip(0.0) == 1.0 and steady._grip(0.0) is None
+
+
+def test_the_device_hand_holds_the_handle_steadier_with_more_grip_damping():
+    """A step of the hand's wanted position: the relaxed hold (damping ratio 0.33) overshoots; grip_damping 3
+    (ratio 1.0) does not. Default inputs keep the relaxed hold."""
+    from studyctl.devices.force3d import SimulatedForceDevice
+
+    peaks = {}
+    for grip in (None, 3.0):
+        device = SimulatedForceDevice({}, None, np.random.default_rng(0))
+        device.open()
+        device.apply_input({"x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0})
+        device.read(0.0)
+        step = {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 5.0}
+        if grip is not None:
+            step["grip_damping"] = grip
+        device.apply_input(step)
+        zs = [device.read(0.004 * k).values["z_mm"] for k in range(1, 250)]
+        peaks[grip] = max(zs)
+        assert zs[-1] == pytest.approx(5.0, abs=0.05)
+    assert peaks[None] > 5.0 * 1.25  # ~33 % overshoot at ratio 0.33
+    assert peaks[3.0] < 5.0 * 1.01
