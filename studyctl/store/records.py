@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import bindparam, select
 from sqlalchemy.orm import Session as OrmSession
 
 from studyctl.store.audit import append_audit, canonical_json
@@ -149,33 +149,45 @@ def load_mark(tx: OrmSession, session_id: int) -> SealMark:
     return mark
 
 
+# Sealing runs in every write transaction of a session (hundreds per session), so its five SELECTs are built once,
+# with the session id and the last sealed ids as parameters, and run on the transaction's connection (Core): no ORM
+# statement handling per query, the same SQL, rows and transaction (seal_session flushes first).
+_SID, _LAST = bindparam("session_id"), bindparam("last")
+_TRIAL_IDS = select(Trial.id).where(Trial.session_id == _SID).scalar_subquery()
+_TRIALS = select(Trial.__table__).where(Trial.session_id == _SID)
+_NEW_ROWS = {
+    "event": (select(Event.__table__).where(Event.session_id == _SID, Event.id > _LAST).order_by(Event.id),
+              event_digest),
+    "answer": (select(QuestionnaireResponse.__table__)
+               .where(QuestionnaireResponse.session_id == _SID, QuestionnaireResponse.id > _LAST)
+               .order_by(QuestionnaireResponse.id), answer_digest),
+    "report": (select(LocationReport.__table__)
+               .where(LocationReport.trial_id.in_(_TRIAL_IDS), LocationReport.id > _LAST)
+               .order_by(LocationReport.id), report_digest),
+}
+_NEW_CHUNKS = (select(SampleChunk.id, SampleChunk.digest)
+               .where(SampleChunk.trial_id.in_(_TRIAL_IDS), SampleChunk.id > _LAST).order_by(SampleChunk.id))
+
+
 def _session_rows(tx: OrmSession, session_id: int, mark: SealMark) -> dict[str, dict[str, Any]]:
     """Digests of the session's records that are new or changed since ``mark``."""
     new: dict[str, dict[str, Any]] = {}
     trials = {}
+    conn = tx.connection()
     # Core rows (attribute access by column name), not ORM objects: no identity map, and always what the
     # database holds now.
-    for row in tx.execute(select(Trial.__table__).where(Trial.session_id == session_id)):
+    for row in conn.execute(_TRIALS, {"session_id": session_id}):
         d = trial_digest(row)
         if mark.trials.get(row.id) != d:
             trials[str(row.id)] = d
     if trials:
         new["trial"] = trials
-    trial_ids = select(Trial.id).where(Trial.session_id == session_id).scalar_subquery()
-    queries = {
-        "event": (Event, Event.session_id == session_id, event_digest),
-        "answer": (QuestionnaireResponse, QuestionnaireResponse.session_id == session_id, answer_digest),
-        "report": (LocationReport, LocationReport.trial_id.in_(trial_ids), report_digest),
-    }
-    for kind, (model, where, fn) in queries.items():
-        rows = {str(r.id): fn(r) for r in tx.execute(select(model.__table__).where(where, model.id > mark.last[kind])
-                                                     .order_by(model.id))}
+    for kind, (stmt, fn) in _NEW_ROWS.items():
+        rows = {str(r.id): fn(r) for r in conn.execute(stmt, {"session_id": session_id, "last": mark.last[kind]})}
         if rows:
             new[kind] = rows
-    chunks = {str(i): d for i, d in tx.execute(
-        select(SampleChunk.id, SampleChunk.digest).where(SampleChunk.trial_id.in_(trial_ids),
-                                                         SampleChunk.id > mark.last["chunk"])
-        .order_by(SampleChunk.id)).all()}
+    chunks = {str(i): d for i, d in conn.execute(_NEW_CHUNKS, {"session_id": session_id,
+                                                               "last": mark.last["chunk"]}).all()}
     if chunks:
         new["chunk"] = chunks
     return new
