@@ -59,6 +59,13 @@ PARAMS = (
     Param("read_trial_cv", 0.15, 0.0, 0.8, unit="log-SD",
           source="CHOSEN: within-person trial-to-trial variation of reading time"),
     Param("visual_period_s", 0.25, 0.02, 2.0, unit="s", source="CHOSEN: real-time view: how often it is read"),
+    Param("rt_tolerance_mm", 0.0, 0.0, 5.0, unit="mm",
+          source="CHOSEN (0: off, every look re-aims the tip): with a live view it corrects its tip sideways only "
+                 "once the image shows it this far off where it feels it is; below that it keeps steering by feel. "
+                 "With continuous vision people plan less carefully and rely on discrete online corrections "
+                 "(two-component model, Elliott et al. 2010, Psychol Bull 136:1023-1044); human visuomotor control "
+                 "is intermittent, acting when a seen error passes a threshold (Gawthrop, Loram, Lakie & Gollee "
+                 "2011, Biol Cybern 104:31-51)"),
     # ---------------------------------------------------------------- position sense
     Param("proprio_drift", 0.15, 0.0, 1.0, unit="mm/√mm",
           source="CHOSEN: position-sense drift per √mm moved, per axis (between-person trait)"),
@@ -135,6 +142,7 @@ class OperatorParams:
     confirm_read_ratio: float
     read_trial_cv: float
     visual_period_s: float
+    rt_tolerance_mm: float
     proprio_drift: float
     force_weber: float
     force_threshold_n: float

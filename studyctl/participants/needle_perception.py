@@ -74,10 +74,23 @@ class PositionSense:
         f, c = self.felt(percept, last_cmd), self.corr
         return (f[0] + c[0], f[1] + c[1], f[2] + c[2])
 
-    def see_tip(self, tip: Vec, felt: Vec, resolution_mm: float) -> Vec:
-        """An image shows the true tip: the correction becomes image − felt; returns the previous correction."""
+    def see_tip(self, tip: Vec, felt: Vec, resolution_mm: float, *, axis: Vec | None = None,
+                keep_lat_mm: float = 0.0) -> Vec:
+        """An image shows the true tip: the correction becomes image − felt; returns the previous correction.
+
+        With ``keep_lat_mm`` > 0 (and the needle ``axis``), a change of the correction across the axis smaller
+        than that is left alone (an online correction only once the seen error passes a threshold); the part
+        along the axis is always taken.
+        """
         old = self.corr
-        self.corr = (tip[0] - felt[0], tip[1] - felt[1], tip[2] - felt[2])
+        new = (tip[0] - felt[0], tip[1] - felt[1], tip[2] - felt[2])
+        if keep_lat_mm > 0.0 and axis is not None:
+            d = (new[0] - old[0], new[1] - old[1], new[2] - old[2])
+            along = d[0] * axis[0] + d[1] * axis[1] + d[2] * axis[2]
+            lat = (d[0] - along * axis[0], d[1] - along * axis[1], d[2] - along * axis[2])
+            if math.sqrt(lat[0] ** 2 + lat[1] ** 2 + lat[2] ** 2) < keep_lat_mm:
+                new = (old[0] + along * axis[0], old[1] + along * axis[1], old[2] + along * axis[2])
+        self.corr = new
         self.sig_lat = self.sig_ax = resolution_mm
         return old
 

@@ -69,7 +69,12 @@ class OperatorSenses:
         st = self._st
         reading = read_ct(frame, st.axis)
         if reading.tip_mm is not None:
-            old = st.sense.see_tip(reading.tip_mm, st.sense.felt(percept, st.last_cmd), 0.3)
+            # advancing along the plan with a live view (rt_tolerance_mm > 0), it re-aims the tip sideways only past
+            # a seen error; homing in on the tumour (stopped, judging, correcting) and on a scan it takes all of it
+            keep = self.p.rt_tolerance_mm if st.realtime and st.phase is Phase.INSERT and st.stop_reason == "depth" \
+                else 0.0
+            old = st.sense.see_tip(reading.tip_mm, st.sense.felt(percept, st.last_cmd), 0.3, axis=st.axis,
+                                   keep_lat_mm=keep)
             c, r = st.sense.corr, st.ref
             # the belief moved, the hand did not: keep the set-point where it is
             st.ref = (r[0] + c[0] - old[0], r[1] + c[1] - old[1], r[2] + c[2] - old[2])
