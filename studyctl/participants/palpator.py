@@ -153,7 +153,6 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
         self._phase = "sweep"
         self._pose = (self.origin[0] - 5.0, self.origin[1] - 5.0, -5.0)
         self._notes: dict[tuple[str, str], float] = {}
-        self._note_progress: tuple[Any, ...] | None = None  # a press's checkpoints noted so far (PressNotes._note)
         self._belief_depth = 0.0
         self._pressing: _Segment | None = None
         self._ref: dict[tuple[str, str], float | None] | None = None  # normal-tissue reference, after the sweep

@@ -39,49 +39,12 @@ class PressNotes:
     """Mixin of :class:`~studyctl.participants.palpator.VirtualPalpator`: notes a press, then turns it into evidence."""
 
     def _note(self, percept: Mapping[str, Any]) -> None:
-        """Note what the actuators deliver (this tick's percept is the feel at the previous tick's depth).
-
-        Runs every tick, so a press keeps, beside its notes, how many checkpoints of each channel are noted
-        already: checkpoints are increasing fractions of a positive intended depth, so the ones reached form a
-        prefix, and each tick only compares the next ones. The notes are the same, in the same order (the order
-        they are felt in), as a scan of every checkpoint (:meth:`_note_scan`), which handles anything else."""
+        """Note what the actuators deliver (this tick's percept is the feel at the previous tick's depth)."""
         seg = self._pressing
         if seg is None:
             return
+        believed = self._belief_depth
         notes = self._notes
-        progress = self._note_progress
-        if progress is None or progress[0] is not notes or progress[1] is not seg or progress[4] != seg.intended:
-            self._note_scan(percept, seg, notes)
-            return
-        believed = self._belief_depth
-        thresholds, reached = progress[2], progress[3]
-        last = len(thresholds)
-        for i, (ch, peak_key, cp_keys) in enumerate(self._note_keys):
-            v = percept.get(ch)
-            if v.__class__ is not float:
-                v = float(v) if isinstance(v, int | float) and math.isfinite(v) else 0.0
-            elif v - v != 0.0:  # inf or nan
-                v = 0.0
-            old = notes.get(peak_key)
-            if old is None or v > old:
-                notes[peak_key] = v
-            k = reached[i]
-            while k < last and believed >= thresholds[k]:
-                notes[cp_keys[k][1]] = v
-                k += 1
-            reached[i] = k
-        if believed > 0:
-            view = percept.get("view")
-            if isinstance(view, Mapping):
-                seen = view.get("depth_mm")
-                if isinstance(seen, int | float) and seen > 0 and believed >= notes.get(("view", "hand"), 0.0):
-                    notes[("view", "hand")] = believed
-                    notes[("view", "seen")] = float(seen) / seg.scale
-
-    def _note_scan(self, percept: Mapping[str, Any], seg: _Segment, notes: dict[tuple[str, str], float]) -> None:
-        """:meth:`_note` by scanning every checkpoint; then, if the noted checkpoints of each channel are a
-        prefix and the intended depth is positive, keep how many for the next ticks of this press."""
-        believed = self._belief_depth
         for ch, peak_key, cp_keys in self._note_keys:
             v = percept.get(ch)
             v = float(v) if isinstance(v, int | float) and math.isfinite(v) else 0.0
@@ -90,23 +53,8 @@ class PressNotes:
             for c, ck in cp_keys:
                 if ck not in notes and believed >= c * seg.intended - 1e-9:
                     notes[ck] = v
-        self._note_view(percept, seg, notes, believed)
-        self._note_progress = None
-        if seg.intended > 0:
-            reached = []
-            for _ch, _peak_key, cp_keys in self._note_keys:
-                noted = [ck in notes for _c, ck in cp_keys]
-                k = noted.index(False) if False in noted else len(noted)
-                if any(noted[k:]):
-                    return
-                reached.append(k)
-            thresholds = [c * seg.intended - 1e-9 for c in self.checkpoints]
-            self._note_progress = (notes, seg, thresholds, reached, seg.intended)
-
-    def _note_view(self, percept: Mapping[str, Any], seg: _Segment, notes: dict[tuple[str, str], float],
-                   believed: float) -> None:
         view = percept.get("view")
-        if believed > 0 and isinstance(view, Mapping):
+        if isinstance(view, Mapping) and believed > 0:
             seen = view.get("depth_mm")
             # at the deepest point of the press: the hand's depth against the tip depth the camera shows
             if isinstance(seen, int | float) and seen > 0 and believed >= notes.get(("view", "hand"), 0.0):
