@@ -40,9 +40,12 @@ class SlideSurvey:
         if not self.params["slide_survey"] or self._slide_mode or self._slide_checked or self._stage != "survey":
             return
         track = press.get("track") or []
-        if len(track) < 2 or track[-1][0] <= 0.5 or self._r0() * track[-1][1] / track[-1][0] <= 1.05:
+        if len(track) < 2 or track[-1][0] <= 0.5:
             return
-        self._slide_probe_lag = self._r0() * track[-1][1] / track[-1][0] - 1.0
+        lag = self._r0() * track[-1][1] / track[-1][0]  # hand over cursor travel, as R0 maps it (1: no slowing)
+        if lag <= 1.05:
+            return
+        self._slide_probe_lag = lag - 1.0
         self._slide_mode = True
         self._presses.pop()
         lines: list[list[tuple[float, float]]] = [[(press["x"], press["y"])]]

@@ -211,8 +211,9 @@ class SpongePhantomScene(Scene):
     def marks(self) -> tuple[dict[str, Any], ...]:
         """The sites as drawn on an example phantom (seed 000: "the locations of 3 different types of tumors were
         marked"): class, centre and grid cell of each placed tumour. The engine shows them only in practice."""
-        return tuple({"class": t.cls, "x_mm": t.x_mm, "y_mm": t.y_mm, "col": self.grid.cell_of(t.x_mm, t.y_mm)[0],
-                      "row": self.grid.cell_of(t.x_mm, t.y_mm)[1]} for t in self.tumours)
+        cells = [self.grid.cell_of(t.x_mm, t.y_mm) for t in self.tumours]
+        return tuple({"class": t.cls, "x_mm": t.x_mm, "y_mm": t.y_mm, "col": col, "row": row}
+                     for t, (col, row) in zip(self.tumours, cells, strict=True))
 
     def truth(self) -> Mapping[str, Any]:
         return {
