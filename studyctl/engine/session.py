@@ -29,7 +29,7 @@ from studyctl.engine.clock import Clock, SimulatedClock
 from studyctl.engine.factory import PluginFactory
 from studyctl.engine.plan import ConditionSpec, SessionPlan, Step
 from studyctl.engine.questionnaire import questionnaire_context
-from studyctl.engine.recorder import MEMORY_EVENT, Recorder, SessionState
+from studyctl.engine.recorder import Recorder, SessionState
 from studyctl.engine.seeding import person_rng, trial_streams
 from studyctl.engine.servo import ServoProcess
 from studyctl.engine.trial_exec import TrialExecutor
@@ -352,11 +352,8 @@ class SessionRunner(TrialSteps):
         finally:
             if clock is not self.clock:
                 self.clock.sleep_until(self.clock.now() + (clock.now() - t0))
-        memory = getattr(self.participant, "memory", None)
-        mem = memory() if callable(memory) else None
-        if mem:
-            # what was learnt in practice is memory too: a session resumed before the next trial ends goes on with it
-            self.rec.event(MEMORY_EVENT, {"memory": dict(mem)}, position=step.position, commit=False)
+        # what was learnt in practice is memory too: a session resumed before the next trial ends goes on with it
+        self._remember(position=step.position)
         summary = {"elapsed_s": outcome.duration_s, "ended_early": outcome.ended_by == "finish", "paused_s": 0.0,
                    "practice": True, "ended_by": outcome.ended_by, "ticks": outcome.ticks}
         self.ui.trial_end(practice_step, {**summary, "duration_s": outcome.duration_s, "status": "practice"})

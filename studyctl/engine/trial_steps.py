@@ -219,7 +219,8 @@ class TrialSteps:
             "step": step.position,
             "rate_hz": rate,
         }
-        self._remember(tid, outcome.duration_s)  # committed with the trial's record below, whatever its status
+        # committed with the trial's record below, whatever its status
+        self._remember(trial_id=tid, t=outcome.duration_s)
         if outcome.ended_by == "fault":
             error = next((e.get("error") or e.get("rule") for e in reversed(outcome.events)
                           if e.get("kind") == "device_fault"), "the safety layer held the device in its safe state")
@@ -250,10 +251,10 @@ class TrialSteps:
                                 reason=flag["invalid"] or "")
         self.ui.trial_end(step, {**summary, "status": status})
 
-    def _remember(self, tid: int, t: float) -> None:
-        """Store the participant's memory at the end (trial time ``t``) of the trial it ends, committed with the
-        trial's record."""
+    def _remember(self, **where: Any) -> None:
+        """Store the participant's memory where ``where`` places the event (a trial's end: ``trial_id`` and trial
+        time ``t``; a practice: its ``position``), committed with the record that follows."""
         memory = getattr(self.participant, "memory", None)
         mem = memory() if callable(memory) else None
         if mem:
-            self.rec.event(MEMORY_EVENT, {"memory": dict(mem)}, t=t, trial_id=tid, commit=False)
+            self.rec.event(MEMORY_EVENT, {"memory": dict(mem)}, commit=False, **where)
