@@ -73,7 +73,11 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
     sxy = nx * ny
     clamp = outside == "clamp"
 
-    def xy(x: float, y: float) -> tuple[float, float] | None:
+    def pressed_uv(x: float, y: float, d: float) -> tuple[float, float] | None:
+        """Map coordinates (u, v) of a press ``d`` mm deep at (x, y); None where it gives no force: at or above the
+        surface, or off the map (unless clamped)."""
+        if d <= 0.0:
+            return None
         u = (x - x0) * idx
         v = (y - y0) * idy
         if u < 0.0 or v < 0.0 or u > umax or v > vmax:
@@ -95,9 +99,7 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
     if interpolation == "nearest":
 
         def lookup(x: float, y: float, d: float) -> tuple[float, float]:
-            if d <= 0.0:
-                return 0.0, 0.0
-            uv = xy(x, y)
+            uv = pressed_uv(x, y, d)
             if uv is None:
                 return 0.0, 0.0
             i = int(uv[0] + 0.5)
@@ -118,7 +120,7 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
         def lookup(x: float, y: float, d: float) -> tuple[float, float]:
             if d <= 0.0:
                 return 0.0, 0.0
-            # xy() and depth_bracket() inline: this runs every tick in contact
+            # pressed_uv() and depth_bracket() inline: this runs every tick in contact
             u = (x - x0) * idx
             v = (y - y0) * idy
             if u < 0.0 or v < 0.0 or u > umax or v > vmax:
@@ -208,9 +210,7 @@ def make_lookup(smap: StiffnessMap, interpolation: str = DEFAULT_INTERPOLATION, 
         out.extend(float(v) for v in padded.ravel())
 
     def lookup(x: float, y: float, d: float) -> tuple[float, float]:
-        if d <= 0.0:
-            return 0.0, 0.0
-        uv = xy(x, y)
+        uv = pressed_uv(x, y, d)
         if uv is None:
             return 0.0, 0.0
         u, v = uv

@@ -149,13 +149,37 @@ def decayed_step(value: float, target: float, decay: float | None) -> float:
     return target if decay is None else target + (value - target) * decay
 
 
+class _FirstOrderActuator:
+    """An actuator whose state lags its static target by a first-order lag of time constant ``tau_s``.
+
+    A subclass names the target: ``_target(control)``, the state the control settles at (the balloon's pressure,
+    the motor's normalised speed). One place for the three steps both actuators take.
+    """
+
+    tau_s: float
+
+    def _target(self, control: float) -> float:
+        raise NotImplementedError
+
+    def step(self, state: float, control: float, dt: float) -> float:
+        """The state after ``dt`` seconds at ``control``, starting from ``state`` (exact first-order step)."""
+        return first_order_step(state, self._target(control), dt, self.tau_s)
+
+    def decay(self, dt: float) -> float | None:
+        return lag_decay(dt, self.tau_s)
+
+    def step_decayed(self, state: float, control: float, decay: float | None) -> float:
+        """:meth:`step` for ``dt`` > 0 given its :meth:`decay` factor (a loop of equal ticks computes it once)."""
+        return decayed_step(state, self._target(control), decay)
+
+
 # --------------------------------------------------------------------------------------------------
 # Pneumatic balloon: pressure against control amount (solenoid valve opening, 0-100)
 # --------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
-class BalloonModel:
+class BalloonModel(_FirstOrderActuator):
     """Static curve and first-order dynamics of the pneumatic balloon.
 
     Static: ``psi = slope·(c − dead_zone)`` above the dead zone, 0 below, never above the regulator.
@@ -175,16 +199,8 @@ class BalloonModel:
             return 0.0
         return min(max(self.slope_psi * (control - self.dead_zone), 0.0), self.regulator_psi)
 
-    def step(self, psi: float, control: float, dt: float) -> float:
-        """Pressure after ``dt`` seconds at ``control``, starting from ``psi`` (exact first-order step)."""
-        return first_order_step(psi, self.static_psi(control), dt, self.tau_s)
-
-    def decay(self, dt: float) -> float | None:
-        return lag_decay(dt, self.tau_s)
-
-    def step_decayed(self, psi: float, control: float, decay: float | None) -> float:
-        """:meth:`step` for ``dt`` > 0 given its :meth:`decay` factor (a loop of equal ticks computes it once)."""
-        return decayed_step(psi, self.static_psi(control), decay)
+    # the lag's target: the pressure the valve opening settles at (step() lags pressure)
+    _target = static_psi
 
 
 # PSI → N/mm²; the paper's K_psi (6.896e-3), i.e. 0.454 kgf·9.8 / 25.4² as in the BHF code.
@@ -197,7 +213,7 @@ K_PSI_N_PER_MM2 = 6.896e-3
 
 
 @dataclass(frozen=True)
-class VibrationMotorModel:
+class VibrationMotorModel(_FirstOrderActuator):
     """Coin eccentric-rotating-mass motor: frequency and amplitude rise together with PWM duty.
 
     The paper: amplitude and frequency "cannot be modulated independently: both increase as function of
@@ -224,16 +240,8 @@ class VibrationMotorModel:
         """(frequency Hz, acceleration m/s²) at steady state for a PWM duty."""
         return self.output(self._x(duty))
 
-    def step(self, speed: float, duty: float, dt: float) -> float:
-        """Normalised speed x after ``dt`` seconds at ``duty`` (exact first-order step)."""
-        return first_order_step(speed, self._x(duty), dt, self.tau_s)
-
-    def decay(self, dt: float) -> float | None:
-        return lag_decay(dt, self.tau_s)
-
-    def step_decayed(self, speed: float, duty: float, decay: float | None) -> float:
-        """:meth:`step` for ``dt`` > 0 given its :meth:`decay` factor (a loop of equal ticks computes it once)."""
-        return decayed_step(speed, self._x(duty), decay)
+    # the lag's target: the normalised speed x the duty settles at (step() lags x, output() reads it)
+    _target = _x
 
     def output(self, speed: float) -> tuple[float, float]:
         """(frequency Hz, acceleration m/s²) at normalised speed x."""
