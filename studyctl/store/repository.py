@@ -40,7 +40,7 @@ from studyctl.store.models import (
 )
 from studyctl.store.records import load_mark, seal_session
 from studyctl.store.session_records import SessionRecords
-from studyctl.store.values import MAX_TEXT, check_choice, check_seed, check_text, require, schedule_sha256
+from studyctl.store.values import MAX_TEXT, StoredRow, check_choice, check_seed, check_text, require, schedule_sha256
 
 if TYPE_CHECKING:  # pandas (+pyarrow, ~90 MB) is imported where a table is built, so commands that only
     import pandas as pd  # check or refuse stay small processes (issue 19: hostile input within 200 MB)
@@ -168,6 +168,15 @@ class StudyStore(SessionRecords, Closeable):
         with self.db.reading() as s:
             yield s
 
+    # one read each: the row by id (NotFoundError if none), a parent's rows in creation order
+    def _by_id(self, model: type[StoredRow], row_id: int, tx: OrmSession | None) -> StoredRow:
+        with self._read(tx) as s:
+            return require(s, model, row_id)
+
+    def _children(self, model: type[StoredRow], parent: Any, parent_id: int, tx: OrmSession | None) -> list[StoredRow]:
+        with self._read(tx) as s:
+            return list(s.scalars(select(model).where(parent == parent_id).order_by(model.id)))
+
     # -- participants -----------------------------------------------------------------------------
     def add_participant(
         self,
@@ -224,13 +233,11 @@ class StudyStore(SessionRecords, Closeable):
         return p
 
     def get_participant_by_id(self, participant_id: int, *, tx: OrmSession | None = None) -> Participant:
-        with self._read(tx) as s:
-            return require(s, Participant, participant_id)
+        return self._by_id(Participant, participant_id, tx)
 
     def list_participants(self, study_id: int, *, tx: OrmSession | None = None) -> list[Participant]:
         """All participants of a study in enrollment order."""
-        with self._read(tx) as s:
-            return list(s.scalars(select(Participant).where(Participant.study_id == study_id).order_by(Participant.id)))
+        return self._children(Participant, Participant.study_id, study_id, tx)
 
     def set_participant_status(
         self, participant_id: int, status: str, *, reason: str | None = None, tx: OrmSession | None = None
@@ -272,12 +279,10 @@ class StudyStore(SessionRecords, Closeable):
         return sess
 
     def get_session(self, session_id: int, *, tx: OrmSession | None = None) -> Session:
-        with self._read(tx) as s:
-            return require(s, Session, session_id)
+        return self._by_id(Session, session_id, tx)
 
     def list_sessions(self, participant_id: int, *, tx: OrmSession | None = None) -> list[Session]:
-        with self._read(tx) as s:
-            return list(s.scalars(select(Session).where(Session.participant_id == participant_id).order_by(Session.id)))
+        return self._children(Session, Session.participant_id, participant_id, tx)
 
     def update_session(self, session_id: int, *, tx: OrmSession | None = None, **fields: Any) -> Session:
         """Change a session's ``status``, ``ended_at``, ``resume_count``, ``seed`` or ``site`` (audited)."""
@@ -359,8 +364,7 @@ class StudyStore(SessionRecords, Closeable):
         return trial
 
     def get_trial(self, trial_id: int, *, tx: OrmSession | None = None) -> Trial:
-        with self._read(tx) as s:
-            return require(s, Trial, trial_id)
+        return self._by_id(Trial, trial_id, tx)
 
     def list_trials(
         self, *, session_id: int | None = None, participant_id: int | None = None, tx: OrmSession | None = None

@@ -17,7 +17,7 @@ from studyctl.store.models import Participant, Session, Study, Trial
 
 MAX_TEXT = 200
 _SEED_LIMIT = 2**63
-_Row = TypeVar("_Row", Study, Participant, Session, Trial)
+StoredRow = TypeVar("StoredRow", Study, Participant, Session, Trial)
 
 
 def check_text(value: Any, what: str, *, max_len: int = MAX_TEXT, allow_none: bool = False) -> str | None:
@@ -40,7 +40,7 @@ def check_text(value: Any, what: str, *, max_len: int = MAX_TEXT, allow_none: bo
     return value
 
 
-def require(s: OrmSession, model: type[_Row], key: int) -> _Row:
+def require(s: OrmSession, model: type[StoredRow], key: int) -> StoredRow:
     """``s.get(model, key)``, or :class:`NotFoundError` ``no <table> with id <key>``."""
     row = s.get(model, key)
     if row is None:
