@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -86,3 +87,15 @@ def loads_json(text: str | bytes, *, max_depth: int = MAX_JSON_DEPTH) -> Any:
 
 
 __all__ = ["MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "json_depth", "loads_json", "read_text"]
+
+
+def xy_pair(tokens: Sequence[str], *, wrong_count: str, not_numbers: str,
+            error: type[Exception] = UsageError) -> tuple[float, float]:
+    """A typed position (x and y in mm) from its tokens: ``error(wrong_count)`` unless there are two,
+    ``error(not_numbers)`` unless both are numbers. Range checks are the caller's (its bounds, its message)."""
+    if len(tokens) != 2:
+        raise error(wrong_count)
+    try:
+        return float(tokens[0]), float(tokens[1])
+    except ValueError:
+        raise error(not_numbers) from None

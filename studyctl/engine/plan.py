@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
 from studyctl.errors import InvalidAnswer, SessionError
+from studyctl.inputs import xy_pair
 
 StepKind = Literal["instructions", "familiarisation", "trial", "break", "questionnaire", "end"]
 STEP_KINDS: tuple[str, ...] = ("instructions", "familiarisation", "trial", "break", "questionnaire", "end")
@@ -121,12 +122,8 @@ class ReportSpec:
             return {"column": cols[col.upper()], "row": row}
         if self.kind == "position":
             tokens = [t for t in re.split(r"[\s,;]+", raw) if t]
-            if len(tokens) != 2:
-                raise InvalidAnswer(f"{raw!r}: give {self.describe()}")
-            try:
-                x, y = float(tokens[0]), float(tokens[1])
-            except ValueError:
-                raise InvalidAnswer(f"{raw!r}: x and y must be numbers in mm") from None
+            x, y = xy_pair(tokens, wrong_count=f"{raw!r}: give {self.describe()}",
+                           not_numbers=f"{raw!r}: x and y must be numbers in mm", error=InvalidAnswer)
             x0, x1, y0, y1 = self.bounds_mm
             if not (math.isfinite(x) and math.isfinite(y) and x0 <= x <= x1 and y0 <= y <= y1):
                 raise InvalidAnswer(f"({x:g}, {y:g}) mm is outside the tissue (x {x0:g}–{x1:g}, y {y0:g}–{y1:g})")

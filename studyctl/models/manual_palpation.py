@@ -21,6 +21,7 @@ from typing import Any
 import pandas as pd
 
 from studyctl.errors import UsageError
+from studyctl.inputs import xy_pair
 
 
 @dataclass(frozen=True)
@@ -52,13 +53,9 @@ def parse_positions(text: str) -> list[tuple[float, float]]:
     entries = [e.strip() for e in re.split(r"[;\n]+", text or "") if e.strip()]
     for k, entry in enumerate(entries, start=1):
         tokens = [t for t in re.split(r"[\s,]+", entry.strip("()[] ")) if t]
-        if len(tokens) != 2:
-            raise UsageError(f"position {k} {entry!r}: give x and y in mm, e.g. '35 80'; separate positions with ';'")
-        try:
-            x, y = float(tokens[0]), float(tokens[1])
-        except ValueError:
-            raise UsageError(f"position {k} {entry!r}: x and y must be numbers in mm") from None
-        out.append((x, y))
+        where = f"position {k} {entry!r}"
+        out.append(xy_pair(tokens, wrong_count=f"{where}: give x and y in mm, e.g. '35 80'; separate positions "
+                           "with ';'", not_numbers=f"{where}: x and y must be numbers in mm"))
     return out
 
 
