@@ -65,7 +65,8 @@ PARAMS = (
                  "With continuous vision people plan less carefully and rely on discrete online corrections "
                  "(two-component model, Elliott et al. 2010, Psychol Bull 136:1023-1044); human visuomotor control "
                  "is intermittent, acting when a seen error passes a threshold (Gawthrop, Loram, Lakie & Gollee "
-                 "2011, Biol Cybern 104:31-51)"),
+                 "2011, Biol Cybern 104:31-51). Only until it is margin_mm short of the believed tumour: closer in it "
+                 "is homing in and corrects every seen error (the same model's visually controlled homing phase)"),
     # ---------------------------------------------------------------- position sense
     Param("proprio_drift", 0.15, 0.0, 1.0, unit="mm/√mm",
           source="CHOSEN: position-sense drift per √mm moved, per axis (between-person trait)"),

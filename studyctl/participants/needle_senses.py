@@ -69,10 +69,7 @@ class OperatorSenses:
         st = self._st
         reading = read_ct(frame, st.axis)
         if reading.tip_mm is not None:
-            # advancing along the plan with a live view (rt_tolerance_mm > 0), it re-aims the tip sideways only past
-            # a seen error; homing in on the tumour (stopped, judging, correcting) and on a scan it takes all of it
-            keep = self.p.rt_tolerance_mm if st.realtime and st.phase is Phase.INSERT and st.stop_reason == "depth" \
-                else 0.0
+            keep = self._sideways_tolerance(percept)
             old = st.sense.see_tip(reading.tip_mm, st.sense.felt(percept, st.last_cmd), 0.3, axis=st.axis,
                                    keep_lat_mm=keep)
             c, r = st.sense.corr, st.ref
@@ -85,6 +82,23 @@ class OperatorSenses:
         if st.plan is None and reading.tumour_mm is not None and reading.marker_mm is not None:
             self._make_plan(reading.tumour_mm, reading.marker_mm)
         return reading
+
+    def _sideways_tolerance(self, percept: Mapping[str, Any]) -> float:
+        """How far off sideways a look at the live view may show the tip before it re-aims (``rt_tolerance_mm``).
+
+        Only in the first, ballistic part of the advance: advancing along the plan and still more than
+        ``margin_mm`` short of where it believes the tumour is. Closer in it is homing in and corrects every seen
+        error, as aiming does in the two-component model (an initial impulse, then a homing phase under visual
+        control that sets the endpoint's accuracy: Elliott et al. 2010, Psychol Bull 136:1023). Stopped,
+        judging, correcting, and on a requested scan it takes all of the error.
+        """
+        st, p = self._st, self.p
+        if p.rt_tolerance_mm <= 0.0 or not st.realtime or st.phase is not Phase.INSERT or st.stop_reason != "depth":
+            return 0.0
+        pl = st.need_plan()
+        if pl.depth(self._belief(percept)) >= pl.length - p.margin_mm:
+            return 0.0
+        return p.rt_tolerance_mm
 
     def _make_plan(self, t: Vec, m: Vec) -> None:
         st = self._st

@@ -133,13 +133,13 @@ def test_with_rt_tolerance_a_live_view_re_aims_the_tip_only_past_a_seen_sideways
     from studyctl.participants import needle_senses
     from studyctl.participants.ct_reader import CTReading
 
-    def sees(op, tip, visual, why="depth"):
+    def sees(op, tip, visual, why="depth", hand_z=10.0):
         op.begin_trial(TrialInfo("RT" if visual == "realtime" else "BL", 90.0, 1000.0, visual),
                        np.random.default_rng(1))
         op._make_plan((0.0, 0.0, -20.0), (0.0, 0.0, 35.0))
         op.s.axis, op.s.phase, op.s.stop_reason = (0.0, 0.0, -1.0), Phase.INSERT, why
         monkeypatch.setattr(needle_senses, "read_ct", lambda frame, axis: CTReading(None, None, tip))
-        op._take_image({}, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 10.0})
+        op._take_image({}, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": hand_z})
         return op.s.sense.corr
 
     tip = (1.0, 0.0, 9.0)  # the image shows the tip 1 mm off sideways and 1 mm deeper than the hand feels it
@@ -149,6 +149,11 @@ def test_with_rt_tolerance_a_live_view_re_aims_the_tip_only_past_a_seen_sideways
     assert sees(lax, (2.0, 0.0, 9.0), "realtime") == pytest.approx((2.0, 0.0, -1.0))  # past it: re-aimed
     assert sees(lax, tip, "on_request") == pytest.approx((1.0, 0.0, -1.0))  # a scan is read in full
     assert sees(lax, tip, "realtime", "correct") == pytest.approx((1.0, 0.0, -1.0))  # homing in: all of it
+    # advancing, but within margin_mm (6) of where it believes the tumour (55 mm along the plan): homing in too, so
+    # the endpoint is set under visual control (two-component model); 1 mm further out it still lets 1 mm go
+    near = (1.0, 0.0, -16.0)
+    assert sees(lax, near, "realtime", hand_z=-15.0) == pytest.approx((1.0, 0.0, -1.0))
+    assert sees(lax, (1.0, 0.0, -12.0), "realtime", hand_z=-11.0) == pytest.approx((0.0, 0.0, -1.0))
     s = PositionSense(3.0)
     s.see_tip((0.5, 0.0, 0.0), (0.0, 0.0, 0.0), 0.3, axis=(0.0, 0.0, 1.0), keep_lat_mm=1.0)
     assert s.corr == (0.0, 0.0, 0.0) and s.sig_lat == 0.3
