@@ -39,7 +39,9 @@ example phantom with the 3 tumour sites marked. With it on, the engine runs that
 condition's device and controller (``info.public["practice"]``, the marks in ``info.public["marks"]``): the person
 presses each mark and as many plain cells ``practice_presses`` times, learns which notes told tumour from sponge and
 by how much (:mod:`studyctl.participants.palpator_practice`), and in the trial that follows judges each cell by those
-notes weighted together instead of by its strongest note.
+notes weighted together instead of by its strongest note; with ``report_rule: odds`` it then reports a cell when the
+practice makes a tumour there likelier than not (the criterion from the separation it learnt and the 3 marked of 49
+cells), not at the fixed ``report_z``.
 
 Between people, every perceptual, motor and decision parameter may differ (a population file draws them);
 within a person, the press speed varies from trial to trial (``speed_trial_cv``) and the depth from press to

@@ -71,6 +71,12 @@ PARAMS = (
           "the non-signal stimuli, external and internal (Green & Swets 1966; Lu & Dosher 2008, external noise); "
           "a feedback that varies from press to press on plain sponge (the hand's depth varies by depth_cv) "
           "marks fewer plain cells as different. False: only the Weber noise of the senses"),
+    Param("report_rule", "z", kind=str, choices=("z", "odds"),
+          source="CHOSEN: what evidence a practised person needs to report a cell. z: report_z noise SDs, whatever "
+          "was learnt. odds: after familiarisation, report when a tumour is more likely there than not, by the "
+          "separation of tumour from sponge the practice showed and the share of marked cells on the example "
+          "phantom (3 of 49): the likelihood-ratio criterion of signal detection with equal costs (Green & Swets "
+          "1966); without practice (or when nothing was learnt) report_z"),
     Param("screen_z", 2.0, 0.0, 10.0, source="FITTED: re-probe a cell whose evidence exceeds this"),
     Param("report_z", 3.5, 0.0, 10.0, source="FITTED: confidence needed to report a cell"),
     Param("confirm_presses", 2, 0, 10, kind=int, source="CHOSEN: re-probes of a candidate cell"),

@@ -47,6 +47,7 @@ class CueWeights:
     centres: tuple[float, ...]
     spread: float  # SD of one plain press's combined evidence
     separation: float  # mean tumour-minus-plain combined evidence of one practice press, in spreads
+    prior: float = 0.0  # share of the example phantom's cells that were marked tumours (0: not known)
 
     def combine(self, logs: Mapping[Key, float]) -> float | None:
         """One press's combined evidence (a cue not noted in this press counts as plain: adds 0); None when no
@@ -62,19 +63,21 @@ class CueWeights:
 
     def to_json(self) -> dict[str, Any]:
         return {"keys": [list(k) for k in self.keys], "weights": list(self.weights), "centres": list(self.centres),
-                "spread": self.spread, "separation": self.separation}
+                "spread": self.spread, "separation": self.separation, "prior": self.prior}
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> CueWeights:
         return cls(tuple((str(a), str(b)) for a, b in data["keys"]), tuple(float(v) for v in data["weights"]),
-                   tuple(float(v) for v in data["centres"]), float(data["spread"]), float(data["separation"]))
+                   tuple(float(v) for v in data["centres"]), float(data["spread"]), float(data["separation"]),
+                   float(data.get("prior", 0.0)))
 
 
 def learn_cue_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Mapping[Key, float]],
-                      floor: Mapping[str, float]) -> CueWeights | None:
+                      floor: Mapping[str, float], prior: float = 0.0) -> CueWeights | None:
     """Weights from the log-notes of practice presses on marked tumours and on plain sponge (one mapping per press).
 
-    ``floor``: per channel, the variance no cue of it can go below (the sense's own Weber noise squared). None when
+    ``floor``: per channel, the variance no cue of it can go below (the sense's own Weber noise squared); ``prior``:
+    the share of the phantom's cells that were marked tumours (kept for the report criterion). None when
     no cue was noted often enough or the combined evidence does not vary on plain sponge.
     """
     keys: list[Key] = []
@@ -106,7 +109,7 @@ def learn_cue_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Map
     if not spread > 0:
         return None
     separation = (sum(s_tumour) / len(s_tumour) - mean_p) / spread
-    return CueWeights(draft.keys, draft.weights, draft.centres, spread, separation)
+    return CueWeights(draft.keys, draft.weights, draft.centres, spread, separation, prior)
 
 
 class Familiarisation:
@@ -144,7 +147,9 @@ class Familiarisation:
         plain = [logs for cell, logs in self._press_logs if cell not in self._marked]
         floor = {ch: sense.sigma**2 for ch, sense in self.senses.items()}
         floor[VISUAL[0]] = self.senses["view"].sigma ** 2
-        self.cues = learn_cue_weights(tumour, plain, floor)
+        # what the example phantom showed: this many marked tumours among its cells (the prior of the report rule)
+        prior = len(self._marked) / max(self.columns * self.rows, 1)
+        self.cues = learn_cue_weights(tumour, plain, floor, prior)
         self._finished = True
         return Action(inputs={"x_mm": self._pose[0], "y_mm": self._pose[1], "depth_mm": -5.0},
                       requests=(Request("finish"),))

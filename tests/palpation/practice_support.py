@@ -1,4 +1,5 @@
-"""A practice run of the virtual palpator on seed 000's example phantom, as the engine gives it (for the tests)."""
+"""A practice run of the virtual palpator on seed 000's example phantom, as the engine gives it, and a trial after it
+(for the tests and scripts/palpation_practice_decision.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,15 @@ from studyctl.plugins.interfaces import TrialInfo
 from studyctl.scenes.sponge import SpongePhantomScene
 
 EXAMPLE = {"hard": 1, "medium": 2, "soft": 3}  # the engine's example phantom: the items at sites 1, 2, 3
+SITES = ({"soft": 1, "medium": 3, "hard": 7}, {"soft": 5, "medium": 2, "hard": 4}, {"soft": 6, "medium": 7,
+                                                                                         "hard": 1})
+
+
+def found(out, scene):
+    """Per tumour class: was a report within one cell of it (the paper's rule)?"""
+    truth = scene.truth()["tumours"]
+    return {t["class"]: any(max(abs(r["column"] - t["col"]), abs(r["row"] - t["row"])) <= 1 for r in out.reports)
+            for t in truth}
 
 
 def practise(person, controller_cls, seed, marks=True):
@@ -31,3 +41,19 @@ def practise(person, controller_cls, seed, marks=True):
                     rng=np.random.default_rng(seed + 2), view=scene.view, on_sample=spy)
     device.close()
     return out, scene, positions
+
+
+def trial_after_practice(person, controller_cls, k):
+    """Trial ``k`` of the broken-controller checks: a person who familiarises practises first with the trial's
+    controller (seed 100 + k), then palpates tumours at ``SITES[k % 3]`` with the camera view."""
+    if person.practises:
+        practise(person, controller_cls, seed=100 + k)
+    sites = SITES[k % len(SITES)]
+    scene = SpongePhantomScene.build({}, {"sites": sites}, frozenset({"view"}), np.random.default_rng(k))
+    device = SimulatedPalpationDevice({}, scene, np.random.default_rng(k + 1))
+    device.open()
+    out = run_trial(info=TrialInfo(controller_cls.name, 600.0, 50.0, public=dict(scene.public()), visual="realtime"),
+                    controller=controller_cls({}, scene), device=device, participant=person,
+                    clock=SimulatedClock(), rng=np.random.default_rng(k + 2), view=scene.view)
+    device.close()
+    return out, scene

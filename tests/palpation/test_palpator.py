@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from palpation.practice_support import SITES, found, trial_after_practice
 
 from studyctl.controllers.palpation import LinearController, NoFeedback
 from studyctl.devices.palpation import SimulatedPalpationDevice
@@ -37,16 +38,6 @@ def trial(controller_cls, sites, seed, params=None, limit=600.0):
     )
     device.close()
     return out, scene, device, samples
-
-
-def found(out, scene):
-    truth = scene.truth()["tumours"]
-    return {t["class"]: any(max(abs(r["column"] - t["col"]), abs(r["row"] - t["row"])) <= 1 for r in out.reports)
-            for t in truth}
-
-
-SITES = ({"soft": 1, "medium": 3, "hard": 7}, {"soft": 5, "medium": 2, "hard": 4}, {"soft": 6, "medium": 7,
-                                                                                         "hard": 1})
 
 
 def test_without_feedback_reports_do_not_depend_on_the_tumours():
@@ -209,33 +200,16 @@ def test_a_broken_controller_is_noticed_by_the_shipped_population():
     """`none` in place of the bio-inspired controller: the population's typical person (every trait at its
     location), on the same tumours and seeds, finds fewer tumours. A person who familiarises practises first with
     the controller of the trial, on the example phantom, as the engine runs it."""
-    from palpation.practice_support import practise
-
     from studyctl.controllers.bio_inspired import BioInspiredController
     from studyctl.populations import load_population_file, shipped_population_path
 
     pop = load_population_file(shipped_population_path("bio_inspired_palpation"))
     params = pop.params({t.name: t.value(0.0) for t in pop.traits})
-    found_bio = found_none = 0
-    for k in range(4):
-        sites = SITES[k % len(SITES)]
-        for controller_cls in (BioInspiredController, NoFeedback):
-            person = VirtualPalpator(params)
-            if person.practises:
-                practise(person, controller_cls, seed=100 + k)
-            scene = SpongePhantomScene.build({}, {"sites": sites}, frozenset({"view"}), np.random.default_rng(k))
-            device = SimulatedPalpationDevice({}, scene, np.random.default_rng(k + 1))
-            device.open()
-            out = run_trial(info=TrialInfo(controller_cls.name, 600.0, 50.0, public=dict(scene.public()),
-                                           visual="realtime"),
-                            controller=controller_cls({}, scene), device=device, participant=person,
-                            clock=SimulatedClock(), rng=np.random.default_rng(k + 2), view=scene.view)
-            n = sum(found(out, scene).values())
-            if controller_cls is NoFeedback:
-                found_none += n
-            else:
-                found_bio += n
-    assert found_bio >= found_none + 3
+    counts = {}
+    for controller_cls in (BioInspiredController, NoFeedback):
+        runs = (trial_after_practice(VirtualPalpator(params), controller_cls, k) for k in range(4))
+        counts[controller_cls] = sum(sum(found(out, scene).values()) for out, scene in runs)
+    assert counts[BioInspiredController] >= counts[NoFeedback] + 3
 
 
 @pytest.mark.slow
