@@ -1,4 +1,5 @@
-"""The "did you mean …?" hint for a misspelt name: one matcher for protocols, plans, plugins and CLI.
+"""Names: the "did you mean …?" hint for a misspelt name (one matcher for protocols, plans, plugins and CLI),
+and :func:`named`, the one lookup of an item by its id or name.
 
 ``difflib`` closeness with its usual cutoff (0.6), the single best match only, compared case-insensitively
 (``studdy`` and ``Study`` both find ``study``; ``bl`` in an analysis plan finds the condition ``BL``).
@@ -8,6 +9,11 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterable
+from typing import TypeVar
+
+from studyctl.errors import UnknownKeyError
+
+T = TypeVar("T")
 
 
 def nearest(word: object, choices: Iterable[object], *, ignore_case: bool = True) -> str | None:
@@ -40,3 +46,17 @@ def did_you_mean(word: object, choices: Iterable[object], *, ignore_case: bool =
     """``"; did you mean 'x'?"`` for the nearest choice (see :func:`nearest`), or an empty string."""
     hit = nearest(word, choices, ignore_case=ignore_case)
     return f"; did you mean {hit!r}?" if hit is not None else ""
+
+
+def named(items: Iterable[T], wanted: object, *, what: str, plural: str, key: str = "id", where: str = "") -> T:
+    """The item whose ``key`` attribute equals ``wanted`` (a protocol's condition, a plan's test, a trait …).
+
+    None: :class:`~studyctl.errors.UnknownKeyError` (a ``KeyError``) ``no {what} {wanted!r}{where}; {plural} are
+    {the names in order}`` (``none`` when there are none), so every such lookup refuses in the same words.
+    """
+    pool = tuple(items)
+    for item in pool:
+        if getattr(item, key) == wanted:
+            return item
+    known = ", ".join(str(getattr(i, key)) for i in pool) or "none"
+    raise UnknownKeyError(f"no {what} {wanted!r}{where}; {plural} are {known}")

@@ -51,10 +51,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from studyctl import yamlmarks
 from studyctl.analysis.metric_defs import BUILTIN
 from studyctl.analysis.plan_checks import check_names, dotted
-from studyctl.errors import ProtocolError, UnknownKeyError, ValueTypeError
+from studyctl.errors import ProtocolError, ValueTypeError
 from studyctl.inputs import read_text
 from studyctl.problems import Problem
-from studyctl.suggest import did_you_mean
+from studyctl.suggest import did_you_mean, named
 from studyctl.yamlmarks import MarkedData
 
 ROLES = ("paper", "within_subject", "supplementary")
@@ -234,10 +234,7 @@ class AnalysisPlan(_Strict):
         return {**(dict(builtin.params) if builtin else {}), **self.metrics[metric_id].params}
 
     def test(self, test_id: str) -> PlanTest:
-        for t in self.tests:
-            if t.id == test_id:
-                return t
-        raise UnknownKeyError(f"no test {test_id!r} in the plan; tests are {', '.join(t.id for t in self.tests)}")
+        return named(self.tests, test_id, what="test", plural="tests", where=" in the plan")
 
     def csv_path(self) -> Path | None:
         """The CSV data file, resolved against the plan's folder."""

@@ -35,7 +35,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from studyctl.errors import NotSupportedError, UnknownKeyError
+from studyctl.errors import NotSupportedError
+from studyctl.suggest import named
 
 Channels = Mapping[str, float]
 
@@ -62,10 +63,7 @@ class DeviceLimits:
     ramp_up_s: float = 0.0  # outputs are scaled 0→1 over this time after enable
 
     def channel(self, name: str) -> ChannelLimit:
-        for limit in self.outputs:
-            if limit.name == name:
-                return limit
-        raise UnknownKeyError(f"no output channel {name!r}; channels are {', '.join(c.name for c in self.outputs)}")
+        return named(self.outputs, name, what="output channel", plural="channels", key="name")
 
     def safe_command(self) -> dict[str, float]:
         return {c.name: c.safe for c in self.outputs}

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from studyctl.errors import UnknownKeyError
+from studyctl.suggest import named
 
 FORMAT = "studyctl-population/1"
 DISTS = ("normal", "lognormal", "logitnormal", "fixed")
@@ -129,11 +129,8 @@ class TraitPopulation:
         return f"{self.name} v{self.version} (sha256 {self.sha256[:12]})"
 
     def trait(self, name: str) -> Trait:
-        for t in self.traits:
-            if t.name == name:
-                return t
-        known = ", ".join(t.name for t in self.traits)
-        raise UnknownKeyError(f"no trait {name!r} in population {self.name!r}; traits are {known}")
+        return named(self.traits, name, what="trait", plural="traits", key="name",
+                     where=f" in population {self.name!r}")
 
     def draw(self, rng: np.random.Generator, stratum: str | None = None) -> dict[str, float]:
         """One person's traits: one standard normal per trait in sorted name order (see module docs)."""

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from studyctl.errors import NotFoundError, PopulationError, UnknownKeyError
-from studyctl.suggest import did_you_mean
+from studyctl.errors import NotFoundError, PopulationError
+from studyctl.suggest import did_you_mean, named
 
 TARGETS_FORMAT = "studyctl-targets/1"
 STATISTICS = (
@@ -165,10 +165,7 @@ class TargetSet:
         return tuple(t for t in self.targets if t.role == role)
 
     def get(self, target_id: str) -> Target:
-        for t in self.targets:
-            if t.id == target_id:
-                return t
-        raise UnknownKeyError(f"no target {target_id!r}; targets are {', '.join(t.id for t in self.targets)}")
+        return named(self.targets, target_id, what="target", plural="targets")
 
 
 def load_targets_file(path: str | Path, *, plan: Any | None = None, protocol: Any | None = None) -> TargetSet:

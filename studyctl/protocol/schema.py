@@ -15,7 +15,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr
 
-from studyctl.errors import ProtocolError, UnknownKeyError
+from studyctl.errors import ProtocolError
+from studyctl.suggest import named
 
 FORMAT_VERSION = 1
 ID_PATTERN = r"^[A-Za-z][A-Za-z0-9_\-]*$"
@@ -322,27 +323,15 @@ class Protocol(StrictModel):
 
     def condition(self, condition_id: str) -> Condition:
         """The condition with this id (:class:`~studyctl.errors.UnknownKeyError`, a ``KeyError``, if none)."""
-        for condition in self.conditions:
-            if condition.id == condition_id:
-                return condition
-        known = ", ".join(c.id for c in self.conditions)
-        raise UnknownKeyError(f"no condition {condition_id!r}; conditions are {known}")
+        return named(self.conditions, condition_id, what="condition", plural="conditions")
 
     def instrument(self, instrument_id: str) -> Instrument:
         """The questionnaire instrument with this id (:class:`~studyctl.errors.UnknownKeyError` if none)."""
-        for instrument in self.instruments:
-            if instrument.id == instrument_id:
-                return instrument
-        raise UnknownKeyError(
-            f"no instrument {instrument_id!r}; instruments are {', '.join(i.id for i in self.instruments) or 'none'}"
-        )
+        return named(self.instruments, instrument_id, what="instrument", plural="instruments")
 
     def stratum(self, stratum_id: str) -> Stratum:
         """The stratum with this id (:class:`~studyctl.errors.UnknownKeyError` if none)."""
-        for stratum in self.participants.strata:
-            if stratum.id == stratum_id:
-                return stratum
-        raise UnknownKeyError(f"no stratum {stratum_id!r}; strata are {', '.join(self.stratum_ids)}")
+        return named(self.participants.strata, stratum_id, what="stratum", plural="strata")
 
 
 # Section models reachable by a key path: used to list the allowed keys of an unknown-key error.
