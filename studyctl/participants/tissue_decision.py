@@ -15,6 +15,24 @@ import numpy as np
 from studyctl.participants.tissue_perception import _depth_matched
 
 
+def _cue_signal(z: np.ndarray) -> float:
+    """How much one cue has shown over a slid survey, in its own noise SDs: the square root of the mean squared z
+    of its records beyond the 1 that noise alone gives (the method-of-moments amplitude of what stood out).
+
+    Why: z scores of two independent cues are best added weighted by each cue's detectability d' (the ideal
+    observer's linear combination, Green & Swets 1966; the detection form of Ernst & Banks 2002's inverse-variance
+    weighting); equal weights (Stouffer) halve a clear cue's evidence where the other shows nothing. The person
+    judges d' only from what it sensed: the records are its own, nothing about where nodules are enters. With
+    both cues at the same windows, the share of windows over a nodule is the same for both, so this amplitude is
+    proportional to each cue's d'. At least ``_MIN_SIGNAL``: a cue that showed nothing still counts a little."""
+    if z.size == 0:
+        return _MIN_SIGNAL
+    return max(math.sqrt(max(float(np.mean(z * z)) - 1.0, 0.0)), _MIN_SIGNAL)
+
+
+_MIN_SIGNAL = 0.05  # CHOSEN: a twentieth of a noise SD
+
+
 class SpotDecision:
     """Mixin of :class:`~studyctl.participants.tissue_palpator.VirtualTissuePalpator`: spots and reports."""
 
@@ -80,8 +98,12 @@ class SpotDecision:
                 # A slide's cursor cue reads how the slowing changes along the line, not how much stiffer a spot
                 # is: its contrasts are on another scale than the push's, so averaging the two as estimates of one
                 # contrast lets the push (small contrast, small noise) drown a clear slowing. Each cue counts as
-                # evidence in its own SDs instead (Stouffer's combination, weighted by trust).
+                # evidence in its own SDs instead (Stouffer's combination, weighted by trust), and with
+                # slide_fusion: reliability each cue's z is weighted by how much it has shown (_cue_signal).
                 contrast, sigma = contrast / sigma, 1.0
+                if p["slide_fusion"] == "reliability":
+                    signal = _cue_signal(contrast[survey & ok])
+                    contrast, sigma = contrast / signal, 1.0 / signal
             w = trust[name] / sigma**2  # a cue believed less weighs less, and its evidence counts less
             if w <= 0:
                 continue

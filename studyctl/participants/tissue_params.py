@@ -96,6 +96,11 @@ PARAMS = (
           source="CHOSEN: the hand's sliding speed before tempo (seed 003's rolling indentation scanned at 30 mm/s)"),
     Param("slide_window_mm", 4.0, low=0.5, high=50.0, unit="mm",
           source="CHOSEN: one sideways-slowing judgement per this much cursor travel (under the 6 mm nodule's size)"),
+    Param("slide_fusion", "stouffer", kind=str, choices=("stouffer", "reliability"),
+          source="CITED: how a slid survey adds its cues' evidence (z in each cue's own noise SDs): stouffer, with "
+          "equal weights (times trust); reliability, each weighted by the detectability it showed over the survey, "
+          "sqrt(mean z² - 1) of its own records (the ideal observer's weights for independent cues, Green & Swets "
+          "1966; the detection form of Ernst & Banks 2002)"),
     Param("slide_damping", 1.0, low=1.0, high=10.0, unit="x",
           source="CHOSEN: how much more steadily the stylus is held while sliding against a felt push: a factor on "
           "the device hand's damping (its grip_damping input; 3 makes the relaxed 300 N/m, 8 N·s/m, 0.5 kg hold about "

@@ -163,3 +163,43 @@ def test_the_device_hand_holds_the_handle_steadier_with_more_grip_damping():
         assert zs[-1] == pytest.approx(5.0, abs=0.05)
     assert peaks[None] > 5.0 * 1.25  # ~33 % overshoot at ratio 0.33
     assert peaks[3.0] < 5.0 * 1.01
+
+
+def _slid(person: VirtualTissuePalpator, push_shift: float) -> None:
+    """A slid 15 x 15 survey (noise 1 % on the push, 25 % on the slowing) with a 3 x 3 patch over a nodule in the
+    middle where the slowing is 2.4 noise SDs stronger and the push ``push_shift`` noise SDs stronger."""
+    rng = np.random.default_rng(5)
+    rows = []
+    for i in range(15):
+        for j in range(15):
+            nodule = abs(i - 7) <= 1 and abs(j - 7) <= 1
+            e1, e2 = rng.normal(size=2)
+            felt = 1.0 + 0.01 * ((push_shift if nodule else 0.0) + e1)
+            lag = 0.4 * (1.0 + 0.25 * ((2.4 if nodule else 0.0) + e2))
+            depth = 4.5 + rng.random()
+            rows.append({"x": 4.0 * i, "y": 4.0 * j, "force": felt / depth, "felt": felt, "seen": depth,
+                         "ratio": 1.0 + lag, "ratio_seen": depth, "stage": "survey"})
+    person._presses = rows
+    person._air_dc.extend([1.0] * 10)
+    person._air_dh.extend([1.0] * 10)
+
+
+def _nodule_z(fusion: str, push_shift: float) -> float:
+    person = _person(slide_survey=True, baseline_radius_mm=200.0, slide_fusion=fusion)
+    person._slide_mode = True
+    _slid(person, push_shift)
+    pts, contrast, sigma = person._evidence()
+    spot = np.hypot(pts[:, 0] - 28.0, pts[:, 1] - 28.0) <= 4.5
+    w = 1.0 / sigma[spot] ** 2
+    return float((w * contrast[spot]).sum() / np.sqrt(w.sum()))  # the patch's evidence in noise SDs
+
+
+def test_a_slid_survey_weighs_each_cue_by_what_it_has_shown():
+    """slide_fusion: reliability. Where the push shows nothing of a nodule the slowing shows clearly, equal weights
+    (Stouffer) cost the slowing's evidence about 1/√2; weighted by what each cue showed over the survey, the patch
+    stands out nearly as much as by the slowing alone. Where both show it alike, both weightings agree."""
+    blind_equal, blind_weighted = _nodule_z("stouffer", 0.0), _nodule_z("reliability", 0.0)
+    assert blind_weighted > 1.25 * blind_equal
+    both_equal, both_weighted = _nodule_z("stouffer", 2.4), _nodule_z("reliability", 2.4)
+    assert abs(both_weighted / both_equal - 1.0) < 0.1
+    assert both_weighted > blind_weighted  # the push adds where it shows the nodule
