@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import select, update
+from sqlalchemy import bindparam, select, update
 from sqlalchemy.orm import Session
+from sqlalchemy.orm.util import identity_key
 
 from studyctl.errors import UsageError, ValueTypeError
 from studyctl.store.anchor import HEAD_KEY
@@ -66,6 +67,14 @@ def default_actor() -> str:
         return f"uid:{os.getuid()}"
 
 
+# Every write transaction of a session appends a seal row (hundreds per session), so the head's read and update
+# are built once and run on the transaction's connection (Core): the same SQL (the read FOR UPDATE, so concurrent
+# PostgreSQL writers queue) without ORM statement construction and identity-map handling per row.
+_HEAD = select(AuditHead.count, AuditHead.hash).where(AuditHead.id == 1).with_for_update()
+_ADVANCE_HEAD = (update(AuditHead).where(AuditHead.id == 1)
+                 .values(count=bindparam("new_count"), hash=bindparam("new_hash")))
+
+
 def append_audit(
     session: Session,
     action: str,
@@ -82,13 +91,17 @@ def append_audit(
     """
     if not action:
         raise UsageError("audit action must be a non-empty string")
-    head = session.execute(select(AuditHead).where(AuditHead.id == 1).with_for_update()).scalar_one_or_none()
+    session.flush()  # rows the caller added go first, as the ORM query's autoflush did
+    conn = session.connection()
+    head = conn.execute(_HEAD).one_or_none()
     if head is None:
-        head = AuditHead(id=1, count=0, hash=GENESIS_HASH)
-        session.add(head)
+        session.add(AuditHead(id=1, count=0, hash=GENESIS_HASH))
         session.flush()
+        count, prev_hash = 0, GENESIS_HASH
+    else:
+        count, prev_hash = head
     row = {
-        "id": head.count + 1,
+        "id": count + 1,
         "at": datetime.now(UTC).isoformat(timespec="microseconds"),
         "actor": actor or default_actor(),
         "action": action,
@@ -96,12 +109,14 @@ def append_audit(
         "entity_id": None if entity_id is None else str(entity_id),
         "details": canonical_json(details or {}),
     }
-    digest = row_hash(head.hash, row)
-    entry = AuditLog(**row, prev_hash=head.hash, hash=digest)
+    digest = row_hash(prev_hash, row)
+    entry = AuditLog(**row, prev_hash=prev_hash, hash=digest)
     session.add(entry)
     session.flush()
-    session.execute(update(AuditHead).where(AuditHead.id == 1).values(count=row["id"], hash=digest))
-    session.expire(head)
+    conn.execute(_ADVANCE_HEAD, {"new_count": row["id"], "new_hash": digest})
+    held = session.identity_map.get(identity_key(AuditHead, 1))
+    if held is not None:  # a head row loaded earlier in this transaction reads the new head next time
+        session.expire(held)
     session.info[HEAD_KEY] = (row["id"], digest)  # the head file follows once this commits (store.anchor)
     return entry
 
