@@ -126,17 +126,29 @@ def nodule_weight(
     qz = nodule_center_z + q[:, 2]
     c = math.sqrt(radius_mm * depth_mm)
     thickness = np.asarray(surface_height, dtype=float)[:, None]
-    z = thickness - qz[None, :]  # depth of each quadrature point below the surface at the probe column
     squeeze = np.clip(1.0 - depth_mm / thickness, 0.0, 1.0)
-    zt = np.where(z > 0.0, z * squeeze, np.nan)  # below the tip after the column compression
-    big_z = zt + c
-    rho2 = (np.asarray(probe_x)[:, None] - qx[None, :]) ** 2 + (np.asarray(probe_y)[:, None] - qy[None, :]) ** 2
-    zz = big_z * big_z
-    r = zz / (rho2 + zz)  # Z⁶/(ρ² + Z²)⁵ = r⁵ / Z⁴, written with products (much faster than ** on arrays)
-    r2 = r * r
-    w = r2 * r2 * r / (zz * zz)
-    w = np.where(np.isnan(w), 0.0, w)
-    return (4.0 * c / math.pi) * (w * (dv * squeeze)).sum(axis=1)
+    # (columns × quadrature points) arrays, each operation written into an array it no longer needs: the same
+    # element-wise operations in the same order as the expressions in the comments, without a temporary per
+    # step (a force-map synthesis, once per process and phantom, spent most of its time allocating them)
+    z = thickness - qz[None, :]  # depth of each quadrature point below the surface at the probe column
+    above = z <= 0.0
+    big_z = np.multiply(z, squeeze, out=z)  # below the tip after the column compression: Z = z·squeeze + c,
+    big_z[above] = np.nan  # NaN at points above the surface
+    big_z += c
+    rho2 = np.subtract(np.asarray(probe_x)[:, None], qx[None, :])
+    np.square(rho2, out=rho2)
+    dy = np.subtract(np.asarray(probe_y)[:, None], qy[None, :])
+    rho2 += np.square(dy, out=dy)  # ρ² = dx² + dy²
+    zz = np.square(big_z, out=big_z)  # Z²
+    r = np.divide(zz, np.add(rho2, zz, out=rho2), out=rho2)  # r = Z²/(ρ² + Z²)
+    # Z⁶/(ρ² + Z²)⁵ = r⁵ / Z⁴, written with products (much faster than ** on arrays): w = r²·r²·r / (Z²·Z²)
+    w = np.square(r, out=dy)
+    np.square(w, out=w)
+    w *= r
+    w /= np.square(zz, out=zz)
+    w[np.isnan(w)] = 0.0
+    w *= dv * squeeze
+    return (4.0 * c / math.pi) * w.sum(axis=1)
 
 
 def synthesize_force_maps(
