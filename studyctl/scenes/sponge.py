@@ -116,6 +116,9 @@ class SpongePhantomScene(Scene):
         e_star = params["sponge_kpa"] * 1e3 / (1 - params["sponge_poisson"] ** 2)
         self.k_contact_n_per_mm = 2 * params["probe_radius_mm"] * 1e-3 * e_star * 1e-3  # N per mm of depth
         self.sigma_mm = float(params["lateral_sigma_mm"])
+        # force_n runs twice per tick (the forceps' contact): its constants computed once, the same floats
+        self._two_s2 = 2 * self.sigma_mm**2
+        self._spots = tuple((t.x_mm, t.y_mm, t.stiffness_ratio - 1.0) for t in tumours)
         g = params["grid"]
         self.grid = Grid(int(g["columns"]), int(g["rows"]), float(g["cell_mm"]), tuple(g.get("origin_mm", (0.0, 0.0))))
         self._grid_view = self.grid.as_dict()
@@ -170,14 +173,15 @@ class SpongePhantomScene(Scene):
     # -- sensing -------------------------------------------------------------------------------------
     def force_n(self, x_mm: float, y_mm: float, depth_mm: float) -> float:
         """Force on the probe pressed ``depth_mm`` into the sponge surface at (x, y)."""
-        if not (depth_mm > 0) or not (0 <= x_mm <= self.size_mm[0] and 0 <= y_mm <= self.size_mm[1]):
+        sx, sy, sz = self.size_mm
+        if not (depth_mm > 0) or not (0 <= x_mm <= sx and 0 <= y_mm <= sy):
             return 0.0
-        depth = min(depth_mm, self.size_mm[2])
+        depth = sz if sz < depth_mm else depth_mm  # min(depth_mm, sz)
         scale = 1.0
-        two_s2 = 2 * self.sigma_mm**2
-        for t in self.tumours:  # three at most: plain floats beat numpy here
-            r2 = (t.x_mm - x_mm) ** 2 + (t.y_mm - y_mm) ** 2
-            scale += (t.stiffness_ratio - 1.0) * math.exp(-r2 / two_s2)
+        two_s2 = self._two_s2
+        for tx, ty, excess in self._spots:  # three at most: plain floats beat numpy here
+            r2 = (tx - x_mm) ** 2 + (ty - y_mm) ** 2
+            scale += excess * math.exp(-r2 / two_s2)
         return self.k_contact_n_per_mm * depth * scale
 
     def sense(self, inputs: Channels) -> dict[str, float]:
