@@ -127,8 +127,13 @@ def test_a_virtual_participant_rehearses_on_the_emulated_board(tmp_path):
         timing = ("missed_deadline", "loop_stalled")  # a loaded machine's timing faults, not the device's
         faults = [p for k, p in events if k == "device_fault" and p.get("rule") not in timing]
         assert faults == []
-        # the same person throughout: what it learnt in each child process came back (trials_done 1, 2, 3, 4)
-        assert [p["memory"]["trials_done"] for k, p in events if k == "participant_memory"] == [1, 2, 3, 4]
+        # the same person throughout: what it learnt in each child process came back (trials_done 1, 2, 3, 4); a
+        # person who practises (population v5) also stores its memory after each condition's practice, which is
+        # not a trial (trials_done unchanged), and practised on the emulated board before each trial
+        done = [p["memory"]["trials_done"] for k, p in events if k == "participant_memory"]
+        practised = bool(population.params({t.name: t.value(0.0) for t in population.traits}).get("familiarise"))
+        assert done == ([0, 1, 1, 2, 2, 3, 3, 4] if practised else [1, 2, 3, 4]), done
+        assert kinds.count("practice_trial_loop_end") == (4 if practised else 0)
         assert kinds.count("report") >= 4  # it acted: grid-cell reports from what it felt and saw
         for tid in range(1, 5):
             s = read_samples(opened.store.db, tid)

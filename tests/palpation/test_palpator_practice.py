@@ -4,6 +4,8 @@ tumour from sponge there."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from palpation.practice_support import EXAMPLE, found, practise, trial_after_practice
@@ -123,7 +125,7 @@ def test_the_engine_runs_the_familiarisation_as_practice_for_a_virtual_palpator(
     for flag in ("true", "false"):
         path = tmp_path / f"pop_{flag}.yaml"
         fixed = f"fixed:\n  familiarise: {flag}\n"
-        path.write_text(text.replace("  familiarise: true\n", "").replace("fixed:\n", fixed))
+        path.write_text(re.sub(r"(?m)^  familiarise: .*\n", "", text).replace("fixed:\n", fixed))
         result = simulate_study("bio_inspired_palpation", 1, 5, tmp_path / f"ws_{flag}",
                                 population=load_population_file(path))
         with open_study(workspace=result.workspace) as o:
@@ -151,7 +153,7 @@ def test_a_session_resumed_after_a_practice_goes_on_with_what_was_learnt(tmp_pat
 
     path = tmp_path / "pop.yaml"
     text = shipped_population_path("bio_inspired_palpation").read_text()
-    path.write_text(text.replace("  familiarise: true\n", "").replace("fixed:\n", "fixed:\n  familiarise: true\n"))
+    path.write_text(re.sub(r"(?m)^  familiarise: .*\n", "", text).replace("fixed:\n", "fixed:\n  familiarise: true\n"))
     population = load_population_file(path)
 
     def trials(database):
