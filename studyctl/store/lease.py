@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import delete, select, text, update
+from sqlalchemy import bindparam, delete, select, text, update
 from sqlalchemy.orm import Session as OrmSession
 
 from studyctl.errors import SessionError
@@ -165,7 +165,7 @@ class SessionLeaseHandle:
 
     def verify(self, tx: OrmSession) -> None:
         """Raise :class:`SessionError` unless this process still holds the lease (checked in ``tx``)."""
-        token = tx.scalar(select(SessionLease.token).where(SessionLease.session_id == self.session_id))
+        token = tx.connection().scalar(_LEASE_TOKEN, {"session_id": self.session_id})
         if self.lost or token != self.token:
             self.lost = True
             raise SessionError(f"session {self.session_id} was taken over by another process (studyctl resume "
@@ -184,6 +184,11 @@ class SessionLeaseHandle:
             if self._pg is not None:
                 self._pg.close()
                 self._pg = None
+
+
+# Checked at the start of every write transaction of a session (and in each sample flush): built once and run on
+# the transaction's connection (Core), the same SELECT without ORM statement handling per check.
+_LEASE_TOKEN = select(SessionLease.token).where(SessionLease.session_id == bindparam("session_id"))
 
 
 def take_lease(db: Database, tx: OrmSession, session_id: int, *, take_over: bool = False) -> SessionLeaseHandle:
