@@ -168,7 +168,7 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         z = st.noise()
         moved = math.dist(st.ref, st.prev_ref)
         st.prev_ref = st.ref
-        st.sense.drift(moved, p.proprio_drift, z)
+        st.sense.drift(moved, p.proprio_drift, z, believed_per_sqrt_mm=p.believed_drift)
         self._perceive(t, percept)
         if st.realtime and "view" in percept and t - st.last_view_t >= p.visual_period_s:
             st.last_view_t = t

@@ -70,6 +70,12 @@ PARAMS = (
     # ---------------------------------------------------------------- position sense
     Param("proprio_drift", 0.15, 0.0, 1.0, unit="mm/√mm",
           source="CHOSEN: position-sense drift per √mm moved, per axis (between-person trait)"),
+    Param("believed_drift", 0.0, 0.0, 1.0, unit="mm/√mm",
+          source="CHOSEN (0: off, its uncertainty grows at its true proprio_drift): the drift it believes its "
+                 "position sense has, for everyone the same typical value; its lateral uncertainty, and so how "
+                 "often it stops to check (recheck_mm), grows at this rate while its sense drifts at its own. "
+                 "With the true rate, checks per mm went as proprio_drift^2 / recheck_mm^2 and a cautious person "
+                 "with a poor position sense took 10-14 scans per trial (seed 001 v5 candidates, seed 7)"),
     # ---------------------------------------------------------------- force perception
     Param("force_weber", 0.1, 0.02, 0.5, unit="fraction",
           source="CITED: force JND ≈ 7 % (Pang, Tan & Durlach 1991), ≈ 10 % on a force-feedback device "
@@ -145,6 +151,7 @@ class OperatorParams:
     visual_period_s: float
     rt_tolerance_mm: float
     proprio_drift: float
+    believed_drift: float
     force_weber: float
     force_threshold_n: float
     force_noise_n: float

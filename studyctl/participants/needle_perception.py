@@ -49,8 +49,10 @@ class PositionSense:
         self.sig_lat = sigma0_mm
         self.sig_ax = sigma0_mm
 
-    def drift(self, moved_mm: float, drift_per_sqrt_mm: float, z: Sequence[float]) -> None:
-        """Position sense drifts with intended movement (a random walk in √mm); so does its uncertainty."""
+    def drift(self, moved_mm: float, drift_per_sqrt_mm: float, z: Sequence[float], *,
+              believed_per_sqrt_mm: float = 0.0) -> None:
+        """Position sense drifts with intended movement (a random walk in √mm); so does its uncertainty, at the
+        rate it believes its sense drifts (``believed_per_sqrt_mm``; 0: its true rate)."""
         if moved_mm <= 0.0:
             return
         s = drift_per_sqrt_mm * math.sqrt(moved_mm)
@@ -58,7 +60,8 @@ class PositionSense:
         b[0] += s * z[0]
         b[1] += s * z[1]
         b[2] += s * z[2]
-        grow = drift_per_sqrt_mm**2 * moved_mm
+        rate = believed_per_sqrt_mm if believed_per_sqrt_mm > 0.0 else drift_per_sqrt_mm
+        grow = rate**2 * moved_mm
         self.sig_lat = math.sqrt(self.sig_lat**2 + grow)
         self.sig_ax = math.sqrt(self.sig_ax**2 + grow)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 
 import numpy as np
 import pytest
@@ -157,3 +158,22 @@ def test_with_rt_tolerance_a_live_view_re_aims_the_tip_only_past_a_seen_sideways
     s = PositionSense(3.0)
     s.see_tip((0.5, 0.0, 0.0), (0.0, 0.0, 0.0), 0.3, axis=(0.0, 0.0, 1.0), keep_lat_mm=1.0)
     assert s.corr == (0.0, 0.0, 0.0) and s.sig_lat == 0.3
+
+
+def test_its_uncertainty_grows_at_the_drift_it_believes_while_its_sense_drifts_at_its_own():
+    """With its own drift setting the uncertainty, a cautious person with a poor position sense stopped to check every
+    few mm (10-14 scans per trial, seed 001 v5 candidates at seed 7). With ``believed_drift`` the uncertainty, and so
+    how often it checks, grows at the believed rate; the sense itself still drifts at the true one."""
+    z = (1.0, -1.0, 0.5)
+    own, believing = PositionSense(0.3), PositionSense(0.3)
+    own.drift(25.0, 0.3, z)
+    believing.drift(25.0, 0.3, z, believed_per_sqrt_mm=0.15)
+    assert own.beta == believing.beta  # the same error in where it feels the tip
+    assert own.sig_lat == pytest.approx(math.sqrt(0.09 + 0.09 * 25.0))
+    assert believing.sig_lat == pytest.approx(math.sqrt(0.09 + 0.0225 * 25.0))
+    op = VirtualNeedleOperator({"proprio_drift": 0.3, "believed_drift": 0.15})
+    op.begin_trial(TrialInfo("BL", 90.0, 1000.0, "on_request"), np.random.default_rng(1))
+    op.s.sense.sig_lat = op.s.sense.sig_ax = 0.3
+    op.s.ref = (0.0, 0.0, 13.0)  # 25 mm from the start position (home 0, 0, 38)
+    op._decide(0.01, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 38.0})
+    assert op.s.sense.sig_lat == pytest.approx(math.sqrt(0.09 + 0.0225 * 25.0))
