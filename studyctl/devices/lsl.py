@@ -19,6 +19,7 @@ stamp is the monotonic time at which the loop read it.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -38,6 +39,14 @@ def load_pylsl() -> Any:
     except (OSError, RuntimeError) as exc:  # pylsl is there, liblsl could not be loaded
         raise UsageError(f"--lsl: liblsl could not be loaded ({exc}); reinstall with {EXTRA_HINT}") from None
     return pylsl
+
+
+def device_source_id(source: str, channels: Sequence[str]) -> str:
+    """The device stream's LSL source id: the same for the same session and channels in every process, so that a
+    recorder (LabRecorder) picks the stream up again when a session resumes after a crash. (Python's ``hash()`` of
+    strings is salted per process, so it cannot serve here.)"""
+    digest = hashlib.sha256("\x1f".join(channels).encode()).hexdigest()[:8]
+    return f"{source}:device:{digest}"
 
 
 class LslStreams:
@@ -68,7 +77,7 @@ class LslStreams:
         channels = tuple(channels)
         if channels != self._channels or self._device is None:
             info = self.lsl.StreamInfo("studyctl-device", "Haptics", len(channels), float(rate_hz), "float32",
-                                       f"{self.source}:device:{abs(hash(channels)) % 10**8}")
+                                       device_source_id(self.source, channels))
             chans = info.desc().append_child("channels")
             for name in channels:
                 ch = chans.append_child("channel")

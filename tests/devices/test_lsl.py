@@ -5,6 +5,9 @@ liblsl ships inside the pylsl wheel (extra ``lsl``); the test is skipped only if
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import threading
 import time
 
@@ -92,3 +95,15 @@ def test_a_rehearsal_streams_markers_and_samples_to_lsl(study):
     assert np.ptp(zeros) < 1e-6, np.ptp(zeros)  # one time 0 for the whole trial, every sample at its own t
     first_tick = float(rt["first_tick_monotonic"])
     assert abs(zeros[0] + recorded[1] - first_tick) < 1e-4, (zeros[0] + recorded[1] - first_tick) * 1e3
+
+
+def test_the_device_stream_keeps_its_source_id_across_processes(tmp_path):
+    """A resumed session runs in a new process; LabRecorder finds the stream again only by the same source id."""
+    code = ("from studyctl.devices.lsl import LslStreams\n"
+            "s = LslStreams('study-1:session-7')\n"
+            "s.sample(['x_mm', 'force_n'], [0.0, 0.0], 0.0, 50.0)\n"
+            "print(s._device.get_info().source_id())\n")
+    ids = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path,
+                          env={**os.environ, "PYTHONHASHSEED": seed}).stdout.strip()
+           for seed in ("1", "2", "3")}
+    assert len(ids) == 1 and next(iter(ids)).startswith("study-1:session-7:device:"), ids
