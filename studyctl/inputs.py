@@ -86,9 +86,6 @@ def loads_json(text: str | bytes, *, max_depth: int = MAX_JSON_DEPTH) -> Any:
         raise ValueError(f"JSON nested more than {max_depth} levels deep") from None
 
 
-__all__ = ["MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "json_depth", "loads_json", "read_text"]
-
-
 def xy_pair(tokens: Sequence[str], *, wrong_count: str, not_numbers: str,
             error: type[Exception] = UsageError) -> tuple[float, float]:
     """A typed position (x and y in mm) from its tokens: ``error(wrong_count)`` unless there are two,
@@ -99,3 +96,6 @@ def xy_pair(tokens: Sequence[str], *, wrong_count: str, not_numbers: str,
         return float(tokens[0]), float(tokens[1])
     except ValueError:
         raise error(not_numbers) from None
+
+
+__all__ = ["MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "json_depth", "loads_json", "read_text", "xy_pair"]
