@@ -60,9 +60,9 @@ def main(argv: list[str]) -> None:
             for cls, hit in found(out, scene).items():
                 by_class[cls] += hit
             truth = {(t["col"], t["row"]): t["class"] for t in scene.truth()["tumours"]}
-            near = [max(abs(r["column"] - c[0]), abs(r["row"] - c[1])) <= 1 for r in out.reports for c in [
-                min(truth, key=lambda c, r=r: max(abs(r["column"] - c[0]), abs(r["row"] - c[1])))]]
-            wrong += near.count(False)
+            # a wrong report: more than one cell from every tumour (the nearest one's distance is the minimum)
+            wrong += sum(all(max(abs(r["column"] - c[0]), abs(r["row"] - c[1])) > 1 for c in truth)
+                         for r in out.reports)
             ref = person._ref or person._reference()
             evidence = [(person._score(ev, ref), person._level(ev)) for ev in person.evidence.values()]
             if any(score > level for score, level in evidence):
