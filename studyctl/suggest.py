@@ -52,11 +52,13 @@ def named(items: Iterable[T], wanted: object, *, what: str, plural: str, key: st
     """The item whose ``key`` attribute equals ``wanted`` (a protocol's condition, a plan's test, a trait …).
 
     None: :class:`~studyctl.errors.UnknownKeyError` (a ``KeyError``) ``no {what} {wanted!r}{where}; {plural} are
-    {the names in order}`` (``none`` when there are none), so every such lookup refuses in the same words.
+    {the names in order}`` (``none`` when there are none) and the :func:`did_you_mean` hint, so every such lookup
+    refuses in the same words.
     """
     pool = tuple(items)
     for item in pool:
         if getattr(item, key) == wanted:
             return item
-    known = ", ".join(str(getattr(i, key)) for i in pool) or "none"
-    raise UnknownKeyError(f"no {what} {wanted!r}{where}; {plural} are {known}")
+    names = [getattr(i, key) for i in pool]
+    known = ", ".join(map(str, names)) or "none"
+    raise UnknownKeyError(f"no {what} {wanted!r}{where}; {plural} are {known}{did_you_mean(wanted, names)}")
