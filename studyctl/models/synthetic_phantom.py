@@ -220,12 +220,13 @@ def _build(
     surface_xs: np.ndarray,
     surface_ys: np.ndarray,
     nodules: tuple[Nodule, ...],
-    tissue_kpa: float,
-    indenter_radius_mm: float,
-    rolling_coefficient: float,
-    noise_n: float,
     parameters: dict[str, Any],
 ) -> SyntheticPhantom:
+    # The material comes from the record the phantom keeps, so what is built and what is stored cannot differ.
+    tissue_kpa = parameters["tissue_kpa"]
+    indenter_radius_mm = parameters["indenter_radius_mm"]
+    rolling_coefficient = parameters["rolling_coefficient"]
+    noise_n = parameters["noise_n"]
     if not isinstance(rng, np.random.Generator):
         raise ModelParameterError("synthetic phantom: rng must be a numpy.random.Generator (seeded by the caller)")
     if not (math.isfinite(noise_n) and noise_n >= 0):
@@ -336,10 +337,6 @@ def silicone_block_003(
         np.array([0.0, 120.0]),
         np.array([0.0, 120.0]),
         nodules,
-        tissue_kpa,
-        indenter_radius_mm,
-        rolling_coefficient,
-        noise_n,
         parameters,
     )
 
@@ -401,10 +398,6 @@ def curved_phantom_002(
         np.linspace(0.0, width, 31),
         np.linspace(0.0, depth_y, 26),
         nodules,
-        tissue_kpa,
-        indenter_radius_mm,
-        rolling_coefficient,
-        noise_n,
         parameters,
     )
 
