@@ -34,6 +34,7 @@ run in lifted form (one small matrix product per 50 Hz sample for all types and 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -43,7 +44,7 @@ import numpy as np
 import pandas as pd
 from scipy import linalg
 
-from studyctl.errors import ModelParameterError
+from studyctl.errors import ModelParameterError, NotSupportedError
 from studyctl.models.capr_afferents import (  # noqa: F401 - the model's parts, importable from here too
     E_L,
     PC,
@@ -125,6 +126,10 @@ class CaprModel:
         Rate of the nonlinear stage; a multiple of ``input_rate_hz``.
     window_s, activation_hz : float
         Read-out window and activation threshold (BHF code: 0.2 s, 5 Hz).
+    compiled : bool or None
+        Run :meth:`step` as one compiled call (:mod:`studyctl.models.capr_jit`, the same floats bit for bit):
+        None uses it when numba is installed and ``STUDYCTL_JIT`` is not ``0``; False always runs the numpy
+        path (the reference); True requires it (ImportError without numba).
     """
 
     def __init__(
@@ -135,6 +140,7 @@ class CaprModel:
         fs_model: float = 500.0,
         window_s: float = 0.2,
         activation_hz: float = 5.0,
+        compiled: bool | None = None,
     ) -> None:
         if not populations:
             raise ModelParameterError("CAPR: at least one afferent population is needed")
@@ -158,6 +164,7 @@ class CaprModel:
         self.activation_hz = float(activation_hz)
         self.dt = 1.0 / fs_model
         self._build()
+        self._jit = _compiled_tick(self, compiled)
         self.reset()
 
     # -- construction --------------------------------------------------------------------------------
@@ -237,6 +244,17 @@ class CaprModel:
     # -- streaming -----------------------------------------------------------------------------------
     def step(self, force_n: float) -> dict[str, float]:
         """Advance by one input sample; return the activated-mean rate (Hz) of each simulated type."""
+        if self._jit is None:
+            return self._step_numpy(force_n)
+        pos = self._pos
+        self._deep_live = self._jit(float(force_n), pos, self._deep_live, self._z, self._xd, self._ring, self._sum,
+                                    *self._jit_args)
+        self._pos = (pos + 1) % self.window_ticks
+        counts, sums = self._jit_sums.tolist()
+        return self._rates(counts, sums)
+
+    def _step_numpy(self, force_n: float) -> dict[str, float]:
+        """:meth:`step` in numpy: the reference the compiled tick reproduces bit for bit."""
         z = self._z
         f_new = float(force_n)
         f_prev = z[-2]
@@ -283,6 +301,10 @@ class CaprModel:
         active = np.greater(self._sum, self._sum_thr, out=self._active)
         counts = (self._members @ active).tolist()
         sums = (self._members @ np.multiply(self._sum, active, out=self._masked)).tolist()
+        return self._rates(counts, sums)
+
+    def _rates(self, counts: list[float], sums: list[float]) -> dict[str, float]:
+        """Each type's activated-mean rate from its count of active units and their window sums."""
         out: dict[str, float] = {}
         w = self.window_ticks
         last = self.last_active
@@ -365,6 +387,43 @@ class CaprModel:
         """Second-order sections of each type's discrete filter (FOH at ``fs_model``), built on first use."""
         from scipy import signal  # lazy: scipy.signal imports scipy.stats (about a second)
         return [signal.zpk2sos(*signal.ss2zpk(*discretise(pop.afferent, self.dt))) for pop in self.populations]
+
+
+def _compiled_tick(model: CaprModel, compiled: bool | None):
+    """The compiled tick for this model with its fixed arguments stored on it, or None for the numpy path.
+
+    It is used only where it provably computes what the numpy path does: every summing matrix-vector product
+    has a matrix of two rows or more (numpy calls a dot product, not gemv, for one row) and each unit has one
+    type's gain (the gain products then have one non-zero term)."""
+    if compiled is False or (compiled is None and os.environ.get("STUDYCTL_JIT", "1") == "0"):
+        return None
+    try:
+        from studyctl.models import capr_jit
+    except (ImportError, NotSupportedError):  # no numba (the `fast` extra), or numpy without its bundled OpenBLAS
+        if compiled:
+            raise
+        return None
+    am, obs, toe, ctrl = model._deep_sys
+    n_types, n_y, n_x = len(model.types), model.m * len(model.types), model._n_states
+    one_type = all(int(np.count_nonzero(g, axis=1).max()) <= 1 for g in (model._gk, model._gm))
+    if min(model._lin.shape[0], n_y, n_x, model.n_units, n_types) < 2 or not one_type:
+        if compiled:
+            raise ModelParameterError(f"CAPR: no compiled tick for {n_types} type(s) x {model.m} sub-samples "
+                                      "(it needs two rows in every matrix and one type per unit)")
+        return None
+    c = np.ascontiguousarray
+    model._jit_sums = np.empty((2, n_types))  # per type: the count of active units, their window sums
+    unit_type = np.concatenate([np.full(p.size, i) for i, p in enumerate(model.populations)])
+    units = np.arange(model.n_units)
+    model._jit_args = (
+        c(model._lin), c(model._gk), c(model._gm), unit_type, model._gk[units, unit_type],
+        model._gm[units, unit_type], c(am), c(obs), c(toe), c(ctrl), c(model._frac), c(model._crit), model._crit_min,
+        float(model._sum_thr), c(model._members), model._ones_m, c(model._negw[:, 0]), c(model._vh[:, 0]),
+        c(model._scale_mean), np.empty(n_y + n_x), np.empty((3, n_y)), np.empty((2, n_x)),
+        np.empty((2 * n_types, model.m)), np.empty((model.n_units, model.m)), np.empty((3, model.n_units)),
+        model._jit_sums,
+    )
+    return capr_jit.tick
 
 
 def _force_sequence(force_n: np.ndarray) -> np.ndarray:

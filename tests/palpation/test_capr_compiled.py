@@ -1,0 +1,82 @@
+"""The compiled CAPR tick (studyctl.models.capr_jit) gives the numpy path's floats bit for bit, and the numpy path
+runs wherever the compiled one is absent, not proven equal, or turned off."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from studyctl.errors import ModelParameterError
+from studyctl.models import capr
+
+pytest.importorskip("numba")  # the `fast` extra (the `test` extra installs it)
+
+
+@pytest.fixture(scope="module")
+def full():
+    contact = capr.SkinContact(radius_mm=4.0)  # the bio-inspired controller's contact
+    return [capr.build_population(t, contact) for t in capr.TYPES.values()]
+
+
+def _presses(seed: int, ticks: int) -> np.ndarray:
+    """A 50 Hz force trace like a palpator's: presses to 0.3-6 N (past F_crit ≈ 2.1 N, so the deep path starts
+    and rings down), holds, releases to a light touch, and sensor noise."""
+    rng = np.random.default_rng(seed)
+    f = []
+    while len(f) < ticks:
+        peak, rise, hold, rest = rng.uniform(0.3, 6.0), rng.integers(3, 40), rng.integers(0, 60), rng.integers(1, 80)
+        f += list(np.linspace(0.02, peak, rise)) + [peak] * hold + list(np.linspace(peak, 0.02, rise)) + [0.02] * rest
+    return np.asarray(f[:ticks]) + rng.normal(0.0, 0.01, ticks)
+
+
+def _state(model: capr.CaprModel) -> tuple:
+    return model._z, model._xd, model._ring, model._sum, model._pos, model._deep_live
+
+
+def _assert_same(pops, forces, **kwargs) -> capr.CaprModel:
+    """Every output and count of the compiled model equals the numpy model's, tick by tick; the states at the end."""
+    fast = capr.CaprModel(pops, compiled=True, **kwargs)
+    ref = capr.CaprModel(pops, compiled=False, **kwargs)
+    assert fast._jit is not None and ref._jit is None
+    for i, f in enumerate(forces):
+        got, want = fast.step(f), ref.step(f)
+        # repr: NaN equal to NaN, and every digit of every rate
+        assert repr((got, fast.last_active)) == repr((want, ref.last_active)), f"tick {i}, force {f}"
+    for a, b in zip(_state(fast), _state(ref), strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    return fast
+
+
+def test_compiled_tick_equals_numpy_bit_for_bit(full):
+    """Three types (the seed-000 controller), 4,000 ticks of presses; reset in the middle."""
+    forces = _presses(0, 4000)
+    fast = _assert_same(full, forces)
+    assert fast._deep_live in (True, False)
+    fast.reset()
+    ref = capr.CaprModel(full, compiled=False)
+    for f in forces[:500]:
+        assert repr(fast.step(f)) == repr(ref.step(f))
+
+
+@pytest.mark.parametrize("reduction, kwargs", [("clusters", {"clusters": 32}), ("density", {"factor": 2}),
+                                               ("contact", {})])
+def test_compiled_tick_equals_numpy_for_reduced_populations_and_other_rates(full, reduction, kwargs):
+    pops = [capr.reduce_population(p, reduction, **kwargs) for p in full]
+    _assert_same(pops, _presses(1, 1500))
+    _assert_same(full[1:], _presses(2, 1500), fs_model=1000.0, window_s=0.1, activation_hz=0.0)
+
+
+def test_non_finite_filter_outputs_take_the_whole_sum(full):
+    """A force that overflows the filters: 0·inf is NaN in the BLAS product, and in the compiled tick too."""
+    with np.errstate(all="ignore"):
+        _assert_same(full, np.array([0.5, 1e308, -1e308, 1e308, 3.0, 1.0, 0.0]))
+
+
+def test_numpy_path_where_the_compiled_tick_is_not_proven_or_is_off(full, monkeypatch):
+    # one type: numpy takes a dot product, not gemv, for the one-row member matrix
+    assert capr.CaprModel(full[:1])._jit is None
+    with pytest.raises(ModelParameterError, match="no compiled tick for 1 type"):
+        capr.CaprModel(full[:1], compiled=True)
+    assert capr.CaprModel(full)._jit is not None
+    monkeypatch.setenv("STUDYCTL_JIT", "0")
+    assert capr.CaprModel(full)._jit is None
