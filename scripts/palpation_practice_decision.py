@@ -2,7 +2,7 @@
 
 Usage: ``python scripts/palpation_practice_decision.py [TRIALS] [name=value ...]`` (default 24 trials per
 controller; ~15 s CPU). ``name=value`` overrides a palpator parameter of the typical person, e.g.
-``report_rule=odds`` or ``confirm_rounds=3``.
+``report_rule=odds``, ``confirm_rounds=3``, ``cue_learning=shrinkage`` or ``practice_presses=8``.
 
 The person is the shipped population's typical one (every trait at its location) with ``familiarise`` on. Before
 each trial it practises on the example phantom (the 3 marked sites) through the trial's controller, as the engine
