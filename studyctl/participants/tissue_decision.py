@@ -12,25 +12,25 @@ from typing import Any
 
 import numpy as np
 
+from studyctl.participants.tissue_cue_learning import MIN_SIGNAL, amplitude, excess, sums
 from studyctl.participants.tissue_perception import _depth_matched
 
 
-def _cue_signal(z: np.ndarray) -> float:
-    """How much one cue has shown over a slid survey, in its own noise SDs: the square root of the mean squared z
-    of its records beyond the 1 that noise alone gives (the method-of-moments amplitude of what stood out).
+def _cue_signal(z: np.ndarray, statistic: str = "spread") -> float:
+    """How much one cue has shown over a slid survey, in its own noise SDs (:func:`.tissue_cue_learning.amplitude`
+    of its records' excess, :func:`.tissue_cue_learning.excess`), judged from this trial's records alone
+    (``slide_fusion: reliability``).
 
     Why: z scores of two independent cues are best added weighted by each cue's detectability d' (the ideal
     observer's linear combination, Green & Swets 1966; the detection form of Ernst & Banks 2002's inverse-variance
     weighting); equal weights (Stouffer) halve a clear cue's evidence where the other shows nothing. The person
     judges d' only from what it sensed: the records are its own, nothing about where nodules are enters. With
     both cues at the same windows, the share of windows over a nodule is the same for both, so this amplitude is
-    proportional to each cue's d'. At least ``_MIN_SIGNAL``: a cue that showed nothing still counts a little."""
+    proportional to each cue's d'. ``slide_fusion: pooled`` pools it over the person's trials instead
+    (:class:`.tissue_cue_learning.CueReliability`)."""
     if z.size == 0:
-        return _MIN_SIGNAL
-    return max(math.sqrt(max(float(np.mean(z * z)) - 1.0, 0.0)), _MIN_SIGNAL)
-
-
-_MIN_SIGNAL = 0.05  # CHOSEN: a twentieth of a noise SD
+        return MIN_SIGNAL
+    return amplitude(excess(*sums(z), z.size, statistic))
 
 
 class SpotDecision:
@@ -85,6 +85,7 @@ class SpotDecision:
         num = np.zeros(len(pts))
         den = np.zeros(len(pts))
         trust = {"force": p["force_trust"], "cursor": p["cursor_trust"]}
+        scaled: list[tuple[np.ndarray, float, np.ndarray, str]] = []  # contrast, its noise SD, finite, cue
         for values, name in cues:
             sv = values[survey]
             base = local_medians(sv, near)
@@ -98,12 +99,14 @@ class SpotDecision:
                 # A slide's cursor cue reads how the slowing changes along the line, not how much stiffer a spot
                 # is: its contrasts are on another scale than the push's, so averaging the two as estimates of one
                 # contrast lets the push (small contrast, small noise) drown a clear slowing. Each cue counts as
-                # evidence in its own SDs instead (Stouffer's combination, weighted by trust), and with
-                # slide_fusion: reliability each cue's z is weighted by how much it has shown (_cue_signal).
+                # evidence in its own SDs instead (Stouffer's combination, weighted by trust); slide_fusion
+                # reliability / pooled weight each cue's z by how much it has shown (_slide_signals).
                 contrast, sigma = contrast / sigma, 1.0
-                if p["slide_fusion"] == "reliability":
-                    signal = _cue_signal(contrast[survey & ok])
-                    contrast, sigma = contrast / signal, 1.0 / signal
+            scaled.append((contrast, sigma, ok, name))
+        if self._slide_mode and p["slide_fusion"] != "stouffer":
+            signal = self._slide_signals({name: c[survey & ok] for c, _s, ok, name in scaled})
+            scaled = [(c / signal[name], 1.0 / signal[name], ok, name) for c, _s, ok, name in scaled]
+        for contrast, sigma, ok, name in scaled:
             w = trust[name] / sigma**2  # a cue believed less weighs less, and its evidence counts less
             if w <= 0:
                 continue
@@ -115,6 +118,16 @@ class SpotDecision:
         if follow_up:
             return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep]), ~survey[keep]
         return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep])
+
+    def _slide_signals(self, z_by_cue: dict[str, np.ndarray]) -> dict[str, float]:
+        """Each slid cue's weight: what it showed in this trial (``reliability``) or over the person's slid trials
+        so far, this one included (``pooled``, :class:`.tissue_cue_learning.CueReliability`)."""
+        if self.params["slide_fusion"] == "pooled":
+            self._slide_weights = self._cue_learning.signals(z_by_cue)
+        else:
+            stat = self.params["cue_excess"]
+            self._slide_weights = {name: _cue_signal(z, stat) for name, z in z_by_cue.items()}
+        return self._slide_weights
 
     def _clusters(self, pts: np.ndarray, contrast: np.ndarray, sigma: np.ndarray, threshold: float, limit: int):
         """Spots whose averaged contrast (presses within half a cluster radius) exceeds ``threshold`` SDs."""
@@ -232,6 +245,8 @@ class SpotDecision:
                 spots = [sp for sp in spots if sp[3] >= p["report_fraction"] * clearest]
             spots = spots[:limit]
         self.perceived["reports"] = spots
+        if self._slide_mode and p["slide_fusion"] == "pooled":
+            self._cue_learning.commit()  # what this trial's slide showed joins the person's experience
         self.experience.append({"condition": self.info.condition, "cues": list(self.perceived.get("cues", [])),
                                 "z_max": self.perceived.get("z_max", math.nan), "direct": self._direct})
         return [(x, y) for x, y, *_ in spots]

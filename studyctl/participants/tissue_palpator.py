@@ -71,6 +71,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from studyctl.errors import ModelParameterError
+from studyctl.participants.tissue_cue_learning import CueReliability
 from studyctl.participants.tissue_decision import SpotDecision
 from studyctl.participants.tissue_params import PARAMS
 from studyctl.participants.tissue_perception import PressPerception
@@ -126,6 +127,20 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self.params = validate_params("virtual_tissue_palpator participant", params, PARAMS)
         # what each trial felt like (its own percepts), for questionnaires at the end of a block or study
         self.experience: list[dict[str, Any]] = []
+        # how reliable each slid cue has shown itself over this person's trials (slide_fusion: pooled)
+        self._cue_learning = CueReliability(self.params["cue_prior_windows"], self.params["cue_excess"])
+
+    def memory(self) -> Mapping[str, Any]:
+        """What carries over between trials: the cue tallies of slide_fusion: pooled (nothing otherwise, so a
+        session's stored record is as before for every other person)."""
+        if self.params["slide_fusion"] != "pooled":
+            return {}
+        return {"slid_cues": self._cue_learning.to_json()}
+
+    def recall(self, memory: Mapping[str, Any]) -> None:
+        cues = memory.get("slid_cues")
+        if isinstance(cues, Mapping):
+            self._cue_learning.load(cues)
 
     # ------------------------------------------------------------------ trial set-up
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
@@ -169,6 +184,7 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self._slide_probe_lag = 0.0
         self._grip_held = 1.0  # the grip last given to the device (slide_grip)
         self.perceived: dict[str, Any] = {}
+        self._slide_weights: dict[str, float] | None = None  # each slid cue's weight at the last look (diagnostics)
         self._motor = self._trial_motor(info, rng)
 
     def _trial_motor(self, info: TrialInfo, rng: np.random.Generator) -> dict[str, float]:

@@ -96,11 +96,21 @@ PARAMS = (
           source="CHOSEN: the hand's sliding speed before tempo (seed 003's rolling indentation scanned at 30 mm/s)"),
     Param("slide_window_mm", 4.0, low=0.5, high=50.0, unit="mm",
           source="CHOSEN: one sideways-slowing judgement per this much cursor travel (under the 6 mm nodule's size)"),
-    Param("slide_fusion", "stouffer", kind=str, choices=("stouffer", "reliability"),
+    Param("slide_fusion", "stouffer", kind=str, choices=("stouffer", "reliability", "pooled"),
           source="CITED: how a slid survey adds its cues' evidence (z in each cue's own noise SDs): stouffer, with "
-          "equal weights (times trust); reliability, each weighted by the detectability it showed over the survey, "
-          "sqrt(mean z² - 1) of its own records (the ideal observer's weights for independent cues, Green & Swets "
-          "1966; the detection form of Ernst & Banks 2002)"),
+          "equal weights (times trust); reliability, each weighted by the detectability it showed over this trial's "
+          "survey, sqrt(mean z² - 1) of its own records (the ideal observer's weights for independent cues, Green & "
+          "Swets 1966; the detection form of Ernst & Banks 2002); pooled, the same amplitude pooled over the "
+          "person's slid trials so far and shrunk towards equal weights by cue_prior_windows (cue weights are "
+          "learnt with exposure: Ernst, Banks & Bülthoff 2000; Atkins, Fiser & Jacobs 2001)"),
+    Param("cue_prior_windows", 100.0, low=0.0, high=100000.0, unit="windows",
+          source="CHOSEN: slide_fusion pooled: the person's starting belief that its slid cues are equally reliable "
+          "counts as much as this many slid windows of experience (about half of one slid survey's 139-288)"),
+    Param("cue_excess", "spread", kind=str, choices=("spread", "stiffer"),
+          source="CHOSEN: slide_fusion reliability/pooled: what a cue is judged to have shown: spread, mean z² - 1 "
+          "(any spread beyond the robust noise SD); stiffer, mean z·|z| (the stiffer side beyond the softer side's "
+          "mirror: zero for symmetric noise of any shape; nodules feel harder than the tissue, as the practice "
+          "showed)"),
     Param("slide_damping", 1.0, low=1.0, high=10.0, unit="x",
           source="CHOSEN: how much more steadily the stylus is held while sliding against a felt push: a factor on "
           "the device hand's damping (its grip_damping input; 3 makes the relaxed 300 N/m, 8 N·s/m, 0.5 kg hold about "

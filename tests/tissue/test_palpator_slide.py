@@ -3,11 +3,13 @@ turns the rest of the survey into one slide per line, and reads the cursor's sid
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
 
+from studyctl.participants.tissue_cue_learning import excess, sums
 from studyctl.participants.tissue_palpator import VirtualTissuePalpator
 from studyctl.plugins.interfaces import TrialInfo
 
@@ -165,17 +167,17 @@ def test_the_device_hand_holds_the_handle_steadier_with_more_grip_damping():
     assert peaks[3.0] < 5.0 * 1.01
 
 
-def _slid(person: VirtualTissuePalpator, push_shift: float) -> None:
+def _slid(person: VirtualTissuePalpator, push_shift: float, seed: int = 5, slow_shift: float = 2.4) -> None:
     """A slid 15 x 15 survey (noise 1 % on the push, 25 % on the slowing) with a 3 x 3 patch over a nodule in the
-    middle where the slowing is 2.4 noise SDs stronger and the push ``push_shift`` noise SDs stronger."""
-    rng = np.random.default_rng(5)
+    middle where the slowing is ``slow_shift`` noise SDs stronger and the push ``push_shift`` noise SDs stronger."""
+    rng = np.random.default_rng(seed)
     rows = []
     for i in range(15):
         for j in range(15):
             nodule = abs(i - 7) <= 1 and abs(j - 7) <= 1
             e1, e2 = rng.normal(size=2)
             felt = 1.0 + 0.01 * ((push_shift if nodule else 0.0) + e1)
-            lag = 0.4 * (1.0 + 0.25 * ((2.4 if nodule else 0.0) + e2))
+            lag = 0.4 * (1.0 + 0.25 * ((slow_shift if nodule else 0.0) + e2))
             depth = 4.5 + rng.random()
             rows.append({"x": 4.0 * i, "y": 4.0 * j, "force": felt / depth, "felt": felt, "seen": depth,
                          "ratio": 1.0 + lag, "ratio_seen": depth, "stage": "survey"})
@@ -184,8 +186,8 @@ def _slid(person: VirtualTissuePalpator, push_shift: float) -> None:
     person._air_dh.extend([1.0] * 10)
 
 
-def _nodule_z(fusion: str, push_shift: float) -> float:
-    person = _person(slide_survey=True, baseline_radius_mm=200.0, slide_fusion=fusion)
+def _nodule_z(fusion: str, push_shift: float, person: VirtualTissuePalpator | None = None) -> float:
+    person = person or _person(slide_survey=True, baseline_radius_mm=200.0, slide_fusion=fusion)
     person._slide_mode = True
     _slid(person, push_shift)
     pts, contrast, sigma = person._evidence()
@@ -203,3 +205,71 @@ def test_a_slid_survey_weighs_each_cue_by_what_it_has_shown():
     both_equal, both_weighted = _nodule_z("stouffer", 2.4), _nodule_z("reliability", 2.4)
     assert abs(both_weighted / both_equal - 1.0) < 0.1
     assert both_weighted > blind_weighted  # the push adds where it shows the nodule
+
+
+def _slid_trials(person: VirtualTissuePalpator, seeds, slow_shift: float) -> None:
+    """The person slides one survey per seed (the push blind to the nodule) and ends each trial."""
+    person._slide_mode = True
+    for seed in seeds:
+        _slid(person, 0.0, seed=seed, slow_shift=slow_shift)
+        person._evidence()
+        person._cue_learning.commit()
+
+
+def test_pooled_cue_weights_are_learnt_over_the_persons_own_slid_trials():
+    """slide_fusion: pooled. With no slid trial behind it the person weighs its two cues more alike than one
+    trial's estimate does (its prior: equally reliable); after slid trials in which the slowing showed its nodule
+    clearly and the push nothing, it weighs the slowing far above the push, so a faint nodule stands out more
+    than by equal weights or by one trial's estimate; what it learnt is its memory, so a resumed session goes on
+    with it, and nobody else stores anything."""
+    def ratio(person: VirtualTissuePalpator) -> float:
+        return person._slide_weights["force"] / person._slide_weights["cursor"]
+
+    equal, per_trial = _nodule_z("stouffer", 0.0), _nodule_z("reliability", 0.0)
+    single = _person(slide_survey=True, baseline_radius_mm=200.0, slide_fusion="reliability")
+    novice = _person(slide_survey=True, baseline_radius_mm=200.0, slide_fusion="pooled")
+    _nodule_z("reliability", 0.0, single)
+    assert equal < _nodule_z("pooled", 0.0, novice) < per_trial
+    assert abs(math.log(ratio(novice))) < abs(math.log(ratio(single)))
+    person = _person(slide_survey=True, baseline_radius_mm=200.0, slide_fusion="pooled")
+    _slid_trials(person, range(20, 26), slow_shift=6.0)
+    assert person._cue_learning.past["cursor"][2] == 6 * 225
+    practised = _nodule_z("pooled", 0.0, person)
+    assert ratio(person) < 0.6 * ratio(single)
+    assert practised > per_trial
+    resumed = _person(slide_survey=True, baseline_radius_mm=200.0, slide_fusion="pooled")
+    resumed.recall(json.loads(json.dumps(person.memory())))
+    assert _nodule_z("pooled", 0.0, resumed) == practised
+    assert _person(slide_survey=True).memory() == {}
+
+
+def test_pooled_cue_weights_vary_less_from_trial_to_trial_than_one_trials_estimate():
+    """Why pooling: one survey's estimate of each cue's amplitude is noisy (sampling SD ~0.3 at ~200 windows), so
+    its weights move from trial to trial with the noise; pooled over the person's earlier trials they move less.
+    The ratio of the push's weight to the slowing's over 12 surveys of one kind (the push blind, the slowing 2.4
+    SDs stronger at the nodule)."""
+    def ratios(fusion: str) -> np.ndarray:
+        person = _person(slide_survey=True, baseline_radius_mm=200.0, slide_fusion=fusion)
+        person._slide_mode = True
+        out = []
+        for seed in range(40, 52):
+            _slid(person, 0.0, seed=seed)
+            person._evidence()
+            out.append(person._slide_weights["force"] / person._slide_weights["cursor"])
+            if fusion == "pooled":
+                person._cue_learning.commit()
+        return np.array(out[2:])  # after two trials of experience
+
+    assert np.std(ratios("pooled")) < 0.5 * np.std(ratios("reliability"))
+
+
+def test_the_stiffer_side_excess_ignores_a_symmetric_wobble_that_the_spread_counts():
+    """cue_excess: stiffer. A cue whose records wobble symmetrically more than its robust noise SD says (heavy
+    tails: Student t with 3 degrees of freedom) shows a large spread excess with nothing to show; the stiffer side's
+    excess stays at noise level, and rises once 5 % of the records are 3 SDs stiffer (a nodule under them)."""
+    rng = np.random.default_rng(11)
+    wobble = rng.standard_t(3, size=4000)
+    nodule = wobble + np.where(np.arange(4000) % 20 == 0, 3.0, 0.0)
+    assert excess(*sums(wobble), wobble.size, "spread") > 1.0
+    assert abs(excess(*sums(wobble), wobble.size, "stiffer")) < 0.1
+    assert excess(*sums(nodule), nodule.size, "stiffer") > 0.3
