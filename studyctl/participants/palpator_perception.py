@@ -33,6 +33,7 @@ class _CellEvidence:
     felt: dict[tuple[str, str], int] = field(default_factory=dict)
     presses: int = 0
     combined: list[float] = field(default_factory=list)  # each press's evidence by the cue weights learnt in practice
+    first: dict[tuple[str, str], float] | None = None  # the first press's log-percepts (to judge a learnt rule by)
 
 
 class PressNotes:
@@ -91,6 +92,8 @@ class PressNotes:
                 press[TRAVEL] = -math.log(travel)
                 ev.logs.setdefault(TRAVEL, []).append(press[TRAVEL])
                 ev.felt[TRAVEL] = ev.felt.get(TRAVEL, 0) + 1
+        if ev.first is None:
+            ev.first = press
         if self._practice:
             self._press_logs.append((seg.cell, press))
         elif self.cues is not None:

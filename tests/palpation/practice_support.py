@@ -43,11 +43,14 @@ def practise(person, controller_cls, seed, marks=True):
     return out, scene, positions
 
 
-def trial_after_practice(person, controller_cls, k):
+def trial_after_practice(person, controller_cls, k, after_practice=None):
     """Trial ``k`` of the broken-controller checks: a person who familiarises practises first with the trial's
-    controller (seed 100 + k), then palpates tumours at ``SITES[k % 3]`` with the camera view."""
+    controller (seed 100 + k), then palpates tumours at ``SITES[k % 3]`` with the camera view. ``after_practice``
+    (optional) is called with the person and the example phantom between the practice and the trial."""
     if person.practises:
-        practise(person, controller_cls, seed=100 + k)
+        _, example, _ = practise(person, controller_cls, seed=100 + k)
+        if after_practice is not None:
+            after_practice(person, example)
     sites = SITES[k % len(SITES)]
     scene = SpongePhantomScene.build({}, {"sites": sites}, frozenset({"view"}), np.random.default_rng(k))
     device = SimulatedPalpationDevice({}, scene, np.random.default_rng(k + 1))
