@@ -55,7 +55,7 @@ import numpy as np
 
 from studyctl.participants.needle_motor import command, make_action, start_line, start_reach
 from studyctl.participants.needle_params import DEFAULTS, PARAMS, OperatorParams
-from studyctl.participants.needle_perception import PositionSense
+from studyctl.participants.needle_perception import PositionSense, feel_force
 from studyctl.participants.needle_questionnaire import judge_item
 from studyctl.participants.needle_senses import OperatorSenses
 from studyctl.participants.needle_trial import Line, MinJerk, Phase, TrialState, learn_trust
@@ -252,13 +252,14 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         if not isinstance(mv, MinJerk):
             return ()
         if mv.then is not None and mv.elapsed >= mv.T:
-            start_reach(self._st, mv.b, mv.then, st.v_app)
+            # the probe comes back as slowly as it went out (PROBE_S each way), the approach goes on at reach speed
+            start_reach(self._st, mv.b, mv.then, self.p.probe_mm / PROBE_S if st.probing else st.v_app)
             return ()
         if mv.elapsed >= mv.T + 0.3:
             st.move = None
             st.probing = False
             if self.p.probe_mm > 0.0 and st.button >= 0.5 and st.info.condition not in self.probed:
-                return self._probe()
+                return self._probe(percept)
             if st.sense.sig_lat > self.p.entry_scan_mm and self._scan_can_show_tip(percept):
                 return self._scan_then(t, Phase.INSERT)
             return self._enter_insert(percept)
@@ -360,18 +361,24 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
             return self._enter_insert(percept)
         return self._judge(t, percept)
 
-    def _probe(self) -> tuple[Request, ...]:
-        """Lined up over the incision in a scenario's first trial: push the hand ``probe_mm`` sideways (a random
-        direction across the pen) and back, to feel how firmly the channel holds it (judged by :meth:`_perceive`
-        like any growing lateral push)."""
+    def _probe(self, percept: Mapping[str, Any]) -> tuple[Request, ...]:
+        """Lined up over the incision in a scenario's first trial: push the hand ``probe_mm`` sideways and back, to
+        feel how firmly the channel holds it (judged by :meth:`_perceive` like any growing lateral push). It presses
+        against a lateral push it already feels, into what resists (as one presses a surface along its normal to
+        judge its compliance, Lederman & Klatzky 1987); feeling none, in a random direction across the pen."""
         st = self._st
         self.probed.add(st.info.condition)
         z, a = st.noise(), st.axis
-        along = z[0] * a[0] + z[1] * a[1] + z[2] * a[2]
-        side = (z[0] - along * a[0], z[1] - along * a[1], z[2] - along * a[2])
+        felt = feel_force(percept, a, self.p.force_noise_n, z)
+        if felt is not None and felt.radial_n > self.p.radial_threshold_n:
+            side = (-felt.radial[0], -felt.radial[1], -felt.radial[2])  # the push points back to the line
+        else:
+            along = z[0] * a[0] + z[1] * a[1] + z[2] * a[2]
+            side = (z[0] - along * a[0], z[1] - along * a[1], z[2] - along * a[2])
         n = math.sqrt(side[0] ** 2 + side[1] ** 2 + side[2] ** 2) or 1.0
         r, d = st.ref, self.p.probe_mm / n
         st.probing = True
+        st.felt_radial_s = 0.0  # the force rise is judged over this push's own travel, from where it starts
         # slowly (PROBE_S each way): pushed fast, the channel's damper would push back whatever its stiffness
         start_reach(self._st, r, (r[0] + d * side[0], r[1] + d * side[1], r[2] + d * side[2]),
                     self.p.probe_mm / PROBE_S, then=r)

@@ -40,14 +40,21 @@ class OperatorSenses:
         return self.trust_guide.get(self._st.info.condition, 0.0) >= 0.5
 
     def _probing_channel(self) -> bool:
-        """Moving along the planned line (in tissue, or the last leg of the approach onto the incision), slowly
-        sideways: a lateral push growing now comes from straying off the line, not from sweeping across it fast
-        (where the channel's damper pushes back whatever its stiffness)."""
+        """Can a lateral push growing now tell it how stiff the channel is?
+
+        People judge stiffness from the force against the displacement they make (Jones & Hunter 1990, Exp Brain
+        Res 79:150), by actively pressing (Srinivasan & LaMotte 1995, J Neurophysiol 73:88); a force that grows
+        with speed is viscosity, a different percept (Jones & Hunter 1993, Exp Brain Res 94:343). So only moves
+        at a pace of its own, set apart from its reaching speed, count: advancing in tissue, where a stray off
+        the line grows at its insertion pace, and its sideways probe (``probe_mm`` out and back,
+        :data:`~studyctl.participants.needle_operator.PROBE_S` each way), where it presses into the channel
+        slowly on purpose. Not while reaching onto the incision: that goes at its free-reach speed
+        (``approach_speed_ratio``), where the channel's damper pushes back whatever the stiffness (a probe that
+        came back at that speed read BL's 100 N/m spring as a 966 N/m wall at a ratio of 3.0: session 29)."""
         st = self._st
-        mv = st.move
         if st.phase is Phase.INSERT:
             return True
-        return st.phase is Phase.APPROACH and isinstance(mv, MinJerk) and (mv.then is None or st.probing)
+        return st.phase is Phase.APPROACH and st.probing and isinstance(st.move, MinJerk)
 
     def _channel_speed(self) -> float:
         """Advance speed inside a guidance channel it trusts.
