@@ -1,6 +1,9 @@
 """How much one press tells about each tumour class, per seed-000 feedback condition (an ideal-observer bound).
 
-Usage: ``python scripts/palpation_cue_dprime.py [PRESSES]`` (default 120 presses per spot and condition; ~5 s CPU).
+Usage: ``python scripts/palpation_cue_dprime.py [PRESSES] [DISC_HEIGHT_MM]`` (default 120 presses per spot and
+condition; ~5 s CPU). DISC_HEIGHT_MM rebuilds the bio-inspired controller's CAPR model with its sensor disc that high
+(the BHF code's, and the default, 5 mm: pressed past its height at F_crit = 2.1 N, after which every fingertip unit
+gets an input); a counterfactual for diagnosis (50 mm puts F_crit at 21 N, beyond every press), not a setting.
 
 Each press goes through the real sponge scene, the simulated forceps (sensor noise, ADC, instrument compliance,
 actuator lags) and the condition's controller at 50 Hz, on plain sponge and on the soft, medium and hard tumour
@@ -23,6 +26,7 @@ import numpy as np
 from studyctl.controllers.bio_inspired import BioInspiredController
 from studyctl.controllers.palpation import LinearController, NoFeedback, PiecewiseController
 from studyctl.devices.palpation import SimulatedPalpationDevice
+from studyctl.models import capr
 from studyctl.models.perception import Sense
 from studyctl.scenes.sponge import SpongePhantomScene
 
@@ -58,7 +62,18 @@ def press(scene, ctrl, rng, x, y, depth, speed, hold=0.094):
     return np.log(b + v + [ratio])
 
 
-def main(n: int) -> None:
+def with_disc_height(ctrl: BioInspiredController, height_mm: float) -> BioInspiredController:
+    """The controller with its CAPR model rebuilt for a sensor disc ``height_mm`` high (full populations)."""
+    p = ctrl.params
+    contact = capr.SkinContact(radius_mm=p["contact_radius_mm"], height_mm=height_mm)
+    ctrl.model = capr.CaprModel([capr.build_population(capr.afferent_type(t), contact) for t in ctrl.afferent_types()],
+                                input_rate_hz=p["rate_hz"], fs_model=p["fs_model"], window_s=p["window_s"],
+                                activation_hz=p["activation_hz"])
+    ctrl.reset()
+    return ctrl
+
+
+def main(n: int, disc_height_mm: float | None = None) -> None:
     rng = np.random.default_rng(7)
     scene = SpongePhantomScene.build({}, {"sites": {"soft": 1, "medium": 2, "hard": 3}}, frozenset(), rng)
     holes = scene.params["holes_mm"]
@@ -66,6 +81,10 @@ def main(n: int) -> None:
     noise = np.array([BALLOON.sigma] * 5 + [VIBRATION.sigma] * 5 + [VISUAL.sigma]) ** 2
     for ctrl_cls in (NoFeedback, PiecewiseController, LinearController, BioInspiredController):
         ctrl = ctrl_cls({})
+        if disc_height_mm is not None and isinstance(ctrl, BioInspiredController):
+            ctrl = with_disc_height(ctrl, disc_height_mm)
+            print(f"(bio_inspired: CAPR disc {disc_height_mm:g} mm, F_crit "
+                  f"{min(q.force_crit_n for q in ctrl.model.populations):.3f} N)")
         data = {}
         for spot, (x, y) in spots.items():
             rows = []
@@ -88,4 +107,4 @@ def main(n: int) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 120)
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 120, float(sys.argv[2]) if len(sys.argv) > 2 else None)
