@@ -17,8 +17,10 @@ scene. What it does, and why each part is there:
   enhanced tumour (ES/ESG) gives such a cue, the compliant one of BL does not. A cue means "at the tumour";
   it stops, reacting after a delay, and relaxes its push.
 * **Probes the guidance** (``probe_mm`` > 0): in a scenario's first trial, lined up over the incision, it pushes
-  its hand sideways and back, as people judge compliance by pressing (Lederman & Klatzky 1987); a steady hand
-  would otherwise stay inside the guidance's tolerance and never learn that a stiff channel holds it.
+  its hand sideways and back, slowly, as people judge compliance by pressing (Lederman & Klatzky 1987); a steady
+  hand would otherwise stay inside the guidance's tolerance and never learn that a stiff channel holds it. It
+  judges the channel's stiffness (force over sideways travel) only there and in tissue, never while reaching at
+  speed, where the channel's damper would push back whatever the stiffness.
 * **Decides when to scan** from its own uncertainty (growing with movement, reset by scans, the lateral
   part reset by a perceived guidance force): before entering if unsure of the entry point, when it thinks
   it is close to the target unless it has learnt in this scenario that a force cue marks the target, and
