@@ -3,9 +3,12 @@ runs wherever the compiled one is absent, not proven equal, or turned off."""
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
+import studyctl.models
 from studyctl.errors import ModelParameterError
 from studyctl.models import capr
 
@@ -80,3 +83,15 @@ def test_numpy_path_where_the_compiled_tick_is_not_proven_or_is_off(full, monkey
     assert capr.CaprModel(full)._jit is not None
     monkeypatch.setenv("STUDYCTL_JIT", "0")
     assert capr.CaprModel(full)._jit is None
+
+
+def test_numpy_path_without_numba(full, monkeypatch):
+    """An install without the `fast` extra: importing the compiled tick fails and the model runs numpy."""
+    monkeypatch.delitem(sys.modules, "studyctl.models.capr_jit", raising=False)
+    monkeypatch.delattr(studyctl.models, "capr_jit", raising=False)  # `from studyctl.models import` looks here first
+    monkeypatch.setitem(sys.modules, "numba", None)  # import numba raises ImportError
+    model = capr.CaprModel(full)
+    assert model._jit is None
+    assert model.step(3.0) == capr.CaprModel(full, compiled=False).step(3.0)
+    with pytest.raises(ImportError):
+        capr.CaprModel(full, compiled=True)
