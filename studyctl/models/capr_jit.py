@@ -58,7 +58,22 @@ _dgemv = types.ExternalFunction(_SYMBOL, types.void(
 _COL_MAJOR, _TRANS = 102, 112  # CblasColMajor, CblasTrans
 
 
-@njit(cache=True)
+def _compiled(fn):
+    """``njit`` with numba's on-disk cache where numba has somewhere to write it; else compiled in each process.
+
+    Why: numba refuses ``cache=True`` (RuntimeError at import) when neither the package's folder nor the user's
+    home is writable — a read-only install, a locked-down Dask worker. That must cost only the compile time
+    (~1.8 s per process), not the simulation.
+    """
+    try:
+        return njit(cache=True)(fn)
+    except RuntimeError as err:
+        if "no locator available" not in str(err):
+            raise
+        return njit(fn)
+
+
+@_compiled
 def _mv(a, x, y):  # pragma: no cover - compiled
     """y = a @ x for C-contiguous a, as numpy's matmul calls it: cblas_dgemv(ColMajor, Trans, n, m, 1, a, n, x, 1,
     0, y, 1)."""
@@ -66,7 +81,7 @@ def _mv(a, x, y):  # pragma: no cover - compiled
     _dgemv(np.int32(_COL_MAJOR), np.int32(_TRANS), cols, rows, 1.0, a.ctypes, cols, x.ctypes, 1, 0.0, y.ctypes, 1)
 
 
-@njit(cache=True)
+@_compiled
 def _by_type(y, n_types, y_t):  # pragma: no cover - compiled
     """y_t[t, k] = y[k·T + t]: the filter outputs of each type over the sub-samples (``y.reshape(m, T).T``)."""
     for t in range(n_types):
@@ -74,7 +89,7 @@ def _by_type(y, n_types, y_t):  # pragma: no cover - compiled
             y_t[t, k] = y[k * n_types + t]
 
 
-@njit(cache=True)
+@_compiled
 def tick(f_new, pos, deep_live, z, xd, ring, total, lin, gk, gm, unit_type, gk_own, gm_own, am, obs, toe, ctrl, frac,
          crit, crit_min, thr, members, ones_m, negw, vh, scale_mean, out, ys, xs, y_t, v, units,
          sums):  # pragma: no cover

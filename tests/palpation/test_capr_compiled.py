@@ -3,6 +3,8 @@ runs wherever the compiled one is absent, not proven equal, or turned off."""
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 
 import numpy as np
@@ -95,3 +97,20 @@ def test_numpy_path_without_numba(full, monkeypatch):
     assert model.step(3.0) == capr.CaprModel(full, compiled=False).step(3.0)
     with pytest.raises(ImportError):
         capr.CaprModel(full, compiled=True)
+
+
+def test_compiled_without_anywhere_to_cache_compiles_in_the_process():
+    """A read-only install and home: numba has no cache locator (made so here through numba's own
+    NUMBA_CACHE_LOCATOR_CLASSES, in a fresh process); the tick still compiles and still equals numpy."""
+    script = (
+        "import numpy as np\n"
+        "from studyctl.models import capr\n"
+        "pops = [capr.build_population(t, capr.SkinContact(radius_mm=4.0)) for t in capr.TYPES.values()]\n"
+        "fast, ref = capr.CaprModel(pops, compiled=True), capr.CaprModel(pops, compiled=False)\n"
+        "forces = np.r_[np.linspace(0.02, 4.0, 30), [4.0] * 20, np.linspace(4.0, 0.02, 30)]\n"
+        "print(all(repr(fast.step(f)) == repr(ref.step(f)) for f in forces))\n"
+    )
+    env = {**os.environ, "NUMBA_CACHE_LOCATOR_CLASSES": "IPythonCacheLocator"}  # None outside IPython
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "True"
