@@ -114,3 +114,17 @@ def test_compiled_without_anywhere_to_cache_compiles_in_the_process():
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.strip() == "True"
+
+
+def test_the_machine_code_is_loaded_when_the_model_is_built_not_on_its_first_tick():
+    """numba loads or compiles at a function's first call (0.1-2 s); on a trial's first tick that stalled the
+    real-time loop of a rehearsal on the driver-board emulator (device_fault loop_stalled). Fresh process."""
+    script = (
+        "from studyctl.models import capr, capr_jit\n"
+        "pops = [capr.build_population(t, capr.SkinContact(radius_mm=4.0)) for t in capr.TYPES.values()]\n"
+        "model = capr.CaprModel(pops, compiled=True)\n"
+        "print(len(capr_jit.tick.signatures), model._pos, model._deep_live, float(abs(model._z).max()))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["1", "0", "False", "0.0"]  # compiled, and the model still at rest
