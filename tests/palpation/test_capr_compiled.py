@@ -99,6 +99,7 @@ def test_numpy_path_without_numba(full, monkeypatch):
         capr.CaprModel(full, compiled=True)
 
 
+@pytest.mark.slow  # a fresh process that imports numba and compiles or loads the tick: 2-5 s
 def test_compiled_without_anywhere_to_cache_compiles_in_the_process():
     """A read-only install and home: numba has no cache locator (made so here through numba's own
     NUMBA_CACHE_LOCATOR_CLASSES, in a fresh process); the tick still compiles and still equals numpy."""
@@ -116,6 +117,7 @@ def test_compiled_without_anywhere_to_cache_compiles_in_the_process():
     assert done.stdout.strip() == "True"
 
 
+@pytest.mark.slow  # a fresh process that imports numba and compiles or loads the tick: 2-5 s
 def test_the_machine_code_is_loaded_when_the_model_is_built_not_on_its_first_tick():
     """numba loads or compiles at a function's first call (0.1-2 s); on a trial's first tick that stalled the
     real-time loop of a rehearsal on the driver-board emulator (device_fault loop_stalled). Fresh process."""
