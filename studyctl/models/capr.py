@@ -165,12 +165,12 @@ class CaprModel:
         self.dt = 1.0 / fs_model
         self._build()
         self._jit = _compiled_tick(self, compiled)
+        self.reset()
         if self._jit is not None:
             # numba loads (or compiles) the machine code at the first call, 0.1-2 s: pay it here, not on the first
-            # tick of a trial, where a real-time device loop would fault as stalled. The state is reset below.
-            self.reset()
+            # tick of a trial, where a real-time device loop would fault as stalled; then back to rest.
             self.step(0.0)
-        self.reset()
+            self.reset()
 
     # -- construction --------------------------------------------------------------------------------
     def _build(self) -> None:
