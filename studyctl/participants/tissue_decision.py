@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from studyctl.participants.tissue_cue_learning import MIN_SIGNAL, amplitude, excess, sums
+from studyctl.participants.tissue_cue_learning import amplitude, excess, sums
 from studyctl.participants.tissue_perception import _depth_matched
 
 
@@ -28,9 +28,7 @@ def _cue_signal(z: np.ndarray, statistic: str = "spread") -> float:
     both cues at the same windows, the share of windows over a nodule is the same for both, so this amplitude is
     proportional to each cue's d'. ``slide_fusion: pooled`` pools it over the person's trials instead
     (:class:`.tissue_cue_learning.CueReliability`)."""
-    if z.size == 0:
-        return MIN_SIGNAL
-    return amplitude(excess(*sums(z), z.size, statistic))
+    return amplitude(excess(*sums(z), z.size, statistic))  # no records: no excess, so the floor
 
 
 class SpotDecision:
