@@ -13,9 +13,9 @@ Agreement criteria (issue 17):
   whether the simulated people scored ``A`` higher (significant or not).
 
 The calibration distance is the simulated method of moments objective: Σ over fit targets of
-((simulated − published) / σ)², σ² = published SE² + simulation SE² (a p-value on the log10 scale with σ = 0.5;
-a verdict that differs adds 4, i.e. a 2σ miss, and a significant result against the paper's stated direction 16;
-a target the simulation cannot compute adds 25).
+((simulated − published) / σ)², σ² = published SE² + simulation SE² (a p-value as its normal deviate, see
+:func:`p_value_z`; a verdict that differs adds 4, i.e. a 2σ miss, and a significant result against the paper's
+stated direction 16; a target the simulation cannot compute adds 25).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import pandas as pd
+from scipy.stats import norm
 
 from studyctl.calibration.simulated import SimulatedStats
 from studyctl.populations.targets import SPREADS, Target
@@ -33,7 +34,13 @@ SD_FACTOR = 1.5
 MISSING_PENALTY = 25.0
 VERDICT_PENALTY = 4.0
 WRONG_WAY_PENALTY = 16.0  # significant, but the other level is higher than the paper found
-LOG_P_SD = 0.5
+# A p-value is compared as the normal deviate it stands for, z = Φ⁻¹(1 − p/2). A replication of a study with
+# the same n draws its own deviate around the same true effect with SD 1, as the published one did, so two
+# studies' deviates differ by SD √2 (Cumming 2008, "Replication and p intervals", Perspect. Psychol. Sci. 3:286;
+# Boos & Stefanski 2011, Am. Stat. 65:213, on how little of a p-value reproduces). The earlier σ = 0.5 in log10 p
+# made a p-value target's distance grow without bound as a simulated effect grew (p 3e-6 against a published
+# 0.034: 65 in z², more than every other validation target of seed 001 together; stop 30's note).
+P_DEVIATE_SD = math.sqrt(2.0)
 
 COLUMNS = (
     "target", "role", "metric", "where", "statistic", "published", "published_low", "published_high", "band",
@@ -130,6 +137,13 @@ def _significant(t: Target, sim: object, alpha: float) -> bool | None:
     return bool(s < alpha) if math.isfinite(s) else None
 
 
+def p_value_z(simulated_p: float, published_p: float) -> float:
+    """Distance of a simulated p from the published one in σ units of a replication (module docs): negative when
+    the simulated people give the smaller p, i.e. the stronger evidence."""
+    deviate = [float(norm.isf(min(max(p, 1e-300), 1.0) / 2.0)) for p in (simulated_p, published_p)]
+    return (deviate[1] - deviate[0]) / P_DEVIATE_SD
+
+
 def z_score(t: Target, sim: object, sim_se: float, alpha: float, higher: str = "") -> float:
     """Signed distance of the simulated value from the published one in σ units (see the module docs);
     ``higher``: the level of a pair target the simulated people scored higher on."""
@@ -143,7 +157,7 @@ def z_score(t: Target, sim: object, sim_se: float, alpha: float, higher: str = "
     if not math.isfinite(s):
         return math.nan
     if t.statistic == "test_p":
-        return (math.log10(max(s, 1e-300)) - math.log10(max(float(t.value), 1e-300))) / LOG_P_SD
+        return p_value_z(s, float(t.value))
     se_pub = t.published_se()
     if se_pub is None:
         se_pub = max(abs(float(t.value)) * 0.1, 1e-6)  # an unstated uncertainty: 10 % of the value

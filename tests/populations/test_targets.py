@@ -8,10 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 from population_testdata import DATA, MINI_PLAN, MINI_PROTOCOL, write_variant
+from scipy.stats import norm
 
 from studyctl.calibration import agreement, distance, simulated_values
+from studyctl.calibration.agreement import z_score
 from studyctl.errors import PopulationError
-from studyctl.populations.targets import load_targets_file
+from studyctl.populations.targets import Target, load_targets_file
 
 TARGETS = DATA / "mini.targets.yaml"
 
@@ -125,6 +127,20 @@ def test_agreement_and_distance():
     assert total == pytest.approx(sum(v * v for v in z.values()))
     assert set(agr.to_frame().columns) >= {"published", "simulated", "same_direction", "within", "same_verdict",
                                           "role", "agrees"}
+
+
+def test_a_p_value_is_compared_as_the_deviate_it_stands_for():
+    """A p-value target's distance is the difference of the two normal deviates over a replication's SD √2, so a
+    simulated effect larger than the paper's costs what its deviate says, not more the smaller p gets (the log10
+    distance gave p 3.2e-6 against 0.034 a z of -8.1, 65 in z²)."""
+    target = Target("p", "scans", "test_p", 0.034, "validation", {}, test="scans_anova")
+    strong = z_score(target, 3.2e-6, math.nan, 0.05)
+    assert strong == pytest.approx((norm.isf(0.017) - norm.isf(1.6e-6)) / math.sqrt(2))
+    assert -1.9 < strong < -1.7
+    assert z_score(target, 0.034, math.nan, 0.05) == 0.0
+    assert z_score(target, 0.5, math.nan, 0.05) > 0  # weaker evidence than the paper's: positive
+    assert math.isfinite(z_score(target, 0.0, math.nan, 0.05))  # a p that underflowed to 0
+    assert z_score(target, 1e-12, math.nan, 0.05) > z_score(target, 1e-20, math.nan, 0.05)
 
 
 def test_cv_is_a_spread_judged_by_its_ratio():
