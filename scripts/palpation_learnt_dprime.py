@@ -30,6 +30,7 @@ from palpation_practice_decision import typical_person  # noqa: E402
 
 from studyctl.controllers.bio_inspired import BioInspiredController  # noqa: E402
 from studyctl.controllers.palpation import LinearController, NoFeedback, PiecewiseController  # noqa: E402
+from studyctl.models.grid_cells import within_one_cell  # noqa: E402
 from studyctl.participants.palpator import VirtualPalpator  # noqa: E402
 from studyctl.participants.palpator_practice import learn_cue_weights  # noqa: E402
 
@@ -71,7 +72,7 @@ def dprime(rows: list[dict], learnt) -> dict[str, float]:
         for cell, v in scores.items():
             if cell in r["truth"]:
                 z[r["truth"][cell]].append((v - centre) / cues.spread)
-            elif all(max(abs(cell[0] - c[0]), abs(cell[1] - c[1])) > 1 for c in r["truth"]):
+            elif not any(within_one_cell(cell, c) for c in r["truth"]):
                 z["plain"].append((v - centre) / cues.spread)
     plain = np.array(z["plain"])
     return {c: (np.mean(z[c]) - plain.mean()) / plain.std() if z[c] and plain.size > 1 else float("nan")

@@ -29,6 +29,7 @@ from palpation.practice_support import found, trial_after_practice  # noqa: E402
 
 from studyctl.controllers.bio_inspired import BioInspiredController  # noqa: E402
 from studyctl.controllers.palpation import NoFeedback  # noqa: E402
+from studyctl.models.grid_cells import within_one_cell  # noqa: E402
 from studyctl.participants.palpator import VirtualPalpator  # noqa: E402
 from studyctl.participants.palpator_params import PARAMS  # noqa: E402
 from studyctl.populations import load_population_file, shipped_population_path  # noqa: E402
@@ -61,7 +62,7 @@ def main(argv: list[str]) -> None:
                 by_class[cls] += hit
             truth = {(t["col"], t["row"]): t["class"] for t in scene.truth()["tumours"]}
             # a wrong report: more than one cell from every tumour (the nearest one's distance is the minimum)
-            wrong += sum(all(max(abs(r["column"] - c[0]), abs(r["row"] - c[1])) > 1 for c in truth)
+            wrong += sum(not any(within_one_cell((r["column"], r["row"]), c) for c in truth)
                          for r in out.reports)
             ref = person._ref or person._reference()
             evidence = [(person._score(ev, ref), person._level(ev)) for ev in person.evidence.values()]
@@ -77,7 +78,7 @@ def main(argv: list[str]) -> None:
                 z = (ev.combined[0] - person._ref_combined) / person.cues.spread
                 if cell in truth:
                     first[truth[cell]].append(z)
-                elif all(max(abs(cell[0] - c[0]), abs(cell[1] - c[1])) > 1 for c in truth):
+                elif not any(within_one_cell(cell, c) for c in truth):
                     first["plain"].append(z)
         plain = np.array(first["plain"])
         dprime = {c: (np.mean(first[c]) - plain.mean()) / plain.std() if first[c] and plain.size > 1 else float("nan")

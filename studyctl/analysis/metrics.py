@@ -27,6 +27,7 @@ from studyctl.analysis.plan import AnalysisPlan
 from studyctl.analysis.table import COLUMNS, MISSING_COLUMNS, MetricTable, empty_frame
 from studyctl.analysis.trials import StoredStudy, TrialView
 from studyctl.errors import AnalysisError, StudyctlError
+from studyctl.models.grid_cells import cell_distance
 from studyctl.store.reader import StudyReader
 from studyctl.store.repository import StudyStore
 
@@ -118,7 +119,7 @@ def match_cells(
     for col, row in reports:
         best, best_d = None, math.inf
         for i, (tc, tr) in enumerate(targets):
-            d = max(abs(col - tc), abs(row - tr))
+            d = cell_distance((col, row), (tc, tr))
             if not found[i] and d <= tolerance and d < best_d:
                 best, best_d = i, d
         if best is None:

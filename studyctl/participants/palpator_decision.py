@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from studyctl.models.grid_cells import within_one_cell
 from studyctl.participants.palpator_perception import STOP, VISUAL, _CellEvidence
 from studyctl.plugins.interfaces import Action, Request
 
@@ -109,7 +110,7 @@ class CellDecision:
         for score, cell in scored:
             if score <= self._level(self.evidence[cell]):
                 continue  # (with one level for every cell, every later cell is below it too)
-            if all(max(abs(cell[0] - c[0]), abs(cell[1] - c[1])) > 1 for c in chosen):
+            if not any(within_one_cell(cell, c) for c in chosen):
                 chosen.append(cell)
                 if len(chosen) == self.params["max_reports"]:
                     break
@@ -151,7 +152,7 @@ class CellDecision:
             for score, cell in scored:
                 if len(chosen) == n or not math.isfinite(score):
                     break
-                if all(max(abs(cell[0] - c[0]), abs(cell[1] - c[1])) > 1 for c in chosen):
+                if not any(within_one_cell(cell, c) for c in chosen):
                     chosen.append(cell)
             if len(chosen) == n:
                 return chosen

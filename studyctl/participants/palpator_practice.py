@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from studyctl.errors import ModelParameterError
+from studyctl.models.grid_cells import within_one_cell
 from studyctl.participants.palpator_perception import VISUAL
 from studyctl.plugins.interfaces import Action, Request
 
@@ -206,7 +207,7 @@ class Familiarisation:
                                       "marked site in the trial's public 'marks'); familiarise needs them")
         self._marked = {cell for cell, _ in sites}
         plain = [(c, r) for r in range(1, self.rows + 1) for c in range(1, self.columns + 1)
-                 if all(max(abs(c - m[0]), abs(r - m[1])) >= 2 for m in self._marked)]
+                 if not any(within_one_cell((c, r), m) for m in self._marked)]
         for cell, at in sites:
             for _ in range(n):
                 self._queue_probe(cell, at)

@@ -8,6 +8,7 @@ import numpy as np
 from studyctl.devices.palpation import SimulatedPalpationDevice
 from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import run_trial
+from studyctl.models.grid_cells import within_one_cell
 from studyctl.plugins.interfaces import TrialInfo
 from studyctl.scenes.sponge import SpongePhantomScene
 
@@ -19,7 +20,7 @@ SITES = ({"soft": 1, "medium": 3, "hard": 7}, {"soft": 5, "medium": 2, "hard": 4
 def found(out, scene):
     """Per tumour class: was a report within one cell of it (the paper's rule)?"""
     truth = scene.truth()["tumours"]
-    return {t["class"]: any(max(abs(r["column"] - t["col"]), abs(r["row"] - t["row"])) <= 1 for r in out.reports)
+    return {t["class"]: any(within_one_cell((r["column"], r["row"]), (t["col"], t["row"])) for r in out.reports)
             for t in truth}
 
 

@@ -11,6 +11,7 @@ from studyctl.devices.palpation import SimulatedPalpationDevice
 from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import run_trial
 from studyctl.errors import ModelParameterError
+from studyctl.models.grid_cells import within_one_cell
 from studyctl.participants.palpator import VirtualPalpator
 from studyctl.plugins.interfaces import TrialInfo
 from studyctl.scenes.sponge import SpongePhantomScene
@@ -283,7 +284,7 @@ def test_a_forced_choice_reports_the_cells_that_looked_most_different():
                     key=lambda sc: (-sc[0], sc[1]))
     top = []
     for _, cell in ranked:
-        if all(max(abs(cell[0] - c[0]), abs(cell[1] - c[1])) > 1 for c in top):
+        if not any(within_one_cell(cell, c) for c in top):
             top.append(cell)
         if len(top) == 3:
             break
