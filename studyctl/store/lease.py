@@ -38,6 +38,10 @@ from studyctl.store.models import SessionLease, utcnow
 HEARTBEAT_S = 5.0
 STALE_S = 30.0
 
+# Checked at the start of every write transaction of a session (and in each sample flush): built once and run on
+# the transaction's connection (Core), the same SELECT without ORM statement handling per check.
+_LEASE_TOKEN = select(SessionLease.token).where(SessionLease.session_id == bindparam("session_id"))
+
 
 @dataclass(frozen=True)
 class LeaseHolder:
@@ -184,11 +188,6 @@ class SessionLeaseHandle:
             if self._pg is not None:
                 self._pg.close()
                 self._pg = None
-
-
-# Checked at the start of every write transaction of a session (and in each sample flush): built once and run on
-# the transaction's connection (Core), the same SELECT without ORM statement handling per check.
-_LEASE_TOKEN = select(SessionLease.token).where(SessionLease.session_id == bindparam("session_id"))
 
 
 def take_lease(db: Database, tx: OrmSession, session_id: int, *, take_over: bool = False) -> SessionLeaseHandle:
