@@ -25,6 +25,8 @@ from scipy import optimize as _opt
 
 from studyctl.errors import StatsInputError
 
+from .model_design import design_problem, factor_levels, factorial_terms, has_repeats, long_frame, no_variation
+
 NAN = math.nan
 
 
@@ -70,12 +72,10 @@ def treatment_design(frame: pd.DataFrame, names: Sequence[str], levels: dict[str
                      ) -> tuple[np.ndarray, list[str]]:
     """Full-factorial design in treatment coding (intercept, then main effects, then interactions) and R-style
     column names (``group[expert]``, ``group[expert]:condition[linear]``)."""
-    from studyctl.stats.models import _terms
-
     coded = {n: (np.column_stack([(frame[n].to_numpy() == lv).astype(float) for lv in levels[n][1:]]),
                  [f"{n}[{lv}]" for lv in levels[n][1:]]) for n in names}
     cols, labels = [np.ones((len(frame), 1))], ["(Intercept)"]
-    for term in _terms(names):
+    for term in factorial_terms(names):
         block, lab = coded[term[0]]
         for n in term[1:]:
             other, olab = coded[n]
@@ -110,16 +110,14 @@ def mixed_coefficients(y: Sequence[float], factors: dict[str, Sequence], subject
     module docstring. A design the model cannot fit comes back not computed with the reason."""
     from statsmodels.regression.mixed_linear_model import MixedLM
 
-    from studyctl.stats.models import _clean, _levels, _no_variation, _problem, _repeated
-
     level = _check_confidence(confidence)
     method = (f"Wald {level:.0%} intervals of the fixed effects (treatment coding), REML variance components "
               "(statsmodels MixedLM), GLS covariance")
-    frame = _clean(y, factors, subject)
+    frame = long_frame(y, factors, subject)
     names = list(factors)
-    lv = _levels(frame, names, levels)
-    why = _problem(frame, names, lv) or _no_variation(frame["y"].to_numpy()) or (
-        "" if _repeated(frame) else "every participant has one value: no random intercept to estimate")
+    lv = factor_levels(frame, names, levels)
+    why = design_problem(frame, names, lv) or no_variation(frame["y"].to_numpy()) or (
+        "" if has_repeats(frame) else "every participant has one value: no random intercept to estimate")
     if why:
         return CoefficientTable("mixed_model", (), level, method, "not_computed", why)
     x, labels = treatment_design(frame, names, lv)
@@ -156,14 +154,12 @@ def ordinal_coefficients(y: Sequence[float], factor: Sequence, *, levels: Sequen
     with Wald intervals from the Hessian."""
     from statsmodels.miscmodels.ordinal_model import OrderedModel
 
-    from studyctl.stats.models import _clean, _levels, _problem
-
     level = _check_confidence(confidence)
     method = f"Wald {level:.0%} intervals of the log odds ratios (cumulative logit, statsmodels OrderedModel)"
-    frame = _clean(y, {"factor": factor}, None)
-    lv = _levels(frame, ["factor"], {"factor": list(levels or [])})["factor"]
+    frame = long_frame(y, {"factor": factor}, None)
+    lv = factor_levels(frame, ["factor"], {"factor": list(levels or [])})["factor"]
     values = frame["y"].to_numpy()
-    why = _problem(frame, ["factor"], {"factor": lv})
+    why = design_problem(frame, ["factor"], {"factor": lv})
     if not why and np.any(values != np.round(values)):
         why = "answers are not whole numbers: an ordinal model needs the answers themselves"
     if not why and len(np.unique(values)) < 2:

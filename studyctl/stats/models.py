@@ -31,13 +31,22 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from studyctl.errors import StatsInputError
 
+from .model_design import (
+    design,
+    design_problem,
+    factor_levels,
+    factorial_terms,
+    has_repeats,
+    long_frame,
+    no_variation,
+    term_name,
+)
 from .model_intervals import partial_eta_squared_ci
 from .summary import TestSummary
 
@@ -86,103 +95,6 @@ class ModelResult:
 
     def term(self, name: str) -> ModelTerm:
         return next(t for t in self.terms if t.term == name)
-
-
-# ----------------------------------------------------------------------------------------- design
-
-
-def _clean(y: Sequence[float], factors: dict[str, Sequence], subject: Sequence | None) -> pd.DataFrame:
-    yv = np.asarray(y, dtype=float)
-    if not factors:
-        raise StatsInputError("a model needs at least one factor")
-    columns: dict[str, Any] = {"y": yv}
-    for name, values in factors.items():
-        if len(values) != len(yv):
-            raise StatsInputError(f"factor {name!r} has {len(values)} values for {len(yv)} observations")
-        columns[name] = _text(values)
-    columns["_subject"] = _text(subject) if subject is not None else np.arange(len(yv)).astype(str)
-    frame = pd.DataFrame(columns)
-    finite = np.isfinite(yv)
-    return frame if finite.all() else frame[finite].reset_index(drop=True)
-
-
-def _text(values: Sequence) -> np.ndarray:
-    """The values as text (a factor's levels, a subject's id); text already is kept as it is (no conversion)."""
-    arr = np.asarray(values, dtype=object)
-    if all(type(v) is str for v in arr.tolist()):
-        return arr
-    return pd.Series(list(values), dtype=object).astype(str).to_numpy()
-
-
-def _terms(names: Sequence[str]) -> list[tuple[str, ...]]:
-    """Main effects, then two-way, … interactions (the full factorial)."""
-    return [c for k in range(1, len(names) + 1) for c in itertools.combinations(names, k)]
-
-
-def _sum_coding(values: np.ndarray, levels: list[str]) -> np.ndarray:
-    """R's contr.sum: level i → unit vector i, the last level → −1 in every column."""
-    k = len(levels)
-    idx = np.array([levels.index(v) for v in values])
-    out = np.zeros((len(values), k - 1))
-    for j in range(k - 1):
-        out[:, j] = (idx == j).astype(float)
-    out[idx == k - 1, :] = -1.0
-    return out
-
-
-def design(frame: pd.DataFrame, names: Sequence[str], levels: dict[str, list[str]]) -> tuple[np.ndarray, list[int]]:
-    """Full-factorial design matrix (intercept first, sum-to-zero contrasts) and each column's term index
-    (−1 for the intercept; as R's ``assign`` minus one)."""
-    coded = {n: _sum_coding(frame[n].to_numpy(), levels[n]) for n in names}
-    cols = [np.ones((len(frame), 1))]
-    assign = [-1]
-    for t, term in enumerate(_terms(names)):
-        block = coded[term[0]]
-        for n in term[1:]:
-            block = np.einsum("ij,ik->ijk", block, coded[n]).reshape(len(frame), -1)
-        cols.append(block)
-        assign += [t] * block.shape[1]
-    return np.hstack(cols), assign
-
-
-def _levels(frame: pd.DataFrame, names: Sequence[str], order: dict[str, Sequence[str]] | None) -> dict[str, list]:
-    out = {}
-    for n in names:
-        present = list(dict.fromkeys(frame[n]))
-        preferred = [str(v) for v in (order or {}).get(n, [])]
-        out[n] = [v for v in preferred if v in present] + [v for v in present if v not in preferred]
-    return out
-
-
-def _term_name(term: tuple[str, ...]) -> str:
-    return ":".join(term)
-
-
-def _problem(frame: pd.DataFrame, names: Sequence[str], levels: dict[str, list]) -> str:
-    """Why the full-factorial design cannot be fitted ('' when it can)."""
-    for n in names:
-        if len(levels[n]) < 2:
-            return f"factor {n} has one level ({', '.join(levels[n]) or 'none'}) in these data"
-    # the distinct level combinations present (what groupby(names).size() counts, without its machinery)
-    cells = len({tuple(r) for r in zip(*(frame[n].tolist() for n in names), strict=True)})
-    expected = math.prod(len(levels[n]) for n in names)
-    if cells < expected:
-        return (f"{expected - cells} of {expected} cells of {' × '.join(names)} have no observation: the "
-                "full-factorial model is singular")
-    if len(frame) <= expected:
-        return f"no replication: {len(frame)} observations for {expected} cells"
-    return ""
-
-
-def _no_variation(values: np.ndarray, what: str = "every value") -> str:
-    """Why a response that does not vary cannot be tested ('' when it varies)."""
-    if len(values) and np.all(values == values[0]):
-        return f"{what} is the same ({values[0]:g}): the response does not vary, nothing to test"
-    return ""
-
-
-def _repeated(frame: pd.DataFrame) -> bool:
-    return bool(frame["_subject"].duplicated().any())
 
 
 # --------------------------------------------------------------------------------------- fitting
@@ -310,8 +222,8 @@ def _mixed_lr(y: np.ndarray, x: np.ndarray, assign: list[int], t: int, groups: n
 
 
 def _not_computed(model: str, names: Sequence[str], frame: pd.DataFrame, reason: str) -> ModelResult:
-    terms = tuple(ModelTerm(_term_name(t), "", NAN, NAN, NAN, NAN, status="not_computed", reason=reason)
-                  for t in _terms(names))
+    terms = tuple(ModelTerm(term_name(t), "", NAN, NAN, NAN, NAN, status="not_computed", reason=reason)
+                  for t in factorial_terms(names))
     return ModelResult(model, terms, len(frame), int(frame["_subject"].nunique()) if len(frame) else 0)
 
 
@@ -319,11 +231,11 @@ def mixed_model(y: Sequence[float], factors: dict[str, Sequence], subject: Seque
                 levels: dict[str, Sequence[str]] | None = None) -> ModelResult:
     """Linear mixed model, full factorial of ``factors``, random intercept per ``subject``; each term by a
     likelihood-ratio test of ML fits (see the module docstring)."""
-    frame = _clean(y, factors, subject)
+    frame = long_frame(y, factors, subject)
     names = list(factors)
-    lv = _levels(frame, names, levels)
-    why = _problem(frame, names, lv) or _no_variation(frame["y"].to_numpy())
-    if not why and not _repeated(frame):
+    lv = factor_levels(frame, names, levels)
+    why = design_problem(frame, names, lv) or no_variation(frame["y"].to_numpy())
+    if not why and not has_repeats(frame):
         why = "every participant has one value: no random intercept to estimate (use a between-subject test)"
     if why:
         return _not_computed("mixed_model", names, frame, why)
@@ -332,17 +244,17 @@ def mixed_model(y: Sequence[float], factors: dict[str, Sequence], subject: Seque
     out, llf = [], None
     method = ("linear mixed model, random intercept per participant (ML fits, statsmodels MixedLM); "
               "likelihood-ratio χ² of the term (sum-to-zero contrasts)")
-    for t, term in enumerate(_terms(names)):
+    for t, term in enumerate(factorial_terms(names)):
         try:
             chi2, df, p, llf = _mixed_lr(yv, x, assign, t, groups, llf)
         except np.linalg.LinAlgError as exc:
-            out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=str(exc)))
+            out.append(ModelTerm(term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=str(exc)))
             continue
         if not math.isfinite(chi2):
-            out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed",
+            out.append(ModelTerm(term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed",
                                  reason="the likelihood could not be evaluated at the fitted values"))
             continue
-        out.append(ModelTerm(_term_name(term), "chi2 (LR)", chi2, df, NAN, p, method=method))
+        out.append(ModelTerm(term_name(term), "chi2 (LR)", chi2, df, NAN, p, method=method))
     return ModelResult("mixed_model", tuple(out), len(frame), int(frame["_subject"].nunique()))
 
 
@@ -397,39 +309,39 @@ def art_anova(y: Sequence[float], factors: dict[str, Sequence], subject: Sequenc
               levels: dict[str, Sequence[str]] | None = None) -> ModelResult:
     """Aligned rank transform ANOVA of the full factorial of ``factors`` (two or more)."""
     from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
-    frame = _clean(y, factors, subject)
+    frame = long_frame(y, factors, subject)
     names = list(factors)
     if len(names) < 2:
         raise StatsInputError("the aligned rank transform needs at least two factors (use a rank test for one)")
-    lv = _levels(frame, names, levels)
-    why = _problem(frame, names, lv) or _no_variation(frame["y"].to_numpy())
+    lv = factor_levels(frame, names, levels)
+    why = design_problem(frame, names, lv) or no_variation(frame["y"].to_numpy())
     if why:
         return _not_computed("art_anova", names, frame, why)
     x, assign = design(frame, names, lv)
-    repeated = _repeated(frame)
+    repeated = has_repeats(frame)
     groups = frame["_subject"].to_numpy()
     codes = _group_codes(frame, names)
     out = []
-    for t, term in enumerate(_terms(names)):
+    for t, term in enumerate(factorial_terms(names)):
         ranks = _st.rankdata(aligned_responses(frame, names, term, codes))
-        flat = _no_variation(ranks, "every aligned rank")
+        flat = no_variation(ranks, "every aligned rank")
         if flat:  # the term's aligned responses are all tied: a fit would report rounding noise as an effect
-            out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=flat))
+            out.append(ModelTerm(term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=flat))
             continue
         try:
             if repeated:
                 chi2, df, p, _ = _mixed_lr(ranks, x, assign, t, groups)
-                out.append(ModelTerm(_term_name(term), "chi2 (LR)", chi2, df, NAN, p, method=(
+                out.append(ModelTerm(term_name(term), "chi2 (LR)", chi2, df, NAN, p, method=(
                     "aligned rank transform (Wobbrock et al. 2011); ranks in a random-intercept model per "
                     "participant, likelihood-ratio χ² of ML fits")))
             else:
                 f, df1, df2, p, pes = _ols_f(ranks, x, assign, t)
                 lo, hi = partial_eta_squared_ci(f, df1, df2)
-                out.append(ModelTerm(_term_name(term), "F", f, df1, df2, p, "partial_eta_squared", pes, method=(
+                out.append(ModelTerm(term_name(term), "F", f, df1, df2, p, "partial_eta_squared", pes, method=(
                     "aligned rank transform (Wobbrock et al. 2011); type III F on the aligned ranks; 95% interval "
                     "of partial η² by noncentral F inversion"), effect_ci_low=lo, effect_ci_high=hi))
         except np.linalg.LinAlgError as exc:
-            out.append(ModelTerm(_term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=str(exc)))
+            out.append(ModelTerm(term_name(term), "", NAN, NAN, NAN, NAN, status="not_computed", reason=str(exc)))
     return ModelResult("art_anova", tuple(out), len(frame), int(frame["_subject"].nunique()))
 
 
@@ -438,9 +350,9 @@ def ordinal_model(y: Sequence[float], factor: Sequence, *, levels: Sequence[str]
     """Proportional-odds cumulative logit model of ordinal answers ``y`` on one factor; the factor's
     likelihood-ratio χ² against the thresholds-only model. Answers must be whole numbers."""
     from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
-    frame = _clean(y, {"factor": factor}, subject)
-    lv = _levels(frame, ["factor"], {"factor": levels or []})
-    why = _problem(frame, ["factor"], lv)
+    frame = long_frame(y, {"factor": factor}, subject)
+    lv = factor_levels(frame, ["factor"], {"factor": levels or []})
+    why = design_problem(frame, ["factor"], lv)
     values = frame["y"].to_numpy()
     if not why and np.any(values != np.round(values)):
         why = ("answers are not whole numbers (repetitions averaged?): an ordinal model needs the answers "
@@ -458,7 +370,7 @@ def ordinal_model(y: Sequence[float], factor: Sequence, *, levels: Sequence[str]
     cs = 1 - math.exp(-chi2 / n_obs)
     nag = cs / (1 - math.exp(2 * llf0 / n_obs))
     warn = ("repeated answers of one participant treated as independent (no participant random effect)"
-            if _repeated(frame) else "")
+            if has_repeats(frame) else "")
     term = ModelTerm("factor", "chi2 (LR)", chi2, df, NAN, float(_st.chi2.sf(chi2, df)), "nagelkerke_r2", nag,
                      method="cumulative logit (proportional odds) model, statsmodels OrderedModel; likelihood-"
                      "ratio χ² against the thresholds-only model", reason=warn)

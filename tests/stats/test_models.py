@@ -99,16 +99,16 @@ def test_ordinal_refuses_averaged_answers_and_constant_answers():
 
 def _balanced(rng: np.random.Generator, n: int, sd_subject: float, *, drop: int = 0):
     """A 2 (group, between) × 4 (condition, within) design, one value per participant × condition."""
-    from studyctl.stats import models as m
+    from studyctl.stats import model_design as md
 
     group = np.repeat(np.where(np.arange(n) < n // 3, "expert", "novice"), 4)
     cond = np.tile(LEVELS["condition"], n)
     subject = np.repeat([f"P{i:02d}" for i in range(n)], 4)
     y = rng.normal(size=4 * n) + np.repeat(rng.normal(size=n) * sd_subject, 4) + (cond == "linear") * 0.7
     y[:drop] = np.nan
-    frame = m._clean(y, {"group": group, "condition": cond}, subject)
+    frame = md.long_frame(y, {"group": group, "condition": cond}, subject)
     names = ["group", "condition"]
-    x, assign = m.design(frame, names, m._levels(frame, names, LEVELS))
+    x, assign = md.design(frame, names, md.factor_levels(frame, names, LEVELS))
     return frame, x, assign
 
 
