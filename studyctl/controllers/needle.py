@@ -110,6 +110,10 @@ class NeedleHybridController(Controller):
             return [ParamProblem(paths.get(field, ()), "refused by the needle model", text)]
         return []
 
+    def set_loop_rate(self, rate_hz: float) -> None:
+        self.model.set_loop_rate(rate_hz)
+        self._window = max(1, round(0.02 * rate_hz))  # the 20 ms finite difference, in this loop's steps
+
     def reset(self) -> None:
         self.model.reset()
         self.events.clear()

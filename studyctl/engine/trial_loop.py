@@ -89,6 +89,9 @@ def run_trial(
         watchdog = Watchdog(safety.deadline_factor * period, _stalled)
     participant.begin_trial(info, rng)
     if controller is not None:
+        set_rate = getattr(controller, "set_loop_rate", None)  # duck-typed controllers may lack it
+        if set_rate is not None:
+            set_rate(info.rate_hz)
         controller.reset()
     start = clock.now()  # (read by a watchdog that trips before time 0 below)
     if watchdog is not None:

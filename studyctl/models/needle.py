@@ -125,10 +125,16 @@ class NeedleTissueModel:
         self._kp_mm = p.radial_kp * 1e-3
         self._kd_mm = p.radial_kd * 1e-3
         self._radial_max = p.radial_max_n
-        self._blend_rate = self._dt / p.maintain_blend_s
+        self._blend_rate = self._dt / p.maintain_blend_s  # per step; set_loop_rate rescales it
         self._match_cos = math.cos(math.radians(p.track_match_deg))
         self.events: list[tuple[str, float]] = []
         self.reset()
+
+    def set_loop_rate(self, rate_hz: float) -> None:
+        """Steps come ``rate_hz`` times a second (a simulated session below ``params.rate_hz``): the maintain
+        cross-fade advances by its share of ``maintain_blend_s`` per step, so it takes the same time. The
+        K·T/2 damping rule is checked at ``params.rate_hz``, the rate a device runs the model at."""
+        self._blend_rate = min(1.0, (1.0 / rate_hz) / self.params.maintain_blend_s)
 
     def reset(self) -> None:
         """Forget the tracks, puncture flags, friction and mode state (a fresh trial)."""

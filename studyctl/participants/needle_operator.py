@@ -110,8 +110,10 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         # this trial's own pace: within-person variation around the person's speed and reading time
         vary = rng.standard_normal(2)
         speed = p.insert_speed_mm_s * math.exp(p.speed_trial_cv * float(vary[0]))
-        every = max(1, round(info.rate_hz / p.decision_hz))
-        dt = every / info.rate_hz
+        # Decisions keep ``decision_hz`` in seconds whatever the loop rate: a whole number of ticks per decision
+        # would decide at 125 Hz in a 250 Hz loop (2 ticks) and draw its per-decision noise that much more often.
+        ratio = max(1.0, info.rate_hz / p.decision_hz)
+        dt = ratio / info.rate_hz  # nominal; each decision's own is set in act()
         realtime = info.visual == "realtime"
         if realtime:
             speed *= p.realtime_speed_gain
@@ -120,7 +122,7 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         home = p.home
         self.s = TrialState(
             info=info,
-            every=every,
+            ratio=ratio,
             dt=dt,
             realtime=realtime,
             scans_allowed=info.visual == "on_request",
@@ -136,7 +138,6 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
             record={"condition": info.condition, "visual": info.visual, "cue": False, "wall": False,
                     "radial_felt_s": 0.0},
             sense=PositionSense(3.0),
-            tick=every - 1,  # decide on the first call
         )
         self.s.action = make_action(self._st, home, ())
 
@@ -154,9 +155,14 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
             if st.busy_until == math.inf:
                 st.busy_until = t + self._read_time()
         st.tick += 1
-        if st.tick < st.every:
+        if st.tick < st.next_tick:
             return st.action
-        st.tick = 0
+        # decision m falls on tick floor(m · ratio), so the mean interval is exactly 1 / decision_hz (at 1 kHz
+        # every 10 ticks; at 250 Hz 2 and 3 ticks in turn) and dt is the time this decision's command is held
+        st.decisions += 1
+        nxt = max(st.tick + 1, math.floor(st.decisions * st.ratio))
+        st.dt = (nxt - st.tick) / st.info.rate_hz
+        st.next_tick = nxt
         requests = self._decide(t, percept)
         cmd = command(st, self.p)
         st.action = make_action(self._st, cmd, ())

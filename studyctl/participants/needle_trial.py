@@ -71,8 +71,8 @@ class TrialState:
     """Everything the operator holds during one trial (made anew by ``begin_trial``)."""
 
     info: TrialInfo
-    every: int  # device ticks per decision
-    dt: float  # seconds per decision
+    ratio: float  # device ticks per decision (≥ 1; need not be whole, see ``VirtualNeedleOperator.act``)
+    dt: float  # seconds this decision's command is held: ticks to the next decision / loop rate
     realtime: bool
     scans_allowed: bool
     v_ins: float
@@ -87,7 +87,9 @@ class TrialState:
     record: dict[str, Any]  # what it will remember of this trial
     sense: PositionSense
     cue: AxialCueDetector = field(default_factory=AxialCueDetector)
-    tick: int = 0
+    tick: int = -1  # loop ticks since the trial began (the first call is tick 0)
+    next_tick: int = 0  # the tick of the next decision
+    decisions: int = 0
     zi: int = 0
     wobble: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     speed_dev: float = 0.0

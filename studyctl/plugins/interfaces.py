@@ -22,8 +22,8 @@ their params in the constructor and raise :class:`studyctl.errors.ModelParameter
 Additions after the first version (all optional, with defaults, so older plugins keep working):
 ``Observation.sample_t`` and ``Observation.faults`` (sensor age and device-detected problems, read by
 the safety layer's watchdog), ``Scene.public()`` (what a participant may know, e.g. the grid),
-``Controller.outputs``, ``Controller.rate_adjustable``, ``Participant.memory``/``recall``, and default
-constructors for ``Device`` and ``Participant``.
+``Controller.outputs``, ``Controller.rate_adjustable``, ``Controller.set_loop_rate``,
+``Participant.memory``/``recall``, and default constructors for ``Device`` and ``Participant``.
 """
 
 from __future__ import annotations
@@ -186,6 +186,13 @@ class Controller(ABC):
     def needs(cls, params: Mapping[str, Any]) -> frozenset[str]:
         """Scene parts and models this controller needs with these parameters."""
         return frozenset()
+
+    def set_loop_rate(self, rate_hz: float) -> None:  # noqa: B027 - optional hook, a no-op by default
+        """The rate the trial loop will call :meth:`step` at (called before :meth:`reset`, every trial).
+
+        Below ``rate_hz`` only in a simulated session at a reduced loop rate (``rate_adjustable``). A controller
+        whose state advances a fixed amount per step (a cross-fade, a window of samples) scales it here, so its
+        behaviour stays the same in seconds. The default keeps nothing."""
 
     @abstractmethod
     def reset(self) -> None:

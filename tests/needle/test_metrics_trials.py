@@ -207,3 +207,29 @@ def test_likert_answers_are_valid_codes():
                  "easier_with_haptics", "quick_to_learn", "something else"):  # fmt: skip
         code = op.answer({"id": item, "text": "", "codes": [1, 2, 3, 4, 5], "condition": "ESG"}, rng)
         assert code in (1, 2, 3, 4, 5)
+
+
+@pytest.mark.parametrize("rate", [1000.0, 250.0])
+def test_the_maintain_blend_takes_its_time_in_seconds_at_any_loop_rate(scene, rate):
+    """The trial loop tells the controller its rate (``set_loop_rate``). The maintain cross-fade advanced by one
+    1 kHz tick's share of ``maintain_blend_s`` per step, so in a 250 Hz simulated loop it took 0.4 s instead of 0.1."""
+    from studyctl.plugins.interfaces import Action, Participant
+
+    class Releaser(Participant):
+        name = "releaser"
+
+        def begin_trial(self, info, rng):
+            pass
+
+        def act(self, t, percept):  # holds still above the liver and lets go of the button at 0.5 s
+            return Action({"x_mm": 0.0, "y_mm": 0.0, "z_mm": 40.0, "button": 1.0 if t < 0.5 else 0.0})
+
+    device = SimulatedForceDevice({"hand": "none"}, scene)
+    device.open()
+    ctrl = NeedleHybridController(condition_params("BL"), scene)
+    blend: list[tuple[float, float]] = []
+    run_trial(info=TrialInfo("BL", 1.0, rate, "none"), controller=ctrl, device=device, participant=Releaser(),
+              clock=SimulatedClock(), rng=np.random.default_rng(0),
+              on_sample=lambda t, s: blend.append((t, s["maintain"])))
+    full = next(t for t, w in blend if w >= 1.0)
+    assert full - 0.5 == pytest.approx(ctrl.model_params.maintain_blend_s, abs=1.5 / rate)

@@ -177,3 +177,28 @@ def test_its_uncertainty_grows_at_the_drift_it_believes_while_its_sense_drifts_a
     op.s.ref = (0.0, 0.0, 13.0)  # 25 mm from the start position (home 0, 0, 38)
     op._decide(0.01, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 38.0})
     assert op.s.sense.sig_lat == pytest.approx(math.sqrt(0.09 + 0.0225 * 25.0))
+
+
+@pytest.mark.parametrize("rate", [1000.0, 500.0, 250.0, 300.0])
+def test_it_decides_at_decision_hz_in_seconds_whatever_the_loop_rate(rate):
+    """A simulated session may run the needle loop below 1 kHz (``--sim-rate-hz``). The operator decided every
+    round(rate / decision_hz) ticks, so in a 250 Hz loop every 2 ticks: 125 decisions a second instead of 100, each
+    with its own noise draw and a shorter dt. Decisions now fall on tick floor(m · rate / decision_hz), so a
+    second holds decision_hz of them and their dt add up to the time that passed; at 1 kHz, every 10 ticks as before."""
+    op = VirtualNeedleOperator({})
+    op.begin_trial(TrialInfo("BL", 90.0, rate, "on_request"), np.random.default_rng(1))
+    decided: list[tuple[int, float]] = []
+    ticks = int(rate)  # one second of loop ticks
+    tick = 0
+
+    def decide(t, percept):
+        decided.append((tick, op.s.dt))
+        return ()
+
+    op._decide = decide
+    for tick in range(ticks):
+        op.act(tick / rate, {})
+    assert len(decided) == int(op.p.decision_hz)
+    assert sum(dt for _, dt in decided) == pytest.approx(1.0)
+    if rate == 1000.0:  # unchanged at the protocol's rate: the same ticks and the same dt, bit for bit
+        assert [k for k, _ in decided] == list(range(0, 1000, 10)) and {dt for _, dt in decided} == {10 / 1000.0}
