@@ -16,6 +16,7 @@ def _run(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
     return subprocess.run([STUDYCTL, *args], capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.slow  # a fresh `studyctl` process (imports the whole CLI)
 def test_device_list_names_hardware_and_emulators():
     out = _run("device", "list", "--json")
     assert out.returncode == 0, out.stderr

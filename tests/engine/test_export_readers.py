@@ -50,6 +50,7 @@ def test_duckdb_reads_both_formats(exports):
     assert samples[0] == sum(len(f) for n, f in tables.items() if n.startswith("samples_")) and samples[1] == 2
 
 
+@pytest.mark.slow  # starts Rscript
 @pytest.mark.skipif(shutil.which("Rscript") is None, reason="R is not installed (apt-get install r-base-core "
                     "r-cran-jsonlite)")
 def test_r_reads_the_csv_export_typed(exports):

@@ -19,6 +19,7 @@ def test_timing_statistics_from_tick_starts():
     assert t.late_us_max == pytest.approx(1200.0)
 
 
+@pytest.mark.slow  # starts the servo process; the trial runs on the real clock
 def test_trial_runs_in_a_servo_process_and_streams_back():
     spec = ServoSpec(
         info=TrialInfo("ESG", 0.6, 1000.0, "on_request"),
@@ -52,6 +53,7 @@ def test_trial_runs_in_a_servo_process_and_streams_back():
     assert result.scans == 1  # the parent's scan request reached the loop
 
 
+@pytest.mark.slow  # starts the servo process; the trial runs on the real clock
 def test_a_failing_servo_process_raises_with_the_reason():
     spec = ServoSpec(info=TrialInfo("BL", 0.2, 1000.0, "none"), device="no_such_device")
     with pytest.raises(DeviceError, match="no_such_device"):

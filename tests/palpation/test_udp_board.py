@@ -83,6 +83,7 @@ def test_wire_format_round_trip_and_rejects():
             bp.decode(bad)
 
 
+@pytest.mark.slow  # the board emulator is a separate process; trials run on the real clock
 def test_trial_over_udp_commands_the_board(emulator):
     emu = emulator("--force", "0.8")
     out, events = _trial(UdpDriverBoard({"port": emu.port}), 1.5)
@@ -104,6 +105,7 @@ def test_trial_over_udp_commands_the_board(emulator):
     assert [e["event"] for e in log[-3:]] == ["safe", "safe", "bye"]
 
 
+@pytest.mark.slow  # the board emulator is a separate process; trials run on the real clock
 def test_silent_board_is_a_stale_sensor_and_ends_the_trial(emulator):
     emu = emulator("--force", "0.8", "--silence-after", "0.5")
     t0 = time.monotonic()
@@ -118,6 +120,7 @@ def test_silent_board_is_a_stale_sensor_and_ends_the_trial(emulator):
     assert after and all(e["balloon_pct"] == 0.0 and e["vibration_pct"] == 0.0 for e in after)
 
 
+@pytest.mark.slow  # the board emulator is a separate process; trials run on the real clock
 def test_board_watchdog_trips_without_commands_and_clears(emulator):
     emu = emulator("--force", "0.3")
     dev = UdpDriverBoard({"port": emu.port, "watchdog_ms": 100})
@@ -142,6 +145,7 @@ def test_board_watchdog_trips_without_commands_and_clears(emulator):
     assert "watchdog_tripped" in [e["event"] for e in emu.entries()]
 
 
+@pytest.mark.slow  # the board emulator is a separate process; trials run on the real clock
 def test_adc_glitch_is_reported_and_held_safe(emulator):
     emu = emulator("--force", "0.8", "--adc-glitch", "0.4:0.4")
     out, events = _trial(UdpDriverBoard({"port": emu.port}), 1.4)
@@ -151,6 +155,7 @@ def test_adc_glitch_is_reported_and_held_safe(emulator):
     assert [k for _, k, p in events if k == "device_recovered"]
 
 
+@pytest.mark.slow  # the board emulator is a separate process; trials run on the real clock
 def test_malformed_and_out_of_range_packets_are_dropped(emulator):
     emu = emulator("--force", "0.5")
     dev = UdpDriverBoard({"port": emu.port})
@@ -188,6 +193,7 @@ def test_no_board_is_a_clear_error():
         UdpDriverBoard({"port": port}).read(0.0)
 
 
+@pytest.mark.slow  # starts the emulator's own process
 def test_emulator_rejects_a_bad_profile():
     out = subprocess.run([sys.executable, "-m", "studyctl.devices.board_emulator", "--profile", "sine:1"],
                          capture_output=True, text=True, timeout=30)
