@@ -11,6 +11,7 @@ here before it can be imported by anything.
 from __future__ import annotations
 
 import ast
+import functools
 from collections import defaultdict
 from pathlib import Path
 
@@ -84,11 +85,12 @@ def _imports(module: str, path: Path, known: set[str]) -> list[tuple[str, int]]:
     return sorted(((n, line) for n, line in found if n == "studyctl" or n.startswith("studyctl.")), key=lambda e: e[1])
 
 
-def _edges() -> list[tuple[str, str, int]]:
+@functools.cache  # four checks read the same graph: parse the package (~1.5 s CPU) once per test process
+def _edges() -> tuple[tuple[str, str, int], ...]:
     """(importing module, imported module, line) over the whole package."""
     modules = _modules()
     known = set(modules)
-    return [(m, target, line) for m, path in modules.items() for target, line in _imports(m, path, known)]
+    return tuple((m, target, line) for m, path in modules.items() for target, line in _imports(m, path, known))
 
 
 def _rank() -> dict[str, int]:
