@@ -14,6 +14,8 @@ import numpy as np
 
 from studyctl.participants.tissue_cue_learning import amplitude, excess, sums
 from studyctl.participants.tissue_perception import _depth_matched
+from studyctl.participants.tissue_practice import learn, near_marks, nodule_contrast
+from studyctl.participants.tissue_practice import trust as practice_trust
 
 
 def _cue_signal(z: np.ndarray, statistic: str = "spread") -> float:
@@ -61,6 +63,52 @@ class SpotDecision:
             return None
         pts = np.array([[r["x"], r["y"]] for r in rows])
         survey = np.array([r["stage"] == "survey" for r in rows])
+        scaled = self._cue_contrasts(survey)
+        if scaled is None:
+            return None
+        if self._slide_mode and p["slide_fusion"] != "stouffer":
+            signal = self._slide_signals({name: c[survey & ok] for c, _s, ok, name in scaled})
+            scaled = [(c / signal[name], 1.0 / signal[name], ok, name) for c, _s, ok, name in scaled]
+        trust, taught = self._trust()
+        num = np.zeros(len(pts))
+        den = np.zeros(len(pts))
+        var = np.zeros(len(pts))
+        for contrast, sigma, ok, name in scaled:
+            w = trust[name] / sigma**2  # a cue believed less weighs less, and its evidence counts less
+            if w <= 0:
+                continue
+            num += np.where(ok, contrast * w, 0.0)
+            den += np.where(ok, w, 0.0)
+            var += np.where(ok, (w * sigma) ** 2, 0.0)
+        keep = den > 0
+        if keep.sum() < 5:
+            return None
+        # Weights taught by practice are the ideal observer's, not a discount on belief: the weighted mean's noise
+        # is then what it is, sqrt(Σ w²σ²)/Σ w (the untaught trust also shrinks the evidence, 1/sqrt(Σ w))
+        noise = np.sqrt(var[keep]) / den[keep] if taught else 1.0 / np.sqrt(den[keep])
+        if follow_up:
+            return pts[keep], num[keep] / den[keep], noise, ~survey[keep]
+        return pts[keep], num[keep] / den[keep], noise
+
+    def _trust(self) -> tuple[dict[str, float], bool]:
+        """How much of each press cue's information the person uses, and whether practice taught it: what this
+        condition's practice taught (``practice``, :func:`.tissue_practice.trust`; presses only, not a slid
+        survey's windows), else the untaught ``force_trust`` / ``cursor_trust``."""
+        p = self.params
+        untaught = {"force": p["force_trust"], "cursor": p["cursor_trust"]}
+        learnt = self.learnt.get(self.info.condition) if self._marks is None and not self._slide_mode else None
+        weights = practice_trust(learnt) if learnt else None
+        if weights is None:
+            return untaught, False
+        return {name: weights.get(name, t) for name, t in untaught.items()}, True
+
+    def _cue_contrasts(self, survey: np.ndarray) -> list[tuple[np.ndarray, float, np.ndarray, str]] | None:
+        """Per cue perceived: each press's contrast against the ``survey`` presses around it at like depths, its
+        noise SD (robust, over the survey presses), which contrasts are finite, and the cue's name; None when no
+        cue was perceived."""
+        p = self.params
+        rows = self._presses
+        pts = np.array([[r["x"], r["y"]] for r in rows])
         cues: list[tuple[np.ndarray, str]] = []
         force = np.array([r["force"] for r in rows])
         if np.isfinite(force[survey]).sum() >= 5 and np.nanmedian(force[survey]) > 0.02:
@@ -80,9 +128,6 @@ class SpotDecision:
             return None
         d2 = ((pts[:, None, :] - pts[None, survey, :]) ** 2).sum(axis=2)
         near = d2 <= p["baseline_radius_mm"] ** 2
-        num = np.zeros(len(pts))
-        den = np.zeros(len(pts))
-        trust = {"force": p["force_trust"], "cursor": p["cursor_trust"]}
         scaled: list[tuple[np.ndarray, float, np.ndarray, str]] = []  # contrast, its noise SD, finite, cue
         for values, name in cues:
             sv = values[survey]
@@ -101,21 +146,7 @@ class SpotDecision:
                 # reliability / pooled weight each cue's z by how much it has shown (_slide_signals).
                 contrast, sigma = contrast / sigma, 1.0
             scaled.append((contrast, sigma, ok, name))
-        if self._slide_mode and p["slide_fusion"] != "stouffer":
-            signal = self._slide_signals({name: c[survey & ok] for c, _s, ok, name in scaled})
-            scaled = [(c / signal[name], 1.0 / signal[name], ok, name) for c, _s, ok, name in scaled]
-        for contrast, sigma, ok, name in scaled:
-            w = trust[name] / sigma**2  # a cue believed less weighs less, and its evidence counts less
-            if w <= 0:
-                continue
-            num += np.where(ok, contrast * w, 0.0)
-            den += np.where(ok, w, 0.0)
-        keep = den > 0
-        if keep.sum() < 5:
-            return None
-        if follow_up:
-            return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep]), ~survey[keep]
-        return pts[keep], num[keep] / den[keep], 1.0 / np.sqrt(den[keep])
+        return scaled
 
     def _slide_signals(self, z_by_cue: dict[str, np.ndarray]) -> dict[str, float]:
         """Each slid cue's weight: what it showed in this trial (``reliability``) or over the person's slid trials
@@ -167,6 +198,8 @@ class SpotDecision:
         pts, contrast, sigma = ev
         spots = self._clusters(pts, contrast, sigma, threshold=p["follow_up_z"], limit=p["follow_up_count"])
         s = p["follow_up_spacing_mm"]
+        learnt = self.learnt.get(self.info.condition) if self._marks is None and not self._slide_mode else None
+        learnt_mu = nodule_contrast(learnt) if learnt and p["practice"] == "learn" else None
         out = []
         half = p["cluster_radius_mm"] / 2.0
         for cx, cy, _z, _mean in spots:
@@ -176,8 +209,9 @@ class SpotDecision:
             mu = float((w * contrast[near]).sum() / w.sum()) if near.any() else 0.0
             todo = [g for g in grid if math.isfinite(self._height(*g))]
             # the spot was picked for being the most suspicious: its survey contrast overstates what re-palpation
-            # will feel (regression to the mean), so the alternative is shrunk
-            mu *= p["follow_up_shrink"]
+            # will feel (regression to the mean), so the alternative is shrunk; a person who practised this
+            # condition tests for what a press near a nodule showed there instead
+            mu = learnt_mu if learnt_mu is not None else mu * p["follow_up_shrink"]
             out.append({"x": cx, "y": cy, "mu": max(mu, 1e-3), "todo": todo, "presses": 0})
         self._follow_up = {"follow_up_spots": [(sp["x"], sp["y"]) for sp in out], "follow_up_decisions": []}
         return out
@@ -213,6 +247,14 @@ class SpotDecision:
 
     def _decide(self) -> list[tuple[float, float]]:
         p = self.params
+        if self._marks is not None:
+            # the practice block: learn what this condition's cues show near the nodules seen; nothing is reported
+            pts = np.array([[r["x"], r["y"]] for r in self._presses]).reshape(-1, 2)
+            mark = near_marks(pts, self._marks, 0.5 * p["press_spacing_mm"] + p["tolerance_mm"])
+            plain = mark < 0
+            scaled = self._cue_contrasts(plain) if len(pts) >= 5 and plain.sum() >= 5 else None
+            self.learnt[self.info.condition] = learn(scaled, mark) if scaled else {}
+            return []
         ev = self._evidence()
         self.perceived.update(self._follow_up)
         if ev is None:

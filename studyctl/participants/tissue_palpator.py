@@ -44,6 +44,11 @@ is checked before each follow-up press, so a clear spot is settled by one or two
 gets the whole 3 × 3 grid. The survey itself always covers the visible
 surface: with the nodule count unknown nothing the participant felt can tell it that no nodule remains.
 
+Practice (``practice``: weights or learn; off by default): the engine runs seed 003's practice block before each
+feedback condition's test (``info.public["practice"]``, its nodules shown as ``marks``); the person presses near each
+mark and on plain tissue, learns per cue what a press near a nodule shows, and weights its press cues by that in the
+condition's test (:mod:`.tissue_practice`). What it learnt is its memory, so a resumed session goes on with it.
+
 Direct touch (manual conditions: the device's feedback says ``direct_touch``, the bare finger on the phantom):
 the finger also feels the surface deformation over the pad, the cue that carries most of the information in
 judging softness; it is fused with the force/displacement cue by inverse-variance weighting
@@ -75,6 +80,7 @@ from studyctl.participants.tissue_cue_learning import CueReliability
 from studyctl.participants.tissue_decision import SpotDecision
 from studyctl.participants.tissue_params import PARAMS
 from studyctl.participants.tissue_perception import PressPerception
+from studyctl.participants.tissue_practice import practice_points
 from studyctl.participants.tissue_questionnaire import Questionnaire
 from studyctl.participants.tissue_slide import SlideSurvey
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
@@ -129,23 +135,37 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self.experience: list[dict[str, Any]] = []
         # how reliable each slid cue has shown itself over this person's trials (slide_fusion: pooled)
         self._cue_learning = CueReliability(self.params["cue_prior_windows"], self.params["cue_excess"])
+        # practice: learn: the engine runs each feedback condition's practice block (nodules visible) for this
+        # person; what it learnt there, per condition (tissue_practice), applies to that condition's test
+        self.practises = self.params["practice"] != "none"
+        self.learnt: dict[str, dict[str, dict[str, float]]] = {}
 
     def memory(self) -> Mapping[str, Any]:
-        """What carries over between trials: the cue tallies of slide_fusion: pooled (nothing otherwise, so a
-        session's stored record is as before for every other person)."""
-        if self.params["slide_fusion"] != "pooled":
-            return {}
-        return {"slid_cues": self._cue_learning.to_json()}
+        """What carries over between trials: the cue tallies of slide_fusion: pooled and what each condition's
+        practice taught (practice: learn); nothing otherwise, so a session's stored record is as before for every
+        other person."""
+        out: dict[str, Any] = {}
+        if self.params["slide_fusion"] == "pooled":
+            out["slid_cues"] = self._cue_learning.to_json()
+        if self.practises:
+            out["practice"] = {cond: {name: dict(c) for name, c in cues.items()} for cond, cues in self.learnt.items()}
+        return out
 
     def recall(self, memory: Mapping[str, Any]) -> None:
         cues = memory.get("slid_cues")
         if isinstance(cues, Mapping):
             self._cue_learning.load(cues)
+        learnt = memory.get("practice")
+        if isinstance(learnt, Mapping):
+            self.learnt = {str(cond): {str(name): {k: float(v) for k, v in c.items()} for name, c in cues.items()}
+                           for cond, cues in learnt.items()}
 
     # ------------------------------------------------------------------ trial set-up
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
         self.info = info
         self.rng = rng
+        # a practice block (its nodules shown as marks) for a person who learns from it; else a test trial
+        self._marks = list(info.public.get("marks") or ()) if self.practises and info.public.get("practice") else None
         self._ticks = 0
         self._t_prev = 0.0
         self._dt = 0.0
@@ -228,14 +248,24 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
             raise ModelParameterError(
                 "virtual_tissue_palpator: no press point fits on the visible surface; lower margin_mm or the spacings"
             )
-        self._plan = plan[::-1]  # pop() from the end
         self._stage = "survey"
+        if self._marks is not None:
+            if not self._marks:
+                raise ModelParameterError("virtual_tissue_palpator: practice: learn needs the practice block's "
+                                          "visible nodules (the scene's marks in TrialInfo.public['marks'])")
+            plan = practice_points(plan, self._marks, p["practice_presses"], p["press_spacing_mm"],
+                                   p["cluster_radius_mm"], lambda x, y: math.isfinite(self._height(x, y)), self.rng)
+            self._stage = "practice"  # not a survey: no sliding, no early stop, no re-palpation, no reports
+        self._plan = plan[::-1]  # pop() from the end
         self._next_press()
 
     def _next_press(self) -> None:
         if self._stage == "survey" and self._plan and self._found_enough():
             self._plan = []
             self._stopped_early = True
+        if not self._plan and self._stage == "practice":
+            self._phase = "decide"
+            return
         if not self._plan and self._stage == "survey":
             self._stage = "follow_up"
             # a slid survey is not re-palpated by presses: their cue is read another way (a descent, not a slide)

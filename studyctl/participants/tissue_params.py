@@ -120,6 +120,17 @@ PARAMS = (
           "Biol Cybern 72:475). Measured (trial loop, Table 1, one person of v5's means, 32 seeds, PHF+FF nodules "
           "found of 96): 1 -> 67, 3 -> 69, 6 -> 72 (PHF 85); tripling the stiffness with the damping did not help "
           "(8 seeds). 1: off"),
+    Param("practice", "none", kind=str, choices=("none", "weights", "learn"),
+          source="CITED: the behaviour (seed 003: a practice run with visible hard nodules before each test): the "
+          "person presses on and around the nodules it sees and on plain tissue with the condition's feedback and "
+          "learns per cue the excess a press near a nodule shows and the spread of plain presses "
+          "(studyctl.participants.tissue_practice). weights: its press cues are then weighted as the ideal observer "
+          "does (mean excess over variance, Green & Swets 1966; learnt with feedback, Atkins, Fiser & Jacobs 2001); "
+          "learn: also a re-palpated spot is tested against the faintest nodule's learnt excess (CHOSEN); none: the "
+          "practice is skipped"),
+    Param("practice_presses", 4, low=1, high=20, kind=int,
+          source="CHOSEN: practice presses within half a press spacing of each visible nodule (and twice as many "
+          "on plain tissue)"),
     Param("max_press_force_n", 3.0, low=0.1, high=20.0, unit="N", source="CHOSEN: below the Omni's 3.3 N"),
     # ---- decision
     Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm",

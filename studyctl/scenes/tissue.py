@@ -313,6 +313,11 @@ class StiffnessTissueScene(Scene):
             out["nodule_count"] = len(self.nodules_local)
         return out
 
+    def marks(self) -> tuple[dict[str, Any], ...]:
+        """The nodules as seen on a practice block (seed 003: "practice run with visible hard nodules"): name,
+        centre (device frame) and diameter. The engine shows them only in practice, never in a test trial."""
+        return tuple(dict(row) for row in self.truth()["nodules"])
+
     def truth(self) -> Mapping[str, Any]:
         """Nodule centres in the device frame (for metrics only)."""
         rows = []
