@@ -25,7 +25,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import pandas as pd
-from scipy.stats import norm
 
 from studyctl.calibration.simulated import SimulatedStats
 from studyctl.populations.targets import SPREADS, Target
@@ -140,6 +139,8 @@ def _significant(t: Target, sim: object, alpha: float) -> bool | None:
 def p_value_z(simulated_p: float, published_p: float) -> float:
     """Distance of a simulated p from the published one in σ units of a replication (module docs): negative when
     the simulated people give the smaller p, i.e. the stronger evidence."""
+    from scipy.stats import norm  # lazy: importing scipy.stats costs about a second (test collection imports this)
+
     deviate = [float(norm.isf(min(max(p, 1e-300), 1.0) / 2.0)) for p in (simulated_p, published_p)]
     return (deviate[1] - deviate[0]) / P_DEVIATE_SD
 

@@ -196,6 +196,7 @@ def test_collection_imports_leave_scipy_stats_out():
     code = ("import sys\n"
             "import studyctl.analysis.execute, studyctl.stats, studyctl.models.capr, studyctl.participants.palpator\n"
             "import studyctl.cli.app, studyctl.workflows.report, studyctl.stats.model_intervals\n"
+            "import studyctl.workflows.calibrate\n"
             "print(sorted(m for m in ('scipy.stats', 'scipy.signal') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout

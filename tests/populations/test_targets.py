@@ -8,7 +8,6 @@ import numpy as np
 import pandas as pd
 import pytest
 from population_testdata import DATA, MINI_PLAN, MINI_PROTOCOL, write_variant
-from scipy.stats import norm
 
 from studyctl.calibration import agreement, distance, simulated_values
 from studyctl.calibration.agreement import z_score
@@ -133,6 +132,8 @@ def test_a_p_value_is_compared_as_the_deviate_it_stands_for():
     """A p-value target's distance is the difference of the two normal deviates over a replication's SD √2, so a
     simulated effect larger than the paper's costs what its deviate says, not more the smaller p gets (the log10
     distance gave p 3.2e-6 against 0.034 a z of -8.1, 65 in z²)."""
+    from scipy.stats import norm  # here, not at the top: importing scipy.stats costs test collection ~1 s
+
     target = Target("p", "scans", "test_p", 0.034, "validation", {}, test="scans_anova")
     strong = z_score(target, 3.2e-6, math.nan, 0.05)
     assert strong == pytest.approx((norm.isf(0.017) - norm.isf(1.6e-6)) / math.sqrt(2))
