@@ -132,8 +132,8 @@ def register_sim(app: typer.Typer) -> None:
         sim_rate_hz: float = typer.Option(
             None,
             "--sim-rate-hz",
-            help="Run rate-adjustable feedback loops (the 1 kHz tissue controllers) at most this fast: faster "
-            "simulation, outcomes as measured by `studyctl bench simrate` (default: the protocol's rates).",
+            help="Run rate-adjustable feedback loops (the 1 kHz tissue and needle controllers) at most this fast: "
+            "faster simulation, outcomes as measured by `studyctl bench simrate` (default: the protocol's rates).",
         ),
         population: Path = typer.Option(
             None, "--population", help="Population file the virtual people are drawn from (default: the "
@@ -208,7 +208,7 @@ def register_sim(app: typer.Typer) -> None:
         sim_rate_hz: float = typer.Option(
             250.0,  # studyctl.workflows.demo.DEMO_SIM_RATE_HZ (not imported here: the CLI starts without pandas)
             "--sim-rate-hz",
-            help="Loop rate of the simulated 1 kHz tissue controllers (physics stays at the device's rate); "
+            help="Loop rate of the simulated 1 kHz tissue and needle controllers (physics stays at the device's rate); "
             "`studyctl bench simrate` shows what it changes.",
         ),
         full_rate: bool = typer.Option(

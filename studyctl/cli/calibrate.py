@@ -31,7 +31,8 @@ def register(app: typer.Typer) -> None:
         workers: int = typer.Option(None, "--workers", help="Local worker processes for the replicate studies "
                                     "(default: min(replicates, CPU cores))."),
         sim_rate_hz: float = typer.Option(250.0, "--sim-rate-hz", help="Loop rate of rate-adjustable "
-                                          "controllers (the 1 kHz tissue loops), as `studyctl demo` runs them."),
+                                          "controllers (the 1 kHz tissue and needle loops), as `studyctl demo` runs "
+                                          "them."),
         evaluations: int = typer.Option(24, "--evaluations", help="Candidate populations to try (the optimiser's "
                                         "budget), besides the ±h profile of each free parameter."),
         scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler address: run each evaluation's "

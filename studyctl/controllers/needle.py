@@ -56,6 +56,10 @@ class NeedleHybridController(Controller):
 
     name = "needle_hybrid"
     rate_hz = 1000.0
+    # The force law takes the measured tip velocity and holds no per-step state but the maintain cross-fade and
+    # the fallback velocity window, both rescaled by set_loop_rate, so a simulated session may run it below
+    # 1 kHz (the simulated device still integrates at its own rate; `studyctl bench simrate` measures it).
+    rate_adjustable = True
 
     def __init__(self, params: Mapping[str, Any], scene: Scene | None = None) -> None:
         super().__init__(params, scene)

@@ -260,7 +260,7 @@ def run_session(
     sim_rate_hz
         Virtual sessions only: run the feedback loop of conditions whose controller allows it
         (``Controller.rate_adjustable``) at most this fast, instead of the controller's rate (1 kHz for the
-        tissue controllers). The simulated device still integrates its physics at its own rate; what this
+        tissue and needle controllers). The simulated device still integrates its physics at its own rate; what this
         changes in the outcomes is measured by ``studyctl bench simrate``. The rates go into the stored plan
         (a resume keeps them) and every trial records the rate it ran at. None: the protocol's rates.
     population

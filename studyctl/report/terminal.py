@@ -116,7 +116,7 @@ def demo_table(result: Any) -> Table:
     """The per-study summary of a :class:`~studyctl.workflows.demo.DemoResult`."""
     table = Table(
         title=f"studyctl demo (seed {result.seed}, {result.workers} workers, "
-        + (f"tissue loops at {result.sim_rate_hz:g} Hz, " if result.sim_rate_hz else "protocol loop rates, ")
+        + (f"1 kHz loops at {result.sim_rate_hz:g} Hz, " if result.sim_rate_hz else "protocol loop rates, ")
         + f"{result.total_s:.1f} s)",
         title_justify="left",
     )

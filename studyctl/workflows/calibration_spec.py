@@ -18,7 +18,7 @@ SAMPLER = f"cmaes(x0=population, sigma0={SIGMA0})"  # part of the journal's fing
 DEFAULT_EVALUATIONS = 24
 DEFAULT_FIT_PARTICIPANTS = 4  # people per simulated study of an evaluation
 DEFAULT_REPLICATES = 2  # simulated studies per evaluation (run in parallel on the local workers)
-DEFAULT_SIM_RATE_HZ = 250.0  # as `studyctl demo`: the 1 kHz tissue controllers' loops at 250 Hz
+DEFAULT_SIM_RATE_HZ = 250.0  # as `studyctl demo`: the 1 kHz tissue and needle loops at 250 Hz
 
 
 @dataclass(frozen=True)

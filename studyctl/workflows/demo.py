@@ -44,7 +44,8 @@ REFERENCE_STUDIES: tuple[tuple[str, int], ...] = (
     ("pseudo_haptic_palpation", 20),
 )
 DEFAULT_SEED = 2024
-#: Loop-rate cap of the demo's simulated sessions (controllers that allow it; the 1 kHz tissue controllers).
+#: Loop-rate cap of the demo's simulated sessions (controllers that allow it: the 1 kHz tissue and needle
+#: controllers).
 #: ``studyctl bench simrate`` measures what it changes against the protocols' 1 kHz; ``--full-rate`` lifts it.
 DEMO_SIM_RATE_HZ = 250.0
 MARKER = ".studyctl-demo"  # written into folders the demo created, so a re-run may replace them

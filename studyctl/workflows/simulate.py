@@ -218,7 +218,7 @@ def simulate_study(
         otherwise took about two thirds of the wall time of a seed 000 simulation.
     sim_rate_hz
         Run the feedback loop of rate-adjustable controllers at most this fast (None: the protocol's rates,
-        1 kHz for the tissue controllers); ``studyctl bench simrate`` measures what it changes.
+        1 kHz for the tissue and needle controllers); ``studyctl bench simrate`` measures what it changes.
     on_progress
         Called after each participant with (done, total, message).
     population

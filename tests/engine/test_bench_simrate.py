@@ -7,7 +7,7 @@ import json
 import pandas as pd
 import pytest
 
-from studyctl.bench.simrate import _compare
+from studyctl.bench.simrate import _compare, compare_metrics
 from studyctl.cli.app import main
 
 
@@ -26,6 +26,23 @@ def test_compare_counts_gains_losses_and_duration_bias():
     assert got["found_gained"] == 1 and got["found_lost"] == 1 and got["found_agree"] == 1 / 3
     assert got["time_rel_err"] == 0.05 and got["time_rel_bias"] == 0.05  # (+10 % and 0 %) / 2
     assert got["se_diff_pp"] == 0.0
+
+
+def _needle(values: dict[str, list[float]]) -> pd.DataFrame:
+    rows = [{"participant": "P1", "condition": "BL", "repetition": float(r), "metric": m, "level": None, "value": v}
+            for m, vs in values.items() for r, v in enumerate(vs, start=1)]
+    return pd.DataFrame(rows)
+
+
+def test_needle_metrics_are_compared_trial_by_trial_with_their_bias_and_its_error():
+    ref = _needle({"targeting_error": [1.0, 2.0, 3.0], "scans": [4.0, 4.0, 2.0]})
+    other = _needle({"targeting_error": [1.5, 2.5, 2.0], "scans": [4.0, 4.0, 2.0]})
+    got = compare_metrics(ref, other.iloc[:-1], ("targeting_error", "scans"))  # one scans trial missing
+    assert got["trials_unpaired"] == 1.0
+    assert got["targeting_error_abs"] == pytest.approx(2.0 / 3) and got["targeting_error_bias"] == pytest.approx(0.0)
+    assert got["targeting_error_rel"] == pytest.approx((2.0 / 3) / 2.0)
+    assert got["targeting_error_bias_se"] == pytest.approx(pd.Series([0.5, 0.5, -1.0]).std() / 3 ** 0.5)
+    assert got["scans_abs"] == 0.0 and got["scans_bias"] == 0.0
 
 
 @pytest.mark.slow

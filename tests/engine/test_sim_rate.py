@@ -26,12 +26,14 @@ def _plan() -> SessionPlan:
 def test_only_rate_adjustable_controllers_faster_than_the_cap_are_slowed():
     plan = _plan()
     rates = simulation_rates(plan, EntryPointFactory(), 250.0)
-    # the tissue controller (1 kHz, integrates with the measured step) is capped; the needle model's time step
-    # is tied to its rate, the linear controller already runs at 50 Hz, a manual condition runs no controller
-    assert rates == {"ff": 250.0}
+    # the tissue controller (1 kHz, integrates with the measured step) and the needle controller (its per-step
+    # cross-fade rescaled by set_loop_rate) are capped; the linear controller already runs at 50 Hz, a manual
+    # condition runs no controller
+    assert rates == {"ff": 250.0, "needle": 250.0}
     capped = plan.with_condition_rates(rates)
     assert capped.conditions["ff"].rate_hz == 250.0
-    assert capped.conditions["needle"].rate_hz is None
+    assert capped.conditions["needle"].rate_hz == 250.0
+    assert capped.conditions["linear"].rate_hz is None
     assert SessionPlan.from_json(capped.to_json()).conditions["ff"].rate_hz == 250.0  # stored, so a resume keeps it
     assert simulation_rates(plan, EntryPointFactory(), 5000.0) == {}
 
