@@ -80,7 +80,7 @@ class NeedleHybridController(Controller):
         self.model = NeedleTissueModel(self.model_params, geometry)
         self.events: list[dict[str, Any]] = []
         self.diagnostics: dict[str, float] = {}
-        self._window = max(1, round(0.02 * self.rate_hz))
+        self.set_loop_rate(self.rate_hz)  # the velocity window and cross-fade at the device's own rate
         self.reset()
 
     @classmethod

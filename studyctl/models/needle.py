@@ -125,7 +125,7 @@ class NeedleTissueModel:
         self._kp_mm = p.radial_kp * 1e-3
         self._kd_mm = p.radial_kd * 1e-3
         self._radial_max = p.radial_max_n
-        self._blend_rate = self._dt / p.maintain_blend_s  # per step; set_loop_rate rescales it
+        self.set_loop_rate(p.rate_hz)  # the maintain cross-fade's step; a reduced simulated rate rescales it
         self._match_cos = math.cos(math.radians(p.track_match_deg))
         self.events: list[tuple[str, float]] = []
         self.reset()

@@ -96,11 +96,18 @@ class SpotDecision:
         survey's windows), else the untaught ``force_trust`` / ``cursor_trust``."""
         p = self.params
         untaught = {"force": p["force_trust"], "cursor": p["cursor_trust"]}
-        learnt = self.learnt.get(self.info.condition) if self._marks is None and not self._slide_mode else None
+        learnt = self._practised()
         weights = practice_trust(learnt) if learnt else None
         if weights is None:
             return untaught, False
         return {name: weights.get(name, t) for name, t in untaught.items()}, True
+
+    def _practised(self) -> dict[str, dict[str, float]] | None:
+        """What this condition's practice taught, where it applies: in a test trial (not the practice block
+        itself) whose survey is pressed, not slid; None otherwise or when nothing was learnt."""
+        if self._marks is not None or self._slide_mode:
+            return None
+        return self.learnt.get(self.info.condition)
 
     def _cue_contrasts(self, survey: np.ndarray) -> list[tuple[np.ndarray, float, np.ndarray, str]] | None:
         """Per cue perceived: each press's contrast against the ``survey`` presses around it at like depths, its
@@ -198,7 +205,7 @@ class SpotDecision:
         pts, contrast, sigma = ev
         spots = self._clusters(pts, contrast, sigma, threshold=p["follow_up_z"], limit=p["follow_up_count"])
         s = p["follow_up_spacing_mm"]
-        learnt = self.learnt.get(self.info.condition) if self._marks is None and not self._slide_mode else None
+        learnt = self._practised()
         learnt_mu = nodule_contrast(learnt) if learnt and p["practice"] == "learn" else None
         out = []
         half = p["cluster_radius_mm"] / 2.0
