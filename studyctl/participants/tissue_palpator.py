@@ -135,15 +135,15 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self.experience: list[dict[str, Any]] = []
         # how reliable each slid cue has shown itself over this person's trials (slide_fusion: pooled)
         self._cue_learning = CueReliability(self.params["cue_prior_windows"], self.params["cue_excess"])
-        # practice: learn: the engine runs each feedback condition's practice block (nodules visible) for this
+        # practice: weights|learn: the engine runs each feedback condition's practice block (nodules visible) for this
         # person; what it learnt there, per condition (tissue_practice), applies to that condition's test
         self.practises = self.params["practice"] != "none"
         self.learnt: dict[str, dict[str, dict[str, float]]] = {}
 
     def memory(self) -> Mapping[str, Any]:
         """What carries over between trials: the cue tallies of slide_fusion: pooled and what each condition's
-        practice taught (practice: learn); nothing otherwise, so a session's stored record is as before for every
-        other person."""
+        practice taught (practice: weights|learn); nothing otherwise, so a session's stored record is as before for
+        every other person."""
         out: dict[str, Any] = {}
         if self.params["slide_fusion"] == "pooled":
             out["slid_cues"] = self._cue_learning.to_json()
@@ -251,7 +251,7 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self._stage = "survey"
         if self._marks is not None:
             if not self._marks:
-                raise ModelParameterError("virtual_tissue_palpator: practice: learn needs the practice block's "
+                raise ModelParameterError("virtual_tissue_palpator: practice: weights|learn needs the practice block's "
                                           "visible nodules (the scene's marks in TrialInfo.public['marks'])")
             plan = practice_points(plan, self._marks, p["practice_presses"], p["press_spacing_mm"],
                                    p["cluster_radius_mm"], lambda x, y: math.isfinite(self._height(x, y)), self.rng)

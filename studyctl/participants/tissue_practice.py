@@ -1,4 +1,4 @@
-"""What a tissue palpator learns in seed 003's practice run with visible nodules (``practice: learn``).
+"""What a tissue palpator learns in seed 003's practice run with visible nodules (``practice: weights|learn``).
 
 Seed 003 gave each participant "a practice run with visible hard nodules" before each feedback condition's test. A
 person who has pressed on and around nodules it can see, with that condition's feedback, knows per cue (the push
