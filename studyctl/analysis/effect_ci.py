@@ -22,8 +22,8 @@ import pandas as pd
 
 from studyctl.analysis import catalog
 from studyctl.analysis.procedures import Cell
-from studyctl.analysis.results import split_levels
-from studyctl.analysis.shape import factor_column
+from studyctl.analysis.results import AnalysisResult
+from studyctl.analysis.shape import factor_column, row_units
 from studyctl.errors import StudyctlError
 
 COLUMNS = ("test_id", "metric", "split", "groups", "effect_size_name", "effect_size", "ci_low", "ci_high",
@@ -31,8 +31,8 @@ COLUMNS = ("test_id", "metric", "split", "groups", "effect_size_name", "effect_s
 _SKIP = {"art_anova", "mixed_model", "ordinal"}
 
 
-def effect_size_intervals(result, *, replicates: int = 1000, seed: int = 20, confidence: float = 0.95
-                          ) -> pd.DataFrame:  # noqa: ANN001 - AnalysisResult
+def effect_size_intervals(result: AnalysisResult, *, replicates: int = 1000, seed: int = 20,
+                          confidence: float = 0.95) -> pd.DataFrame:
     """One row per bootstrapped effect size (columns :data:`COLUMNS`)."""
     units = result.tables.get("units", pd.DataFrame())
     frame = result.to_frame()
@@ -51,9 +51,7 @@ def effect_size_intervals(result, *, replicates: int = 1000, seed: int = 20, con
             continue
         levels = r.groups.split(" vs ") if r.kind == "two_sample" else r.groups.split(", ")
         col = factor_column(entry.compare)
-        sel = units[units["metric"] == r.metric]
-        for factor, value in split_levels(r.split).items():
-            sel = sel[sel[factor_column(factor)].astype(str) == value]
+        sel = row_units(units, r.metric, r.split)
         keys = ["participant", col, *[factor_column(b) for b in entry.by]]
         sel = sel.groupby(keys, dropna=False)["value"].mean().reset_index()
         sel = sel[sel[col].astype(str).isin(levels)]

@@ -128,15 +128,7 @@ class _EntryRunner:
         return f"{self.entry.id}/{metric}" + (f"[{split}]" if split else "")
 
     def levels_for(self, factor: str, values: pd.Series) -> list[str]:
-        if factor == self.entry.compare and self.entry.levels:
-            preferred = self.entry.levels
-        elif factor == "condition":
-            preferred = self.plan.condition_ids
-        elif factor == "group":
-            preferred = self.plan.group_ids or None
-        else:
-            preferred = None
-        return ordered_levels(values, preferred)
+        return ordered_levels(values, self.plan.level_order(factor, self.entry))
 
     def pairs(self, levels: list[str]) -> list[tuple[str, str]]:
         if isinstance(self.entry.pairs, list):

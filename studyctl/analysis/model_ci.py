@@ -14,8 +14,8 @@ import math
 import pandas as pd
 
 from studyctl.analysis import catalog
-from studyctl.analysis.results import split_levels
-from studyctl.analysis.shape import factor_column, ordered_levels
+from studyctl.analysis.results import AnalysisResult
+from studyctl.analysis.shape import factor_column, ordered_levels, row_units
 from studyctl.stats.model_intervals import mixed_coefficients, ordinal_coefficients
 
 COLUMNS = ("test_id", "metric", "split", "model", "coefficient", "estimate", "se", "ci_low", "ci_high", "ci_level",
@@ -23,18 +23,7 @@ COLUMNS = ("test_id", "metric", "split", "model", "coefficient", "estimate", "se
 MODELS = ("mixed_model", "ordinal")
 
 
-def _preferred(result, factor: str, entry) -> list[str] | None:  # noqa: ANN001 - AnalysisResult, PlanTest
-    # the runner's level order (analysis.execute: levels_for)
-    if factor == entry.compare and entry.levels:
-        return list(entry.levels)
-    if factor == "condition":
-        return list(result.plan.condition_ids)
-    if factor == "group":
-        return list(result.plan.group_ids) or None
-    return None
-
-
-def model_coefficient_intervals(result, *, confidence: float = 0.95) -> pd.DataFrame:  # noqa: ANN001
+def model_coefficient_intervals(result: AnalysisResult, *, confidence: float = 0.95) -> pd.DataFrame:
     """One row per coefficient of every mixed-model and ordinal test of ``result`` (columns :data:`COLUMNS`)."""
     units = result.tables.get("units", pd.DataFrame())
     entries = {e.id: e for e in result.plan.tests}
@@ -49,11 +38,10 @@ def model_coefficient_intervals(result, *, confidence: float = 0.95) -> pd.DataF
         if entry is None or name not in MODELS or key in seen or r.status != "ok":
             continue
         seen.add(key)
-        sel = units[units["metric"] == r.metric]
-        for factor, value in split_levels(r.split).items():
-            sel = sel[sel[factor_column(factor)].astype(str) == value]
+        sel = row_units(units, r.metric, r.split)
         col = factor_column(entry.compare)
-        levels = ordered_levels(sel[col].astype(str), _preferred(result, entry.compare, entry))
+        # the runner's level order, so the coefficients are against the level its rows name first
+        levels = ordered_levels(sel[col].astype(str), result.plan.level_order(entry.compare, entry))
         sel = sel[sel[col].astype(str).isin(levels) & sel["value"].map(lambda v: math.isfinite(float(v)))]
         if name == "mixed_model":
             factors, order = {}, {entry.compare: levels}
@@ -61,7 +49,7 @@ def model_coefficient_intervals(result, *, confidence: float = 0.95) -> pd.DataF
             if second:
                 values = sel[factor_column(second)].astype(str)
                 factors[second] = values.to_numpy()
-                order[second] = ordered_levels(values, _preferred(result, second, entry))
+                order[second] = ordered_levels(values, result.plan.level_order(second, entry))
             factors[entry.compare] = sel[col].astype(str).to_numpy()
             table = mixed_coefficients(sel["value"].to_numpy(dtype=float), factors, sel["participant"].to_numpy(),
                                        levels=order, confidence=confidence)

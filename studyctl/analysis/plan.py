@@ -236,6 +236,18 @@ class AnalysisPlan(_Strict):
     def test(self, test_id: str) -> PlanTest:
         return named(self.tests, test_id, what="test", plural="tests", where=" in the plan")
 
+    def level_order(self, factor: str, entry: PlanTest) -> list[str] | None:
+        """The order in which ``entry`` lists the levels of ``factor``: the entry's own ``levels`` for the factor
+        it compares, else the plan's conditions or groups; None (order of appearance in the data) for any other
+        factor. The runner and everything that reads its rows back (model coefficients) order levels by it."""
+        if factor == entry.compare and entry.levels:
+            return list(entry.levels)
+        if factor == "condition":
+            return self.condition_ids
+        if factor == "group":
+            return self.group_ids or None
+        return None
+
     def csv_path(self) -> Path | None:
         """The CSV data file, resolved against the plan's folder."""
         if self.data.source != "csv" or self.data.path is None:

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from studyctl.analysis.plan import AnalysisPlan
+from studyctl.analysis.results import split_levels
 from studyctl.analysis.table import MISSING_COLUMNS, MetricTable
 from studyctl.errors import AnalysisError
 
@@ -23,6 +24,15 @@ KEY = ("participant", "group", "condition", "level")
 def factor_column(factor: str) -> str:
     """Column of the tidy table holding a plan factor (a metric's own sub-level lives in ``level``)."""
     return factor if factor in ("condition", "group") else "level"
+
+
+def row_units(units: pd.DataFrame, metric: str, split: str) -> pd.DataFrame:
+    """The units one result row was computed from: ``units`` (the result's ``units`` table) of ``metric`` in the
+    row's ``split`` cell (``"group=novice, condition=linear"``, as the runner writes it)."""
+    sel = units[units["metric"] == metric]
+    for factor, value in split_levels(split).items():
+        sel = sel[sel[factor_column(factor)].astype(str) == value]
+    return sel
 
 
 @dataclass(frozen=True)
