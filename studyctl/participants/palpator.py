@@ -22,6 +22,8 @@ as quickly as possible):
    How far the hand went before the cue said enough is itself noted (less travel over stiffer tissue: with a
    force target the travel is the stiffness cue, ``travel_weber``). What the person does with the time a stopped
    press saved is ``after_stop``: release and go on, hold, or tap the same spot again (``max_taps``).
+   With ``lift_rule: settled`` a press is held past its planned hold while a felt cue still rises (the balloon's
+   fill lags the force), at most ``settle_max_s``.
    What the balloon and the motor deliver is noted when the believed depth passes each checkpoint and at
    its strongest; the camera's tip depth is noted at the bottom of the press as the ratio of the hand's
    (believed) depth to the seen depth (the instrument yields more on stiffer tissue). Each note is one
@@ -29,7 +31,8 @@ as quickly as possible):
 2. **Screen**: for each note the reference is the median over all cells (normal tissue); a cell whose mean
    log-percept exceeds it by ``screen_z`` noise SDs of the mean (or, where normal tissue is mostly not felt,
    that is felt — or stopped on — more often than the base rate allows, as a z-score) is re-probed
-   ``confirm_presses`` times; cells still undecided are probed again, up to ``confirm_rounds`` rounds.
+   ``confirm_presses`` times; cells still undecided are probed again, up to ``confirm_rounds`` rounds. With
+   ``sure_odds`` (after practice, odds rule) a cell already that sure after the sweep is not re-probed.
 3. **Report**: cells whose evidence stays above ``report_z``, keeping only the strongest of neighbouring
    cells; then ``finish``. When nothing stood out, it reports ``guesses`` cells: distinct random ones, or with
    ``guess: best`` those whose evidence was strongest (a forced choice by the max rule).
@@ -117,6 +120,11 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
         if p["after_stop"] not in ("release", "hold", "tap"):
             raise ModelParameterError(f"virtual_palpator participant: after_stop {p['after_stop']!r} must be "
                                       "release, hold or tap")
+        if 0 < p["sure_odds"] < 1:
+            raise ModelParameterError(f"virtual_palpator participant: sure_odds {p['sure_odds']} must be 0 (off) or "
+                                      "at least 1 (a tumour at least as likely as not: the report level or beyond)")
+        self._settles = p["lift_rule"] == "settled"
+        self._settle_channels = CHANNELS
         self._rng: np.random.Generator | None = None
         self.trials_done = 0
         self.practises = bool(p["familiarise"])  # the engine runs the familiarisation as a practice for this person
@@ -148,6 +156,8 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
             self.trials_done += 1
         # Within-person pace of this trial.
         self._pace = max(1.0 + p["speed_trial_cv"] * rng.standard_normal(), 0.3)
+        self._tick_s = 1.0 / max(info.rate_hz, 1.0)
+        self._settle_ticks = max(round(p["settle_s"] / self._tick_s), 1)
         self.columns, self.rows, self.cell_mm, self.origin = _grid(info.public, p)
         self.evidence: dict[tuple[int, int], _CellEvidence] = {}
         self.reports: list[tuple[int, int]] = []
@@ -215,6 +225,9 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
                 seg.looked = True
                 if not any(self._notes.get((ch, "peak"), 0.0) > 0 for ch in CHANNELS):
                     seg.duration += self.params["look_s"]
+                    seg.lift = "looked"
+            if self._settles:
+                self._hold_while_rising(seg, elapsed, percept)
         frac = 0.0 if seg.duration <= 0 else min(max(elapsed / seg.duration, 0.0), 1.0)
         pose = _lerp(seg.start, seg.end, frac) if seg.kind == "move" else _press_pose(seg, elapsed)
         self._pose = pose
@@ -222,6 +235,17 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
         self._belief_depth = pose[2] / seg.scale if seg.kind == "press" else 0.0
         self._pressing = seg if seg.kind == "press" else None
         return Action(inputs={"x_mm": pose[0], "y_mm": pose[1], "depth_mm": pose[2]})
+
+
+    def _hold_while_rising(self, seg: _Segment, elapsed: float, percept: Mapping[str, Any]) -> None:
+        """``lift_rule: settled``: about to release, stay at the bottom one more tick while a felt cue still rises."""
+        seg.trace.append(tuple(float(percept.get(ch) or 0.0) for ch in self._settle_channels))
+        if (elapsed >= seg.duration - seg.ramp and seg.held < self.params["settle_max_s"] - 1e-9
+                and self._rising(seg)):
+            step = self._tick_s
+            seg.duration += step
+            seg.held += step
+            seg.lift = "settled"
 
 
 def _grid(public: Mapping[str, Any], params: Mapping[str, Any]) -> tuple[int, int, float, tuple[float, float]]:

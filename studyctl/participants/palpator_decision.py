@@ -87,13 +87,16 @@ class CellDecision:
 
     def _queue_confirmations(self, first: bool = True) -> None:
         """Re-probe the cells that stood out; after the first round only those still undecided (evidence between
-        screen_z and report_z)."""
+        screen_z and report_z). With ``sure_odds`` the first round also skips the cells already past that bound."""
         if first:
             self._ref = self._reference()
         ref = self._ref
         p = self.params
+        sure = p["sure_odds"]
         candidates = [cell for cell, ev in self.evidence.items()
-                      if p["screen_z"] < self._score(ev, ref) and (first or self._score(ev, ref) <= self._level(ev))]
+                      if p["screen_z"] < self._score(ev, ref)
+                      and (self._score(ev, ref) <= self._level(ev, sure) if sure > 0 and first else
+                           first or self._score(ev, ref) <= self._level(ev))]
         for cell in candidates:
             for _ in range(self.params["confirm_presses"]):
                 self._queue_probe(cell)
@@ -121,8 +124,10 @@ class CellDecision:
         requests = tuple(Request("report", {"column": c, "row": r}) for c, r in chosen) + (Request("finish"),)
         return Action(inputs={"x_mm": self._pose[0], "y_mm": self._pose[1], "depth_mm": -5.0}, requests=requests)
 
-    def _level(self, ev: _CellEvidence) -> float:
-        """The evidence a cell needs to be reported, in the units of its score.
+    def _level(self, ev: _CellEvidence, odds: float = 1.0) -> float:
+        """The evidence a cell needs to be reported, in the units of its score (with ``odds`` > 1: the evidence
+        that makes a tumour that many times likelier than not, the bound where ``sure_odds`` stops re-probing; only
+        the odds rule has one, else there is none: inf).
 
         ``report_rule: z``: ``report_z``, the same for every cell. ``report_rule: odds``, after practice: report a
         cell when a tumour is more likely there than not, given what the practice showed: the likelihood-ratio
@@ -138,8 +143,8 @@ class CellDecision:
         cues = self.cues
         if self.params["report_rule"] == "odds" and cues is not None and cues.separation > 0 and 0 < cues.prior < 1:
             d = cues.separation * math.sqrt(max(len(ev.combined), 1))
-            return d / 2 + math.log((1 - cues.prior) / cues.prior) / d
-        return self.params["report_z"]
+            return d / 2 + math.log(odds * (1 - cues.prior) / cues.prior) / d
+        return self.params["report_z"] if odds == 1.0 else math.inf
 
     def _guess(self, scored: list[tuple[float, tuple[int, int]]]) -> list[tuple[int, int]]:
         """The cells reported when nothing stood out. ``random``: distinct cells drawn at random. ``best``: the

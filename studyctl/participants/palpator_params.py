@@ -43,6 +43,13 @@ PARAMS = (
           "the dynamic phase invites probing, paper §IV; people palpate at a steady rhythm, and the paper "
           "found no effect of the feedback on completion time, p = 0.684)"),
     Param("max_taps", 2, 0, 10, kind=int, source="CHOSEN: most extra taps after one stopped press"),
+    Param("lift_rule", "planned", kind=str, choices=("planned", "settled"), source="CHOSEN: planned = lift after "
+          "the planned hold; settled = also hold on while a felt cue still rises by a Weber step within settle_s "
+          "(sampling goes on while the evidence changes: Gold & Shadlen 2007, Annu Rev Neurosci 30:535)"),
+    Param("settle_s", 0.1, 0.02, 1.0, unit="s", source="CHOSEN: with lift_rule settled, the window over which a "
+          "cue that rose by less than a Weber step counts as settled (~ a vibrotactile integration time)"),
+    Param("settle_max_s", 1.0, 0.0, 5.0, unit="s", source="CHOSEN: with lift_rule settled, the longest a press "
+          "is held past its planned hold for a cue still rising"),
     Param("look_s", 0.0, 0.0, 5.0, unit="s", source="FITTED: extra dwell to judge the instrument's yield by eye "
           "when a press gave no haptic sensation (visual judgement of deformation takes time)"),
     # -- perception -----------------------------------------------------------------------------------
@@ -83,6 +90,12 @@ PARAMS = (
     Param("confirm_rounds", 1, 1, 10, kind=int, source="CHOSEN: a candidate whose evidence is still between "
           "screen_z and report_z after a round of re-probes is probed again, up to this many rounds "
           "(sequential sampling: weak cues are checked more often, Wald 1947); 1 = one round"),
+    Param("sure_odds", 0.0, 0.0, 1000.0, source="CHOSEN: sequential sampling stops once the evidence reaches a "
+          "bound (Wald 1947; Gold & Shadlen 2007, Annu Rev Neurosci 30:535): after practice (report_rule: odds), a "
+          "cell whose sweep press already makes a tumour this many times likelier than not there is not re-probed "
+          "(its evidence is past the bound; the report still takes the cell). 0 = every cell past screen_z is "
+          "re-probed once, as before (measured: scripts/palpation_contact_time.py, re-probes of cells already past "
+          "the report level are most of the presses that set tumour contact time apart between controllers)"),
     Param("max_reports", 0, 0, 49, kind=int, source="CHOSEN: at most this many cells are reported, the strongest "
           "first (0 = no limit); the example phantom shows 3 tumours, so people expect about that many"),
     Param("guess", "random", kind=str, source="CHOSEN: which cells a person reports when nothing stood out: "

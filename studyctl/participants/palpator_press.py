@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 
@@ -32,6 +32,9 @@ class _Segment:
     seen_gain: float = 1.0  # this press's visual noise on the minimum dent seen before a stop (stop_min_seen_mm)
     retap: bool = False  # an extra tap after a stopped press (it makes no taps of its own)
     looked: bool = False  # the dwell to judge by eye has been decided
+    held: float = 0.0  # time held past the planned hold for a cue still rising (lift_rule: settled)
+    lift: str = "planned"  # what the lift waited for: planned, looked (nothing felt), settled (a cue rose)
+    trace: list[tuple[float, ...]] = field(default_factory=list)  # felt cues per tick (lift_rule: settled)
 
 
 class PressPlanning:
@@ -101,6 +104,21 @@ class PressPlanning:
             v = percept.get(ch)
             if isinstance(v, int | float) and (v * gain >= level or (ratio and usual.get(ch, 0.0) > 0
                                                               and v >= ratio * usual[ch])):
+                return True
+        return False
+
+
+    def _rising(self, seg: _Segment) -> bool:
+        """Did a felt cue rise by more than the person's Weber fraction over the last ``settle_s`` of this press?
+        (``seg.trace`` holds the delivered values of the press's ticks, newest last.)"""
+        trace = seg.trace
+        if len(trace) < 2:
+            return False
+        back = trace[max(len(trace) - 1 - self._settle_ticks, 0)]
+        now = trace[-1]
+        for i, ch in enumerate(self._settle_channels):
+            sense = self.senses[ch]
+            if now[i] > sense.threshold and now[i] > back[i] * (1.0 + sense.weber):
                 return True
         return False
 
