@@ -44,10 +44,11 @@ def practise(person, controller_cls, seed, marks=True):
     return out, scene, positions
 
 
-def trial_after_practice(person, controller_cls, k, after_practice=None):
+def trial_after_practice(person, controller_cls, k, after_practice=None, on_sample=None):
     """Trial ``k`` of the broken-controller checks: a person who familiarises practises first with the trial's
     controller (seed 100 + k), then palpates tumours at ``SITES[k % 3]`` with the camera view. ``after_practice``
-    (optional) is called with the person and the example phantom between the practice and the trial."""
+    (optional) is called with the person and the example phantom between the practice and the trial; ``on_sample``
+    (optional) gets the trial's samples as the engine logs them (t, sample)."""
     if person.practises:
         _, example, _ = practise(person, controller_cls, seed=100 + k)
         if after_practice is not None:
@@ -58,6 +59,6 @@ def trial_after_practice(person, controller_cls, k, after_practice=None):
     device.open()
     out = run_trial(info=TrialInfo(controller_cls.name, 600.0, 50.0, public=dict(scene.public()), visual="realtime"),
                     controller=controller_cls({}, scene), device=device, participant=person,
-                    clock=SimulatedClock(), rng=np.random.default_rng(k + 2), view=scene.view)
+                    clock=SimulatedClock(), rng=np.random.default_rng(k + 2), view=scene.view, on_sample=on_sample)
     device.close()
     return out, scene
