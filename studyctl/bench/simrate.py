@@ -84,16 +84,16 @@ def _cohort_metrics(protocol: str, n: int, rate: float | None, folder: Path,
 
 
 def _run_reseeded(store, cohort, code: str, reseed: int) -> None:  # noqa: ANN001
-    """One session of the same person (traits of the default seed) on other random streams."""
+    """One session of the same person (the traits of the default session seed) on other random streams:
+    session seed = default + ``reseed``, person = :func:`~studyctl.engine.seeding.person_traits` of the default."""
     from studyctl.engine.api import run_session
-    from studyctl.engine.seeding import population_rng, session_seed
+    from studyctl.engine.seeding import person_traits, session_seed
 
     study = store.get_study(cohort.study)
     seed = session_seed(int(study.seed), code)
     traits = None
     if cohort.population is not None:
-        stratum = store.get_participant(study.id, code).stratum
-        traits = cohort.population.draw(population_rng(seed), stratum)
+        traits = person_traits(cohort.population, seed, store.get_participant(study.id, code).stratum)
     run_session(store, code, study=cohort.study, virtual=True, seed=seed + reseed, sim_rate_hz=cohort.sim_rate_hz,
                 population=cohort.population, traits=traits)
 

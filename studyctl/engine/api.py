@@ -28,7 +28,7 @@ from studyctl.engine.factory import EntryPointFactory, PluginFactory, build_part
 from studyctl.engine.plan import SessionPlan, Step
 from studyctl.engine.planning import plan_for_participant
 from studyctl.engine.preflight import preflight
-from studyctl.engine.seeding import answer_rng, population_rng, session_seed
+from studyctl.engine.seeding import answer_rng, person_traits, session_seed
 from studyctl.engine.session import SessionResult, SessionRunner, condition_rate
 from studyctl.engine.store_recorder import StoreRecorder, refuse_second_session
 from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
@@ -265,8 +265,8 @@ def run_session(
         (a resume keeps them) and every trial records the rate it ran at. None: the protocol's rates.
     population
         Virtual sessions only: a :class:`~studyctl.populations.TraitPopulation` for the protocol's participant
-        kind. The person's traits are drawn from the session seed's population stream
-        (:func:`~studyctl.engine.seeding.population_rng`, stratum-aware) unless ``traits`` gives them, and
+        kind. The person's traits are the session seed's person
+        (:func:`~studyctl.engine.seeding.person_traits`, stratum-aware) unless ``traits`` gives them, and
         reach the participant as constructor params (fixed ones, then traits, over the protocol's params).
         The population's name, version, sha256 and the person's traits are stored as a ``population`` event in
         the transaction that starts the session; a resume rebuilds the same person from it.
@@ -335,7 +335,7 @@ def run_session(
                                   f"{population.participant!r}, but study {target.name!r} simulates {plugin!r}; "
                                   f"give a population written for {plugin}")
         if traits is None:
-            traits = population.draw(population_rng(seed), person.stratum)
+            traits = person_traits(population, seed, person.stratum)
         record = population.record(traits, person.stratum)
         person_params = population.params(traits)
     return _launch(plan, seed, virtual,

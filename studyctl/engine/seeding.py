@@ -7,7 +7,9 @@ the numbers an uninterrupted run would have seen at the same place in the plan.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -48,6 +50,21 @@ def population_rng(seed: int) -> np.random.Generator:
     (:meth:`studyctl.populations.TraitPopulation.draw`): one stream per session seed, so the same seeds give
     the same people whatever population values a calibration tries (common random numbers)."""
     return _rng(seed, 0, _POPULATION)
+
+
+class _Drawing(Protocol):  # a TraitPopulation (studyctl.populations sits above the engine)
+    def draw(self, rng: np.random.Generator, stratum: str | None = None) -> Mapping[str, Any]: ...
+
+
+def person_traits(population: _Drawing, seed: int, stratum: str | None) -> Mapping[str, Any]:
+    """The traits of the virtual person whose session seed is ``seed``: ``population``'s draw from that seed's
+    population stream (:func:`population_rng`) in the person's stratum.
+
+    The one rule for who a seed's person is: :func:`studyctl.engine.api.run_session` draws with it, and so do
+    the callers that must hold the person while changing something else (a power replicate's knobs on top of
+    the traits; ``bench simrate``'s yardstick, the same people run on other session seeds).
+    """
+    return population.draw(population_rng(seed), stratum)
 
 
 def answer_rng(seed: int, position: int, item_number: int) -> np.random.Generator:

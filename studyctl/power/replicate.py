@@ -23,7 +23,7 @@ from studyctl.analysis.results import TestRow
 from studyctl.analysis.shape import prepare
 from studyctl.engine.api import run_session
 from studyctl.engine.factory import EntryPointFactory
-from studyctl.engine.seeding import population_rng
+from studyctl.engine.seeding import person_traits
 from studyctl.errors import SessionInterrupted, StudyctlError
 from studyctl.power.population import population_model
 from studyctl.power.seeds import replicate_seeds
@@ -185,7 +185,7 @@ def simulate_study(spec: PowerSpec, participants: int, seeds: Any, name: str, wh
             members.append((enrolled.code, enrolled.stratum, enrolled.sequence))
             traits = None
             if spec.traits is not None:  # this person's traits, then the knobs' shifts on top
-                traits = spec.traits.draw(population_rng(seeds.session_seeds[i]), enrolled.stratum)
+                traits = person_traits(spec.traits, seeds.session_seeds[i], enrolled.stratum)
             actor, n_clipped = model.actor(enrolled.stratum, model.draw_offsets(offsets_rng),
                                            None if traits is None else spec.traits.params(traits))
             clipped += n_clipped

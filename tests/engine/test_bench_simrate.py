@@ -53,3 +53,43 @@ def test_quick_run_prints_speed_and_error(capsys):
     assert fig["speedup_250_data_driven_palpation"] > 1.0
     assert 0.0 <= fig["found_agree_250_data_driven_palpation"] <= 1.0
     assert [r["rate_hz"] for r in out["tables"]["rates"]] == [1000.0, 250.0]
+
+
+def test_the_yardstick_runs_the_same_people_on_other_session_seeds(tmp_path):
+    """The reseeded 1 kHz cohort must hold each person (traits of the default session seed) and change only the
+    session's random streams; drawing the traits from the new seed would compare other people with them."""
+    import json
+    import sqlite3
+    from pathlib import Path
+
+    from studyctl.bench.simrate import _run_reseeded
+    from studyctl.engine.seeding import person_traits, session_seed
+    from studyctl.populations import load_population_file
+    from studyctl.store.workspace import open_study
+    from studyctl.workflows.simulate import create_cohort, run_participant
+
+    tests = Path(__file__).parent.parent
+    population = load_population_file(tests / "populations" / "data" / "palpator_small.yaml")
+    runs = {}
+    for reseed in (0, 1):
+        cohort = create_cohort(tests / "power" / "data" / "mini_palpation.yaml", 2, 31, tmp_path / f"r{reseed}",
+                               population=population)
+        with open_study(cohort.db, cohort.workspace, cohort.study) as opened:
+            for code in cohort.codes:
+                if reseed:
+                    _run_reseeded(opened.store, cohort, code, reseed)
+                else:
+                    run_participant(cohort, code, store=opened.store)
+        con = sqlite3.connect(cohort.database)
+        runs[reseed] = {code: (seed, json.loads(payload)) for code, seed, payload in con.execute(
+            "select p.code, s.seed, e.payload from event e join session s on s.id = e.session_id join participant p"
+            " on p.id = s.participant_id where e.kind = 'population'")}
+        con.close()
+    assert runs[0].keys() == runs[1].keys() and len(runs[0]) == 2
+    for code, (seed, record) in runs[1].items():
+        default_seed, default_record = runs[0][code]
+        assert default_seed == session_seed(31, code) and seed == default_seed + 1
+        assert record["traits"] == default_record["traits"]  # the same person ...
+        assert record["traits"] == pytest.approx(person_traits(population, default_seed, record["stratum"]))
+        # ... not the person the new seed would draw
+        assert record["traits"] != pytest.approx(person_traits(population, seed, record["stratum"]))

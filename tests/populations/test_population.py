@@ -140,7 +140,7 @@ def _params_seen(monkeypatch) -> list[dict]:
 @pytest.mark.slow
 def test_simulated_sessions_store_population_and_traits_and_pass_them_to_the_participant(tmp_path, monkeypatch,
                                                                                        population):
-    from studyctl.engine.seeding import population_rng, session_seed
+    from studyctl.engine.seeding import person_traits, session_seed
     from studyctl.workflows.simulate import simulate_study
 
     seen = _params_seen(monkeypatch)
@@ -159,7 +159,7 @@ def test_simulated_sessions_store_population_and_traits_and_pass_them_to_the_par
         rec = json.loads(payload)
         assert rec["sha256"] == population.sha256 and rec["version"] == 1 and rec["stratum"] == stratum
         assert seed == session_seed(31, code)
-        assert rec["traits"] == pytest.approx(population.draw(population_rng(seed), stratum))
+        assert rec["traits"] == pytest.approx(person_traits(population, seed, stratum))
         # stored right after the session's plan (the same transaction that starts the session)
         kinds = [r[1] for r in rows if r[0] == sid]
         assert kinds[:2] == ["session_plan", "population"]
