@@ -79,6 +79,34 @@ def test_a_deliberate_speed_up_is_not_a_cue_but_the_tumour_after_it_is():
     assert any(det2.update(0.5, 30.0, 5.0, 1.0, dt, 0.1, 0.1) for _ in range(100))
 
 
+def test_on_a_slow_leg_the_rise_is_judged_against_that_legs_own_resistance():
+    """Slowed on purpose (a correction leg at 0.55 x its insertion speed), it feels less liver resistance. Once the
+    push is steady (0.5 s) the expected resistance follows the leg's own (0.3 s time constant), so the tumour met
+    a second into the leg is judged against the slow leg's resistance, not the faster insertion's, and the lower
+    resistance alone is no cue. Seed 001's correction legs met the tumour 0.74-2.8 s into the leg (session 32)."""
+    dt = 0.01
+    det = AxialCueDetector()
+    for k in range(300):  # the insertion: 0.40 N at its own speed, deep enough to judge
+        det.update(0.40, depth=k * 0.1, half_length=5.0, moving_s=1.0 + k * dt, dt=dt, threshold_n=0.12, weber=0.1)
+    assert det.baseline == pytest.approx(0.40)
+    # a slow leg in plain liver: 0.25 N from the start of the push; no cue, and 1.5 s in (the legs' median time to
+    # the tumour) the expectation has come down to it
+    assert not any(det.update(0.25, 31.0, 5.0, k * dt, dt, 0.12, 0.1) for k in range(150))
+    assert det.baseline == pytest.approx(0.25, abs=0.01)
+    # the tumour on that leg adds 0.15 N: 0.40 N, the insertion's level, is now a rise of 0.15 N, and it is felt
+    assert [det.update(0.40, 32.0, 5.0, 1.0 + k * dt, dt, 0.12, 0.1) for k in range(20)].count(True) == 1
+    # with the expectation still at the insertion's 0.40 N (had it not followed), the same tumour would be missed
+    stale = AxialCueDetector()
+    for k in range(300):
+        stale.update(0.40, depth=k * 0.1, half_length=5.0, moving_s=1.0 + k * dt, dt=dt, threshold_n=0.12, weber=0.1)
+    assert not any(stale.update(0.40, 32.0, 5.0, 1.0 + k * dt, dt, 0.12, 0.1) for k in range(20))
+    # which is what happens to a tumour met before the slow push is steady (0.3 s in): judged against the insertion's
+    # resistance, missed; none of seed 001's correction legs met it that early
+    for k in range(30):
+        stale.update(0.25, 31.0, 5.0, k * dt, dt, 0.12, 0.1)
+    assert not any(stale.update(0.40, 32.0, 5.0, 0.3 + k * dt, dt, 0.12, 0.1) for k in range(20))
+
+
 def _blank_frame() -> dict:
     """A CT frame in which nothing shows: the tip above the slices' field (two 64 x 64 px panels, 2 mm/px)."""
     panel = {"size_px": 64, "mm_per_px": 2.0, "center_h_mm": 0.0, "center_v_mm": 0.0}
