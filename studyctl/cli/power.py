@@ -102,8 +102,13 @@ def register(app: typer.Typer) -> None:
                                                 "measure the pool's own sampling error at --check-sizes, 50 stage-2 "
                                                 "replicates each; that error is part of the comparison with the "
                                                 "full engine (0: not measured)."),
+        sim_rate_hz: float = typer.Option(
+            None, "--sim-rate-hz",
+            help="Run rate-adjustable feedback loops (the 1 kHz tissue and needle controllers) at most this fast: "
+                 "faster replicates, outcomes as measured by `studyctl bench simrate` (default: the protocol's "
+                 "rates). Results and pools are kept apart by rate."),
         as_json: bool = typer.Option(False, "--json", help="Print the results as one JSON document on stdout "
-                                                           "(power table, target sizes, files)."),
+                                                           "(power table, target sizes, loop rates, files)."),
     ) -> None:
         """Estimate power per test and sample size by simulating the study with virtual participants.
 
@@ -143,7 +148,8 @@ def register(app: typer.Typer) -> None:
         pop = _population(None if trait_file else population, effect, group_effect, between_sd, baseline)
         spec = prepare_power(loaded_protocol, loaded_plan, sizes=participants, replicates=replicates, seed=seed,
                              population=pop, memory_limit=memory_limit,
-                             traits=population if trait_file else "shipped", target=target)
+                             traits=population if trait_file else "shipped", target=target,
+                             sim_rate_hz=sim_rate_hz)
         console.print(describe_choice(spec.traits, spec.study_id, trait_file), markup=False)
         if plan is None:
             console.print(f"plan: the shipped analysis plan {spec.protocol_name!r} (the default for the shipped "
@@ -152,6 +158,7 @@ def register(app: typer.Typer) -> None:
         console.print(f"power: {spec.study_id}, plan {spec.plan.title!r}; participants {sizes}; "
                       f"{spec.replicates} replicates each; seed {spec.seed}", markup=False)
         console.print(population_text(spec.population), markup=False)
+        console.print(_rates_text(spec.loop_rates(), spec.sim_rate_hz), markup=False)
         state = {"kept": 0}
         progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                             TimeRemainingColumn(), console=err, transient=False)
@@ -207,6 +214,17 @@ def register(app: typer.Typer) -> None:
         finally:
             progress.stop()
         _done(console, result, show_posthoc, as_json)
+
+
+def _rates_text(rates: dict[str, float], cap: float | None) -> str:
+    """One line: the loop rate of each condition's simulated sessions, and whether a cap set it."""
+    by_rate: dict[float, list[str]] = {}
+    for cond, rate in rates.items():
+        by_rate.setdefault(rate, []).append(cond)
+    listed = "; ".join(f"{', '.join(conds)} {rate:g} Hz" for rate, conds in by_rate.items()) or "no feedback loop"
+    how = (f"--sim-rate-hz {cap:g} caps the rate-adjustable loops" if cap is not None
+           else "the protocol's rates (--sim-rate-hz to run rate-adjustable loops slower)")
+    return f"loop rates: {listed} ({how})"
 
 
 def _done(console: Console, result, show_posthoc: bool, as_json: bool) -> None:  # noqa: ANN001 - PowerRun

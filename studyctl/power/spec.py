@@ -18,9 +18,11 @@ from typing import Any
 from studyctl import __version__
 from studyctl.analysis import AnalysisPlan, load_plan
 from studyctl.analysis.catalog import TESTS
+from studyctl.engine.api import check_sim_rate, simulation_rates
 from studyctl.engine.factory import EntryPointFactory
 from studyctl.engine.planning import plan_for_participant
 from studyctl.engine.preflight import preflight
+from studyctl.engine.session import condition_rate
 from studyctl.errors import UsageError
 from studyctl.power.population import Population, population_model
 from studyctl.power.seeds import check_master_seed
@@ -77,6 +79,10 @@ class PowerSpec:
     def load_protocol(self) -> Any:
         """The protocol parsed from the spec's own text (what a worker process has; never the file again)."""
         return load_protocol_text(self.protocol_text, self.protocol_name)
+
+    def loop_rates(self) -> dict[str, float]:
+        """Per condition with a controller, the loop rate (Hz) the simulated sessions run at (the cap applied)."""
+        return loop_rates(self.load_protocol(), self.sim_rate_hz)
 
     def tasks(self) -> list[tuple[int, int]]:
         """Every (sample size, replicate index) of the run, smallest sample size first."""
@@ -183,13 +189,49 @@ def check_plan_matches(plan: Any, protocol: Any, protocol_label: str) -> None:
         )
 
 
+def _sample_plan(protocol: Any) -> Any:
+    """The session plan of the first stratum's first sequence (every person's plan has the same conditions)."""
+    schedule = Planner(protocol).expand(seed=0, slot=0, stratum=protocol.stratum_ids[0])
+    return plan_for_participant(protocol, schedule)
+
+
 def _preflight(protocol: Any) -> None:
     """Plugins the simulated sessions need exist (PluginError names the missing one)."""
-    stratum = protocol.stratum_ids[0]
-    schedule = Planner(protocol).expand(seed=0, slot=0, stratum=stratum)
-    preflight(
-        plan_for_participant(protocol, schedule), EntryPointFactory(), virtual=True, person_participant=False
-    ).raise_if_missing()
+    preflight(_sample_plan(protocol), EntryPointFactory(), virtual=True, person_participant=False).raise_if_missing()
+
+
+def loop_rates(protocol: Any, sim_rate_hz: float | None) -> dict[str, float]:
+    """Per condition with a controller, the loop rate its simulated sessions run at under the cap ``sim_rate_hz``
+    (None: the protocol's rates; :func:`studyctl.engine.api.simulation_rates` says which loops a cap slows)."""
+    factory = EntryPointFactory()
+    plan = _sample_plan(protocol)
+    rates = {cid: condition_rate(c, factory) for cid, c in plan.conditions.items() if c.controller and not c.manual}
+    if sim_rate_hz is not None:
+        rates.update(simulation_rates(plan, factory, sim_rate_hz))
+    return rates
+
+
+def _check_rate_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
+    """``sim_rate_hz`` if it slows at least one of ``protocol``'s loops (UsageError otherwise: a cap that changes
+    nothing would only key the results and pools apart from the same simulation's)."""
+    if sim_rate_hz is None:
+        return None
+    check_sim_rate(sim_rate_hz)
+    if loop_rates(protocol, sim_rate_hz) != loop_rates(protocol, None):
+        return float(sim_rate_hz)
+    factory = EntryPointFactory()
+    loops = {}
+    for c in _sample_plan(protocol).conditions.values():
+        if c.controller and not c.manual:
+            adjustable = getattr(factory.load("controller", c.controller), "rate_adjustable", False)
+            loops[c.controller] = (condition_rate(c, factory), adjustable)
+    seen = "; ".join(f"{name} {rate:g} Hz{'' if adj else ', not rate-adjustable'}"
+                     for name, (rate, adj) in sorted(loops.items()))
+    faster = [rate for rate, adj in loops.values() if adj]
+    fix = (f"give a rate below {max(faster):g} Hz or leave --sim-rate-hz out" if faster
+           else "leave --sim-rate-hz out (this study runs at its protocol's rates)")
+    raise UsageError(f"--sim-rate-hz {sim_rate_hz:g}: slows no feedback loop of protocol {protocol.study.id!r} "
+                     f"({seen or 'no controller'}); {fix}")
 
 
 def prepare_power(
@@ -203,6 +245,7 @@ def prepare_power(
     memory_limit: str | int | None = None,
     traits: Any = "shipped",
     target: float | None = None,
+    sim_rate_hz: float | None = None,
 ) -> PowerSpec:
     """Check every input of a power analysis and return the spec the replicates run from.
 
@@ -230,6 +273,10 @@ def prepare_power(
     target
         Target power in (0, 1): every size must then complete the counterbalancing blocks
         (:func:`studyctl.power.target.check_complete_blocks`), so the answer is a balanced design.
+    sim_rate_hz
+        Run the rate-adjustable feedback loops (the 1 kHz tissue and needle controllers) at most this fast
+        (``run_session``'s ``sim_rate_hz``; what it changes: ``studyctl bench simrate``). None: the protocol's rates.
+        A cap that slows none of the protocol's loops is refused.
 
     Raises
     ------
@@ -275,6 +322,7 @@ def prepare_power(
 
     traits = population_for(proto, traits)
     _preflight(proto)
+    sim_rate_hz = _check_rate_cap(proto, sim_rate_hz)
     return PowerSpec(
         protocol_name=Path(path).stem,
         protocol_text=proto.source_text,
@@ -289,5 +337,6 @@ def prepare_power(
         sequences=nseq,
         memory_limit=parse_memory(memory_limit),
         traits=traits,
+        sim_rate_hz=sim_rate_hz,
         target=target,
     )

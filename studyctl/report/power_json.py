@@ -20,6 +20,8 @@ def power_json(run: Any) -> dict[str, Any]:
         "reused": run.reused,
         "seconds": run.seconds,
         "backend": run.backend,
+        "sim_rate_hz": run.sim_rate_hz,
+        "loop_rates_hz": run.loop_rates_hz,
         "target": None if run.target is None else run.target.target,
         "smallest_sizes": None if run.target is None else run.target.to_records(),
         "power": _records(run.table.to_frame()),

@@ -53,6 +53,10 @@ class PowerRun:
     #: Two-stage runs: the design's measured error against full-engine replicates, and the pool used.
     error: Any = None
     pool: dict[str, Any] | None = None
+    #: The simulated sessions' loop-rate cap (``--sim-rate-hz``; None: the protocol's rates) and the rate each
+    #: condition with a controller ran at.
+    sim_rate_hz: float | None = None
+    loop_rates_hz: dict[str, float] = field(default_factory=dict)
 
     def to_frame(self) -> pd.DataFrame:
         """The power table (:data:`studyctl.power.summary.COLUMNS`)."""
@@ -149,6 +153,8 @@ def run_power(
         population=population,
         replicates=reps,
         target=target,
+        sim_rate_hz=spec.sim_rate_hz,
+        loop_rates_hz=spec.loop_rates(),
     )
 
 
@@ -197,6 +203,8 @@ def _write(
         "seed": spec.seed,
         "population": spec.population.to_dict(),
         "memory_limit_bytes": spec.memory_limit,
+        "sim_rate_hz": spec.sim_rate_hz,
+        "loop_rates_hz": spec.loop_rates(),
         "backend": backend,
         **{"fingerprint": spec.fingerprint()},
         "seeds": "numpy SeedSequence(seed, spawn_key=(participants, replicate))",

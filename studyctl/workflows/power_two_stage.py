@@ -156,7 +156,8 @@ def run_two_stage(
         encoding="utf-8"))
     return PowerRun(table=table, out_dir=out, files=files, ran=len(todo), reused=len(tasks) - len(todo),
                     seconds=time.perf_counter() - t0, backend=f"two-stage (pool and stage 2: {backend_desc})",
-                    population=population, replicates=reps, target=target, error=error, pool=pool_info)
+                    population=population, replicates=reps, target=target, error=error, pool=pool_info,
+                    sim_rate_hz=spec.sim_rate_hz, loop_rates_hz=spec.loop_rates())
 
 
 def _note(error: PowerError | None, people: int) -> str:

@@ -49,6 +49,9 @@ def _closed_port() -> int:
         (["--two-stage", "--pool", "10"], "the pool must hold at least 20 × the largest sample size"),
         (["--two-stage", "--pool-bootstrap", "1"], "--pool-bootstrap 1 with 50 replicates each"),
         (["--target", "1.5"], "strictly between 0 and 1"),
+        (["--sim-rate-hz", "0"], "--sim-rate-hz (the simulation loop rate) must be a positive number of Hz"),
+        # the mini study's loops are 50 Hz and not rate-adjustable: a cap would change nothing but the keys
+        (["--sim-rate-hz", "250"], "--sim-rate-hz 250: slows no feedback loop of protocol"),
         (["--two-stage", "--scheduler", f"127.0.0.1:{_closed_port()}"], "cannot reach the Dask scheduler"),
     ],
 )
@@ -89,3 +92,31 @@ def test_serial_run_states_the_population(tmp_path, capsys, monkeypatch):
                                  "--effect", "linear:balloon_weber=0.05", "--between-sd", "aim_sd_mm=0.2"], capsys)
     assert code == 0 and "continuing: 1 of 1 replicates already in" in stderr
     assert "simulated 0 replicate(s), reused 1" in stdout
+
+
+@pytest.mark.slow
+def test_sim_rate_caps_the_replicates_loops_and_the_run_says_which_rates_it_used(tmp_path, capsys, monkeypatch):
+    """``--sim-rate-hz`` reaches every simulated session, and the printed line, the JSON and power_run.json name
+    the rates (seed 002: its haptic condition's 1 kHz loop is rate-adjustable, the manual one has no loop)."""
+    import json
+
+    import studyctl.power.replicate as replicate
+
+    seen = []
+    real = replicate.run_session
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("sim_rate_hz"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(replicate, "run_session", spy)
+    out = tmp_path / "out"
+    code, stdout, stderr = _run(["data_driven_palpation", "-n", "2", "-r", "1", "--workers", "0", "--sim-rate-hz",
+                                 "250", "--out", out, "--json"], capsys)
+    assert code == 0, stderr
+    assert seen == [250.0, 250.0]
+    assert "loop rates: haptic 250 Hz (--sim-rate-hz 250 caps the rate-adjustable loops)" in stderr
+    doc = json.loads(stdout)
+    assert doc["sim_rate_hz"] == 250.0 and doc["loop_rates_hz"] == {"haptic": 250.0}
+    settings = json.loads((out / "power_run.json").read_text(encoding="utf-8"))
+    assert settings["loop_rates_hz"] == {"haptic": 250.0} and settings["fingerprint"]["sim_rate_hz"] == 250.0
