@@ -14,7 +14,9 @@ from ``hover_mm`` above the visible surface to ``press_depth_mm`` below it with 
 on its error (``gain_per_s``), so the cursor's lag (pseudo-haptics) and the rendered force pushing the hand
 back (the device's spring-held hand) are compensated the way a person does, by moving the hand further; with
 ``press_adaptation`` the pressing gain is raised by how little the watched point has yielded per hand millimetre
-over the trial's presses (visuomotor gain adaptation), so a press keeps its pace under a slowed cursor.
+over the trial's presses (visuomotor gain adaptation), so a press keeps its pace under a slowed cursor; with
+``press_steer: felt`` a press whose push is felt is steered by the hand's travel since the push was first felt
+(proprioception) instead of the cursor's; its indentation is still read off the cursor.
 Moves in the air are planned straight-line hand motions.
 
 Perception per press (noise multiplicative, drawn from the trial's rng):
@@ -138,6 +140,8 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         # practice: weights|learn: the engine runs each feedback condition's practice block (nodules visible) for this
         # person; what it learnt there, per condition (tissue_practice), applies to that condition's test
         self.practises = self.params["practice"] != "none"
+        # press_steer: felt: once a push is felt, a press is steered by the hand's travel, not the cursor's
+        self._steer_felt = self.params["press_steer"] == "felt"
         self.learnt: dict[str, dict[str, dict[str, float]]] = {}
 
     def memory(self) -> Mapping[str, Any]:
@@ -318,6 +322,9 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         force = 0.0
         if "fx_n" in percept:
             force = math.sqrt(percept["fx_n"] ** 2 + percept["fy_n"] ** 2 + percept["fz_n"] ** 2)
+        steer = ctrl  # what the hand is steered by; ctrl stays what the person watches and judges depth by
+        if self._steer_felt and cursor is not None and handle is not None and self._phase in ("press", "dwell"):
+            steer = self._felt_depth(ctrl, handle, force)
         self._observe_air(cursor, handle, ctrl)
         self._phase_t += dt
         requests: tuple[Request, ...] = ()
@@ -334,8 +341,8 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
             return Action(inputs=self._inputs(), requests=requests)
         if self._phase == "done":
             return Action(inputs=self._inputs(), requests=(Request("finish"),))
-        self._advance(ctrl, cursor, handle, force)
-        self._move_hand(ctrl, dt)
+        self._advance(ctrl, cursor, handle, force, steer)
+        self._move_hand(steer, dt)
         h = self._hand
         grip = self._grip(force)
         if grip is not None:
@@ -382,6 +389,25 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         h[1] += vy
         h[2] += vz
 
+    def _felt_depth(self, ctrl: tuple[float, float, float], handle: tuple[float, float, float],
+                    force: float) -> tuple[float, float, float]:
+        """``press_steer: felt``: the point a press is steered by, once a push is felt: the cursor's depth when the
+        push was first felt, deepened by the hand's own travel since (proprioception). Before any push, and where the
+        cursor follows the hand, it is the cursor itself. The indentation a stiffness is judged against stays the
+        one seen on the cursor: with pseudo-haptics a stiffer spot slows the cursor, so at a given hand travel the
+        tool indents it less and the push rendered there is weaker; force over hand travel would cancel much of the
+        contrast (trial loop, PHF+FF: 33 nodules of 72 against 50)."""
+        contact = self._press.get("felt_at")
+        if contact is None:
+            if force <= 0.02:  # nothing felt yet, as _steady's threshold
+                return ctrl
+            contact = self._press["felt_at"] = (ctrl[2], handle[2])
+        # The hand's travel counts millimetre for millimetre. Read at the cursor's learnt yield in the tissue instead
+        # (a forward model: press the hand as far as took the cursor to depth before), the hand pressed further
+        # against the push and the press was as slow as the cursor-steered one (trial loop, PHF+FF: 198 s, 47
+        # nodules of 72, against 149 s, 46 at one to one and 194 s, 50 steered by the cursor).
+        return (ctrl[0], ctrl[1], contact[0] - (contact[1] - handle[2]))
+
     def _adapt_press_gain(self, press: dict[str, Any], ctrl: tuple[float, float, float]) -> None:
         """Learn from this press how far the watched point went into the tissue per millimetre the hand was told
         to go (visuomotor gain adaptation: people rescale their movements to a changed cursor gain within a few
@@ -419,7 +445,7 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self._last_cursor = cursor
         self._last_handle = handle
 
-    def _advance(self, ctrl, cursor, handle, force) -> None:
+    def _advance(self, ctrl, cursor, handle, force, steer) -> None:
         p = self.params
         press = self._press
         if self._replan:
@@ -455,11 +481,11 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
             # The press ends when the watched point first reaches the wanted depth: a person presses to a depth
             # and holds, without servoing the last fraction of a millimetre (a spring-held hand pressing on
             # rendered forces would oscillate about it for the whole phase timeout).
-            near = ctrl[2] <= self._target[2] + p["tolerance_mm"]
-            if p["press_adaptation"] > 0 and "in_at" not in press and ctrl[2] <= press["h"]:
-                press["in_at"] = (ctrl[2], self._hand[2])  # the watched point enters the tissue (adaptation only)
+            near = steer[2] <= self._target[2] + p["tolerance_mm"]
+            if p["press_adaptation"] > 0 and "in_at" not in press and steer[2] <= press["h"]:
+                press["in_at"] = (steer[2], self._hand[2])  # the steered point enters the tissue (adaptation only)
             if near or timed_out or force >= p["max_press_force_n"]:
-                self._adapt_press_gain(press, ctrl)
+                self._adapt_press_gain(press, steer)
                 if self._slide_start(press, ctrl):
                     return
                 self._phase, self._phase_t = "dwell", 0.0

@@ -40,6 +40,16 @@ PARAMS = (
           "slowed by pseudo-haptics, hand pushed back by rendered force) one press adapts the pressing gain by; "
           "people adapt to a changed visuomotor gain within a few movements (Krakauer, Pine, Ghilardi & Ghez 2000, "
           "J Neurosci 20:8916); 0: never (the press slows with the yield)"),
+    Param("press_steer", "seen", kind=str, choices=("seen", "felt"),
+          source="CHOSEN: the switch (its direction CITED): what a press's depth is steered by when a cursor is "
+          "watched. seen: the cursor's depth below the visible surface, throughout. felt: once the push is felt (force "
+          "feedback), "
+          "the hand's own travel since that moment (proprioception); the indentation a stiffness is judged against is "
+          "still read off the cursor. For movement in depth people weight what they feel over what they see (van "
+          "Beers, Wolpert & Haggard 2002, Curr Biol 12:834), and a felt contact marks the surface in the hand's own "
+          "frame. Changes nothing "
+          "without a felt push (PHF) or without a cursor (by hand), nor where the cursor follows the hand (FF); with "
+          "PHF+FF the press no longer waits for a slowed cursor that the release-on-retract push ratchets back up"),
     Param("max_press_boost", 4.0, low=1.0, high=20.0,
           source="CHOSEN: the pressing gain is raised at most this much by adaptation"),
     Param("tolerance_mm", 0.3, low=0.01, high=5.0, unit="mm", source="CHOSEN: depth accuracy at the press bottom"),

@@ -189,3 +189,35 @@ def test_a_hold_judged_from_the_press_bottom_does_not_wait_out_the_settling_firs
     per_press = [p.spent_s / len(p._presses) for p in (after_person, during_person)]
     assert per_press[1] < 0.75 * per_press[0], per_press
     assert during.nodules_found >= 1
+
+
+def test_a_press_steered_by_feel_takes_the_hands_travel_once_a_push_is_felt():
+    """press_steer: felt: before any push the press is steered by the cursor; from the first push felt, by the
+    cursor's depth then plus the hand's travel since (proprioception), so a cursor held back does not hold the press."""
+    person = VirtualTissuePalpator({"press_steer": "felt"})
+    person.begin_trial(TrialInfo(condition="PHF_FF", time_limit_s=10.0, rate_hz=250.0, visual="realtime", public={}),
+                       np.random.default_rng(0))
+    person._press = {}
+    assert person._felt_depth((5.0, 6.0, 21.0), (5.0, 6.0, 17.0), 0.0) == (5.0, 6.0, 21.0)  # nothing felt yet
+    assert person._felt_depth((5.0, 6.0, 20.5), (5.0, 6.0, 16.0), 0.3) == (5.0, 6.0, 20.5)  # the push is felt here
+    # the hand goes 2 mm deeper while the cursor, slowed and ratcheted up by the on/off push, rises 0.4 mm
+    assert person._felt_depth((5.0, 6.0, 20.9), (5.0, 6.0, 14.0), 0.0) == pytest.approx((5.0, 6.0, 18.5))
+    assert VirtualTissuePalpator({})._steer_felt is False  # off by default: the cursor, as before
+
+
+@pytest.mark.slow
+def test_with_both_feedbacks_a_press_steered_by_feel_no_longer_waits_for_the_slowed_cursor():
+    """PHF+FF: a press steered by the cursor waits for a cursor slowed by pseudo-haptics and lifted back by the
+    release-on-retract push; steered by the hand's felt travel it is as quick as with force feedback alone. FF (the
+    cursor follows the hand) is the same trial either way; a broken FF (no force) is still noticed."""
+    person = {**PERSON_003, "press_adaptation": 0.3}
+    seen, seen_p = _trial_003(person, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    felt, felt_p = _trial_003({**person, "press_steer": "felt"}, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    per_press = [p.spent_s / len(p._presses) for p in (seen_p, felt_p)]
+    assert per_press[1] < 0.75 * per_press[0], per_press
+    assert felt.detection_time_s < seen.detection_time_s
+    assert felt.nodules_found >= 1
+    ff = [_trial_003({**person, "press_steer": s}, seed=11, controller="FF")[0] for s in ("seen", "felt")]
+    assert ff[0].detection_time_s == ff[1].detection_time_s and ff[0].report_hits == ff[1].report_hits
+    broken = _trial_003({**person, "press_steer": "felt"}, seed=11, controller="FF", cparams={"max_force_n": 0.01})
+    assert ff[1].nodules_found >= 2 and broken[0].nodules_found == 0
