@@ -21,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import optimize as _opt
 
 from studyctl.errors import StatsInputError
 
@@ -195,6 +194,7 @@ def partial_eta_squared_ci(f: float, df1: float, df2: float, confidence: float =
 
     def ncp(target: float) -> float:
         """λ with P(F' ≤ f; λ) = target (0 when even λ = 0 leaves less than target below f)."""
+        from scipy import optimize as _opt  # lazy, as scipy.stats: test collection and plan checks import this module
         from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
         below = lambda lam: float(_st.ncf.cdf(f, df1, df2, lam)) if lam > 0 else float(_st.f.cdf(f, df1, df2))  # noqa: E731
         if below(0.0) <= target:

@@ -24,13 +24,19 @@ from __future__ import annotations
 import math
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import interpolate, optimize, special
+from scipy import special
 
 from studyctl.errors import StatsInputError
 
 from ._validate import check_probability
+
+# scipy.interpolate and scipy.optimize (together ~0.25 s CPU) are imported where a spline is built or a quantile
+# solved, so importing studyctl.stats (test collection, a command that only checks a plan) does not pay for them.
+if TYPE_CHECKING:
+    from scipy import interpolate
 
 _NZ = 64  # Gauss-Legendre nodes per panel of the z integral (two panels split at the peak)
 _NS = 48  # nodes per panel of the s integral
@@ -93,12 +99,16 @@ def range_grid() -> np.ndarray:
 
 def build_range_table(k: int) -> interpolate.BSpline:
     """Quintic spline through log P(R > w) on :func:`range_grid` (by quadrature; ~0.3 s)."""
+    from scipy import interpolate
+
     grid = range_grid()
     return interpolate.make_interp_spline(grid, _log_range_sf_direct(grid, k), k=_SPLINE_DEGREE)
 
 
 @lru_cache(maxsize=64)
 def _range_table(k: int) -> interpolate.BSpline:
+    from scipy import interpolate
+
     shipped = _shipped_coefficients(k)
     if shipped is not None:
         # construct_fast: the knots were validated when the table was written
@@ -270,6 +280,8 @@ _PPF_GRID = np.arange(1, 25) * 0.5  # first bracket of the quantile, evaluated i
 
 @lru_cache(maxsize=256)
 def _ppf_cached(p: float, k: int, df: float) -> float:
+    from scipy import optimize
+
     target = math.log1p(-p)  # log upper-tail probability α = 1 − p
 
     def f(q: float) -> float:
