@@ -28,21 +28,37 @@ def test_compare_counts_gains_losses_and_duration_bias():
     assert got["se_diff_pp"] == 0.0
 
 
-def _needle(values: dict[str, list[float]]) -> pd.DataFrame:
-    rows = [{"participant": "P1", "condition": "BL", "repetition": float(r), "metric": m, "level": None, "value": v}
-            for m, vs in values.items() for r, v in enumerate(vs, start=1)]
+def _needle(values: dict[str, list[float]], participant: str = "P1") -> pd.DataFrame:
+    rows = [{"participant": participant, "condition": "BL", "repetition": float(r), "metric": m, "level": None,
+             "value": v} for m, vs in values.items() for r, v in enumerate(vs, start=1)]
     return pd.DataFrame(rows)
 
 
 def test_needle_metrics_are_compared_trial_by_trial_with_their_bias_and_its_error():
-    ref = _needle({"targeting_error": [1.0, 2.0, 3.0], "scans": [4.0, 4.0, 2.0]})
-    other = _needle({"targeting_error": [1.5, 2.5, 2.0], "scans": [4.0, 4.0, 2.0]})
-    got = compare_metrics(ref, other.iloc[:-1], ("targeting_error", "scans"))  # one scans trial missing
+    ref = pd.concat([_needle({"targeting_error": [1.0, 2.0, 3.0], "scans": [4.0, 4.0, 2.0]}),
+                     _needle({"targeting_error": [1.0, 1.0, 1.0], "scans": [3.0, 3.0, 3.0]}, "P2")])
+    other = pd.concat([_needle({"targeting_error": [1.5, 2.5, 2.0], "scans": [4.0, 4.0, 2.0]}).iloc[:-1],
+                       _needle({"targeting_error": [1.5, 1.5, 1.5], "scans": [3.0, 3.0, 3.0]}, "P2")])
+    got = compare_metrics(ref, other, ("targeting_error", "scans"))  # one scans trial of P1 missing
     assert got["trials_unpaired"] == 1.0
-    assert got["targeting_error_abs"] == pytest.approx(2.0 / 3) and got["targeting_error_bias"] == pytest.approx(0.0)
-    assert got["targeting_error_rel"] == pytest.approx((2.0 / 3) / 2.0)
-    assert got["targeting_error_bias_se"] == pytest.approx(pd.Series([0.5, 0.5, -1.0]).std() / 3 ** 0.5)
-    assert got["scans_abs"] == 0.0 and got["scans_bias"] == 0.0
+    d = pd.Series([0.5, 0.5, -1.0, 0.5, 0.5, 0.5])
+    assert got["targeting_error_abs"] == pytest.approx(d.abs().mean()) and got["targeting_error_bias"] == 0.25
+    assert got["targeting_error_rel"] == pytest.approx(d.abs().mean() / 1.5)
+    assert got["targeting_error_bias_se_trials"] == pytest.approx(d.std() / 6 ** 0.5)
+    # participants as the units: P1's differences average 0, P2's 0.5; equal sizes -> SD of those means / sqrt(2)
+    assert got["targeting_error_bias_se"] == pytest.approx(pd.Series([0.0, 0.5]).std() / 2 ** 0.5)
+    assert got["scans_abs"] == 0.0 and got["scans_bias"] == 0.0 and got["scans_bias_se"] == 0.0
+
+
+def test_a_bias_carried_by_one_person_is_not_taken_for_many_independent_trials():
+    """Ten people, one of whom is 1 mm off in all 15 trials: trial-level SE would call it z ~ 3.7; with the
+    participant as the unit it is z 1 (one person of ten)."""
+    ref = pd.concat([_needle({"targeting_error": [1.0] * 15}, f"P{i}") for i in range(10)])
+    other = pd.concat([_needle({"targeting_error": [2.0 if i == 0 else 1.0] * 15}, f"P{i}") for i in range(10)])
+    got = compare_metrics(ref, other, ("targeting_error",))
+    assert got["targeting_error_bias"] == pytest.approx(0.1)
+    assert got["targeting_error_bias"] / got["targeting_error_bias_se_trials"] > 3.5
+    assert got["targeting_error_bias"] / got["targeting_error_bias_se"] == pytest.approx(1.0)
 
 
 @pytest.mark.slow
