@@ -104,9 +104,11 @@ def register(app: typer.Typer) -> None:
                                                 "full engine (0: not measured)."),
         sim_rate_hz: float = typer.Option(
             None, "--sim-rate-hz",
-            help="Run rate-adjustable feedback loops (the 1 kHz tissue and needle controllers) at most this fast: "
-                 "faster replicates, outcomes as measured by `studyctl bench simrate` (default: the protocol's "
-                 "rates). Results and pools are kept apart by rate."),
+            help="Run rate-adjustable feedback loops (the 1 kHz tissue and needle controllers) at most this fast "
+                 "(default: 250 Hz where it slows a loop, as the demo and calibration do; what it changes: "
+                 "`studyctl bench simrate`). Results and pools are kept apart by rate."),
+        full_rate: bool = typer.Option(False, "--full-rate", help="Run every feedback loop at its protocol's rate "
+                                                                  "(slower)."),
         as_json: bool = typer.Option(False, "--json", help="Print the results as one JSON document on stdout "
                                                            "(power table, target sizes, loop rates, files)."),
     ) -> None:
@@ -144,6 +146,15 @@ def register(app: typer.Typer) -> None:
         console = err if as_json else output_console()
         from studyctl.populations import describe_choice
 
+        if full_rate and sim_rate_hz is not None:
+            from studyctl.errors import UsageError
+
+            raise UsageError(f"--full-rate and --sim-rate-hz {sim_rate_hz:g} contradict each other: --full-rate runs "
+                             "every loop at its protocol's rate; give one of them")
+        if not full_rate and sim_rate_hz is None:
+            from studyctl.power.spec import default_sim_rate
+
+            sim_rate_hz = default_sim_rate(loaded_protocol)
         trait_file = _is_trait_file(population)
         pop = _population(None if trait_file else population, effect, group_effect, between_sd, baseline)
         spec = prepare_power(loaded_protocol, loaded_plan, sizes=participants, replicates=replicates, seed=seed,
@@ -222,8 +233,8 @@ def _rates_text(rates: dict[str, float], cap: float | None) -> str:
     for cond, rate in rates.items():
         by_rate.setdefault(rate, []).append(cond)
     listed = "; ".join(f"{', '.join(conds)} {rate:g} Hz" for rate, conds in by_rate.items()) or "no feedback loop"
-    how = (f"--sim-rate-hz {cap:g} caps the rate-adjustable loops" if cap is not None
-           else "the protocol's rates (--sim-rate-hz to run rate-adjustable loops slower)")
+    how = (f"rate-adjustable loops capped at {cap:g} Hz; --full-rate for the protocol's rates" if cap is not None
+           else "the protocol's rates")
     return f"loop rates: {listed} ({how})"
 
 

@@ -30,6 +30,9 @@ from studyctl.power.target import check_complete_blocks, check_target
 from studyctl.protocol import Planner, Protocol, load_protocol, load_protocol_text, resolve_protocol
 from studyctl.resources import shipped_names, shipped_plan_for
 
+#: `studyctl power`'s loop-rate cap when none is given: the demo's and calibration's 250 Hz for the rate-adjustable
+#: 1 kHz loops (seed 001 at 250 Hz moves no metric beyond the 1 kHz seeds' own spread: benchmarks, `simrate`).
+POWER_SIM_RATE_HZ = 250.0
 #: Row kinds of a plan's result that are hypothesis tests (intervals and descriptives are not).
 TEST_KINDS = ("omnibus", "two_sample", "pairwise", "posthoc")
 MAX_REPLICATES = 1_000_000
@@ -209,6 +212,13 @@ def loop_rates(protocol: Any, sim_rate_hz: float | None) -> dict[str, float]:
     if sim_rate_hz is not None:
         rates.update(simulation_rates(plan, factory, sim_rate_hz))
     return rates
+
+
+def default_sim_rate(protocol: Any) -> float | None:
+    """The command's default cap for ``protocol``: :data:`POWER_SIM_RATE_HZ` when it slows one of its loops, else
+    None (the protocol's rates; e.g. seed 000's 50 Hz controllers, which are not rate-adjustable)."""
+    capped = loop_rates(protocol, POWER_SIM_RATE_HZ) != loop_rates(protocol, None)
+    return POWER_SIM_RATE_HZ if capped else None
 
 
 def _check_rate_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:

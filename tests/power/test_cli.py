@@ -52,6 +52,7 @@ def _closed_port() -> int:
         (["--sim-rate-hz", "0"], "--sim-rate-hz (the simulation loop rate) must be a positive number of Hz"),
         # the mini study's loops are 50 Hz and not rate-adjustable: a cap would change nothing but the keys
         (["--sim-rate-hz", "250"], "--sim-rate-hz 250: slows no feedback loop of protocol"),
+        (["--full-rate", "--sim-rate-hz", "500"], "--full-rate and --sim-rate-hz 500 contradict each other"),
         (["--two-stage", "--scheduler", f"127.0.0.1:{_closed_port()}"], "cannot reach the Dask scheduler"),
     ],
 )
@@ -81,6 +82,8 @@ def test_serial_run_states_the_population(tmp_path, capsys, monkeypatch):
                                  "--effect", "linear:balloon_weber=0.05", "--between-sd", "aim_sd_mm=0.2"], capsys)
     assert code == 0, stderr
     assert "serial, in this process" in stdout and "control_algorithm" in stdout
+    # its loops are 50 Hz and not rate-adjustable: the default cap leaves them (no --full-rate needed)
+    assert "loop rates: no_feedback, linear 50 Hz (the protocol's rates)" in stdout
     assert ("effects (shifts on top of each person's traits): linear: balloon_weber +0.05; expert: aim_sd_mm -1; "
             "SD(aim_sd_mm) = 0.2") in stdout
     stated = pd.read_csv(tmp_path / "out" / "power_population.csv").set_index("parameter")
@@ -95,9 +98,12 @@ def test_serial_run_states_the_population(tmp_path, capsys, monkeypatch):
 
 
 @pytest.mark.slow
-def test_sim_rate_caps_the_replicates_loops_and_the_run_says_which_rates_it_used(tmp_path, capsys, monkeypatch):
-    """``--sim-rate-hz`` reaches every simulated session, and the printed line, the JSON and power_run.json name
-    the rates (seed 002: its haptic condition's 1 kHz loop is rate-adjustable, the manual one has no loop)."""
+@pytest.mark.parametrize(("extra", "rate"), [([], 250.0), (["--sim-rate-hz", "500"], 500.0), (["--full-rate"], None)])
+def test_sim_rate_caps_the_replicates_loops_and_the_run_says_which_rates_it_used(extra, rate, tmp_path, capsys,
+                                                                                 monkeypatch):
+    """The cap (by default the demo's 250 Hz; --full-rate: none) reaches every simulated session, and the printed
+    line, the JSON and power_run.json name the rates (seed 002: its haptic condition's 1 kHz loop is
+    rate-adjustable, the manual one has no loop)."""
     import json
 
     import studyctl.power.replicate as replicate
@@ -111,12 +117,14 @@ def test_sim_rate_caps_the_replicates_loops_and_the_run_says_which_rates_it_used
 
     monkeypatch.setattr(replicate, "run_session", spy)
     out = tmp_path / "out"
-    code, stdout, stderr = _run(["data_driven_palpation", "-n", "2", "-r", "1", "--workers", "0", "--sim-rate-hz",
-                                 "250", "--out", out, "--json"], capsys)
+    code, stdout, stderr = _run(["data_driven_palpation", "-n", "2", "-r", "1", "--workers", "0", *extra,
+                                 "--out", out, "--json"], capsys)
     assert code == 0, stderr
-    assert seen == [250.0, 250.0]
-    assert "loop rates: haptic 250 Hz (--sim-rate-hz 250 caps the rate-adjustable loops)" in stderr
+    assert seen == [rate, rate]
+    loop = 1000.0 if rate is None else rate
+    how = "the protocol's rates" if rate is None else f"rate-adjustable loops capped at {rate:g} Hz"
+    assert f"loop rates: haptic {loop:g} Hz ({how}" in stderr
     doc = json.loads(stdout)
-    assert doc["sim_rate_hz"] == 250.0 and doc["loop_rates_hz"] == {"haptic": 250.0}
+    assert doc["sim_rate_hz"] == rate and doc["loop_rates_hz"] == {"haptic": loop}
     settings = json.loads((out / "power_run.json").read_text(encoding="utf-8"))
-    assert settings["loop_rates_hz"] == {"haptic": 250.0} and settings["fingerprint"]["sim_rate_hz"] == 250.0
+    assert settings["loop_rates_hz"] == {"haptic": loop} and settings["fingerprint"]["sim_rate_hz"] == rate
