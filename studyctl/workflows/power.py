@@ -158,6 +158,14 @@ def run_power(
     )
 
 
+def rates_note(spec: PowerSpec) -> str | None:
+    """The figure's line on a capped loop rate (it is what gets shown and published); None at the protocol's rates."""
+    if spec.sim_rate_hz is None:
+        return None
+    rates = ", ".join(f"{c} {r:g} Hz" for c, r in spec.loop_rates().items())
+    return f"simulated loop rates: {rates} (cap {spec.sim_rate_hz:g} Hz; the protocol's: --full-rate)"
+
+
 def _atomic(path: Path, write: Callable[[Path], Any]) -> None:
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
@@ -211,7 +219,7 @@ def _write(
     }
     _atomic(files["settings"], lambda p: p.write_text(json.dumps(settings, indent=2, default=str), encoding="utf-8"))
     if figure and not table.frame.empty:
-
+        note = "\n".join(filter(None, [note, rates_note(spec)]))
         fig = power_curve_figure(
             table.to_frame(),
             title=f"Power by sample size: {spec.plan.title}",

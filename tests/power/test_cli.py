@@ -128,3 +128,12 @@ def test_sim_rate_caps_the_replicates_loops_and_the_run_says_which_rates_it_used
     assert doc["sim_rate_hz"] == rate and doc["loop_rates_hz"] == {"haptic": loop}
     settings = json.loads((out / "power_run.json").read_text(encoding="utf-8"))
     assert settings["loop_rates_hz"] == {"haptic": loop} and settings["fingerprint"]["sim_rate_hz"] == rate
+
+
+def test_the_power_figure_names_a_capped_loop_rate():
+    from studyctl.power import prepare_power
+    from studyctl.workflows.power import rates_note
+
+    spec = prepare_power("data_driven_palpation", sizes="2", replicates=1, sim_rate_hz=250)
+    assert rates_note(spec) == ("simulated loop rates: haptic 250 Hz (cap 250 Hz; the protocol's: --full-rate)")
+    assert rates_note(prepare_power("data_driven_palpation", sizes="2", replicates=1)) is None
