@@ -67,6 +67,13 @@ PARAMS = (
                  "is intermittent, acting when a seen error passes a threshold (Gawthrop, Loram, Lakie & Gollee "
                  "2011, Biol Cybern 104:31-51). Only until it is margin_mm short of the believed tumour: closer in it "
                  "is homing in and corrects every seen error (the same model's visually controlled homing phase)"),
+    Param("rt_tolerance_reach", 0.0, 0.0, 1.0, unit="0/1",
+          source="CHOSEN (0: off): 1 lets rt_tolerance_mm's seen sideways error go also while it reaches onto the "
+                 "incision, not only once inserting: reach and insertion are one aimed movement at the tumour, whose "
+                 "initial impulse runs without fine visual control (two-component model, Elliott et al. 2010); a "
+                 "person who watches the tip live has no reason to line up exactly before entering, since it can "
+                 "steer later, while one who pays a scan for each look lines up first. Measured in session 32: with "
+                 "0, RT entered the liver 0.77 mm off the path against BL's 1.27 mm"),
     # ---------------------------------------------------------------- position sense
     Param("proprio_drift", 0.15, 0.0, 1.0, unit="mm/√mm",
           source="CHOSEN: position-sense drift per √mm moved, per axis (between-person trait)"),
@@ -150,6 +157,7 @@ class OperatorParams:
     read_trial_cv: float
     visual_period_s: float
     rt_tolerance_mm: float
+    rt_tolerance_reach: float
     proprio_drift: float
     believed_drift: float
     force_weber: float

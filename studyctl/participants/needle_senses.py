@@ -96,11 +96,17 @@ class OperatorSenses:
         Only in the first, ballistic part of the advance: advancing along the plan and still more than
         ``margin_mm`` short of where it believes the tumour is. Closer in it is homing in and corrects every seen
         error, as aiming does in the two-component model (an initial impulse, then a homing phase under visual
-        control that sets the endpoint's accuracy: Elliott et al. 2010, Psychol Bull 136:1023). Stopped,
-        judging, correcting, and on a requested scan it takes all of the error.
+        control that sets the endpoint's accuracy: Elliott et al. 2010, Psychol Bull 136:1023). With
+        ``rt_tolerance_reach`` the reach onto the incision belongs to that first part too (it need not line up
+        exactly before entering when it can steer on the way). Stopped, judging, correcting, and on a requested
+        scan it takes all of the error.
         """
         st, p = self._st, self.p
-        if p.rt_tolerance_mm <= 0.0 or not st.realtime or st.phase is not Phase.INSERT or st.stop_reason != "depth":
+        if p.rt_tolerance_mm <= 0.0 or not st.realtime:
+            return 0.0
+        if st.phase is Phase.APPROACH and p.rt_tolerance_reach >= 0.5:
+            return p.rt_tolerance_mm
+        if st.phase is not Phase.INSERT or st.stop_reason != "depth":
             return 0.0
         pl = st.need_plan()
         if pl.depth(self._belief(percept)) >= pl.length - p.margin_mm:
