@@ -22,7 +22,8 @@ def _press(moves: list[tuple[float, float]]) -> float:
     cz = hz = h + 0.1  # just above the surface
     for dc, dh in moves:
         cz, hz = cz + dc, hz + dh
-        p._advance((0.0, 0.0, cz), (0.0, 0.0, cz), (0.0, 0.0, hz), 0.0)
+        # steered by the cursor (press_steer: seen, the default), so ctrl is also the steering point
+        p._advance((0.0, 0.0, cz), (0.0, 0.0, cz), (0.0, 0.0, hz), 0.0, (0.0, 0.0, cz))
     press = p._press
     press["bx"], press["by"], press["bz"] = 0.0, 0.0, cz
     p._record(press)
