@@ -100,7 +100,9 @@ class PressNotes:
             combined = self.cues.combine(press)
             if combined is not None:
                 ev.combined.append(combined)
-        elif self._stop_ratio:
+        # Kept for every person whose stop_ratio is set, practised or not (ce40401 chained it to the practice
+        # branches above, so from then on only an unpractised person kept it, and counted stopped presses too).
+        if self._stop_ratio and not seg.stopped:
             for ch in CHANNELS:  # only unstopped presses show what pressing all the way usually feels like
                 peaks = self._peaks[ch]
                 peaks.append(notes.get((ch, "peak"), 0.0))

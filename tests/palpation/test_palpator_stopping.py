@@ -110,3 +110,22 @@ def test_with_either_stopping_rule_a_broken_controller_is_still_noticed(extra):
         runs = (trial_after_practice(VirtualPalpator(params), controller_cls, k) for k in range(24))
         counts[controller_cls.name] = sum(sum(found(out, scene).values()) for out, scene in runs)
     assert counts["bio_inspired"] >= counts["none"] + 5, counts
+
+
+def test_a_practised_person_keeps_the_usual_feel_that_stop_ratio_compares_with():
+    """stop_ratio stops a press on a feel well above the running median of this trial's unstopped presses. A
+    practised person (learnt cues set) keeps that median too, and a press already stopped does not enter it."""
+    from studyctl.participants.palpator_press import _Segment
+
+    person = VirtualPalpator({"stop_ratio": 1.6, "report_rule": "odds"})
+    grid = {"columns": 7, "rows": 1, "cell_mm": 20.0}
+    person.begin_trial(TrialInfo("linear", 600.0, 50.0, public={"grid": grid}), np.random.default_rng(0))
+    person.cues = CUES  # as after the condition's practice
+    for i, peak in enumerate((10.0, 11.0, 40.0, 12.0, 13.0, 14.0)):
+        person._notes = {("balloon_psi", "peak"): peak, ("vibration_ms2", "peak"): 2.0}
+        stopped = peak == 40.0  # a press the feedback already stopped: not what plain pressing feels like
+        person._end_segment(_Segment("press", 1.0, (0.0, 0.0, 0.0), (0.0, 0.0, 3.0), cell=(i + 1, 1), intended=3.0,
+                                     stopped=stopped))
+    assert person._usual["balloon_psi"] == pytest.approx(12.0)
+    assert person._strong({"balloon_psi": 1.6 * 12.0 + 0.1})
+    assert not person._strong({"balloon_psi": 1.6 * 12.0 - 0.1})
