@@ -129,3 +129,29 @@ def test_a_practised_person_keeps_the_usual_feel_that_stop_ratio_compares_with()
     assert person._usual["balloon_psi"] == pytest.approx(12.0)
     assert person._strong({"balloon_psi": 1.6 * 12.0 + 0.1})
     assert not person._strong({"balloon_psi": 1.6 * 12.0 - 0.1})
+
+
+def _practised_stops(stop_ratio: float) -> tuple[VirtualPalpator, int]:
+    """A person who practised first (learning cue weights), then one bio-inspired trial pressing slowly (4 mm/s) to
+    v5's depth: the person and how many of the trial's presses a strong cue ended."""
+    from studyctl.controllers.bio_inspired import BioInspiredController
+    from studyctl.participants.palpator_perception import STOP
+
+    person = VirtualPalpator({"familiarise": True, "report_rule": "odds", "stop_ratio": stop_ratio,
+                              "press_speed_mm_s": 4.0, "depth_mm": 5.3})
+    trial_after_practice(person, BioInspiredController, 0)
+    return person, sum(ev.felt.get(STOP, 0) for ev in person.evidence.values())
+
+
+@pytest.mark.slow  # two trials after practice, ~4 s
+def test_stop_ratio_acts_for_a_person_who_practised():
+    """The running median of plain pressing is kept whatever practice learnt (ce40401 chained it to the
+    no-practice branch, so v5's stop_ratio never acted), and a press then stops on a cue far above it: at 4 mm/s the
+    vibration over a tumour passes 1.6 times the median on the way down (at v5's 18.9 mm/s it never does:
+    scripts/palpation_stop_ratio.py)."""
+    person, stops = _practised_stops(1.6)
+    assert person.cues is not None  # practice learnt weights: the branch the old code left the median out of
+    assert set(person._usual) == {"balloon_psi", "vibration_ms2"} and min(person._usual.values()) > 0
+    assert stops > 0
+    off, none = _practised_stops(0.0)
+    assert none == 0 and off._usual == {}
