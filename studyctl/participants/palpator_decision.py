@@ -93,10 +93,14 @@ class CellDecision:
         ref = self._ref
         p = self.params
         sure = p["sure_odds"]
-        candidates = [cell for cell, ev in self.evidence.items()
-                      if p["screen_z"] < self._score(ev, ref)
-                      and (self._score(ev, ref) <= self._level(ev, sure) if sure > 0 and first else
-                           first or self._score(ev, ref) <= self._level(ev))]
+
+        def bound(ev: _CellEvidence) -> float:
+            # first round: every screened cell, or with sure_odds those not yet past its bound; later: undecided
+            if first:
+                return self._level(ev, sure) if sure > 0 else math.inf
+            return self._level(ev)
+
+        candidates = [cell for cell, ev in self.evidence.items() if p["screen_z"] < self._score(ev, ref) <= bound(ev)]
         for cell in candidates:
             for _ in range(self.params["confirm_presses"]):
                 self._queue_probe(cell)
