@@ -353,19 +353,30 @@ def check_sim_rate(sim_rate_hz: float) -> float:
     return float(sim_rate_hz)
 
 
+@dataclass(frozen=True)
+class FeedbackLoop:
+    """A condition's feedback loop: its controller, the rate it runs at, and whether a simulated session may run
+    it slower (``Controller.rate_adjustable``)."""
+
+    controller: str
+    rate_hz: float
+    adjustable: bool
+
+
+def feedback_loops(plan: SessionPlan, factory: PluginFactory) -> dict[str, FeedbackLoop]:
+    """The feedback loop of each condition that has one (a controller, not a manual condition)."""
+    return {cid: FeedbackLoop(cond.controller, condition_rate(cond, factory),
+                              bool(getattr(factory.load("controller", cond.controller), "rate_adjustable", False)))
+            for cid, cond in plan.conditions.items() if cond.controller and not cond.manual}
+
+
 def simulation_rates(plan: SessionPlan, factory: PluginFactory, sim_rate_hz: float) -> dict[str, float]:
     """Loop rate per condition for a simulated session capped at ``sim_rate_hz``: the conditions whose
     controller is ``rate_adjustable`` and faster than the cap (manual conditions and fixed-rate controllers
     keep their rates)."""
     check_sim_rate(sim_rate_hz)
-    rates = {}
-    for cid, cond in plan.conditions.items():
-        if cond.manual or not cond.controller:
-            continue
-        adjustable = getattr(factory.load("controller", cond.controller), "rate_adjustable", False)
-        if adjustable and condition_rate(cond, factory) > sim_rate_hz:
-            rates[cid] = float(sim_rate_hz)
-    return rates
+    return {cid: float(sim_rate_hz) for cid, loop in feedback_loops(plan, factory).items()
+            if loop.adjustable and loop.rate_hz > sim_rate_hz}
 
 
 def _session_head(store: StudyStore, session_id: int) -> dict:

@@ -18,11 +18,10 @@ from typing import Any
 from studyctl import __version__
 from studyctl.analysis import AnalysisPlan, load_plan
 from studyctl.analysis.catalog import TESTS
-from studyctl.engine.api import check_sim_rate, simulation_rates
+from studyctl.engine.api import check_sim_rate, feedback_loops, simulation_rates
 from studyctl.engine.factory import EntryPointFactory
 from studyctl.engine.planning import plan_for_participant
 from studyctl.engine.preflight import preflight
-from studyctl.engine.session import condition_rate
 from studyctl.errors import UsageError
 from studyctl.power.population import Population, population_model
 from studyctl.power.seeds import check_master_seed
@@ -208,7 +207,7 @@ def loop_rates(protocol: Any, sim_rate_hz: float | None) -> dict[str, float]:
     (None: the protocol's rates; :func:`studyctl.engine.api.simulation_rates` says which loops a cap slows)."""
     factory = EntryPointFactory()
     plan = _sample_plan(protocol)
-    rates = {cid: condition_rate(c, factory) for cid, c in plan.conditions.items() if c.controller and not c.manual}
+    rates = {cid: loop.rate_hz for cid, loop in feedback_loops(plan, factory).items()}
     if sim_rate_hz is not None:
         rates.update(simulation_rates(plan, factory, sim_rate_hz))
     return rates
@@ -229,12 +228,8 @@ def _check_rate_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
     check_sim_rate(sim_rate_hz)
     if loop_rates(protocol, sim_rate_hz) != loop_rates(protocol, None):
         return float(sim_rate_hz)
-    factory = EntryPointFactory()
-    loops = {}
-    for c in _sample_plan(protocol).conditions.values():
-        if c.controller and not c.manual:
-            adjustable = getattr(factory.load("controller", c.controller), "rate_adjustable", False)
-            loops[c.controller] = (condition_rate(c, factory), adjustable)
+    loops = {loop.controller: (loop.rate_hz, loop.adjustable)
+             for loop in feedback_loops(_sample_plan(protocol), EntryPointFactory()).values()}
     seen = "; ".join(f"{name} {rate:g} Hz{'' if adj else ', not rate-adjustable'}"
                      for name, (rate, adj) in sorted(loops.items()))
     faster = [rate for rate, adj in loops.values() if adj]
