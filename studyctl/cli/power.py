@@ -139,6 +139,7 @@ def register(app: typer.Typer) -> None:
 
         from studyctl.errors import SessionInterrupted
         from studyctl.power import prepare_power
+        from studyctl.report.loop_rates import loop_rates_line
         from studyctl.report.power_figures import population_text
         from studyctl.workflows.power import run_power
 
@@ -169,7 +170,7 @@ def register(app: typer.Typer) -> None:
         console.print(f"power: {spec.study_id}, plan {spec.plan.title!r}; participants {sizes}; "
                       f"{spec.replicates} replicates each; seed {spec.seed}", markup=False)
         console.print(population_text(spec.population), markup=False)
-        console.print(_rates_text(spec.loop_rates(), spec.sim_rate_hz), markup=False)
+        console.print(loop_rates_line(spec.loop_rates(), spec.sim_rate_hz), markup=False)
         state = {"kept": 0}
         progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                             TimeRemainingColumn(), console=err, transient=False)
@@ -225,17 +226,6 @@ def register(app: typer.Typer) -> None:
         finally:
             progress.stop()
         _done(console, result, show_posthoc, as_json)
-
-
-def _rates_text(rates: dict[str, float], cap: float | None) -> str:
-    """One line: the loop rate of each condition's simulated sessions, and whether a cap set it."""
-    by_rate: dict[float, list[str]] = {}
-    for cond, rate in rates.items():
-        by_rate.setdefault(rate, []).append(cond)
-    listed = "; ".join(f"{', '.join(conds)} {rate:g} Hz" for rate, conds in by_rate.items()) or "no feedback loop"
-    how = (f"rate-adjustable loops capped at {cap:g} Hz; --full-rate for the protocol's rates" if cap is not None
-           else "the protocol's rates")
-    return f"loop rates: {listed} ({how})"
 
 
 def _done(console: Console, result, show_posthoc: bool, as_json: bool) -> None:  # noqa: ANN001 - PowerRun

@@ -19,6 +19,7 @@ from studyctl.power.results import ResultsFile
 from studyctl.power.spec import PowerSpec
 from studyctl.power.summary import PowerTable, summarise
 from studyctl.power.target import TargetTable, smallest_sizes
+from studyctl.report.loop_rates import loop_rates_line
 from studyctl.report.power_figures import power_curve_figure, write_png
 
 ProgressFn = Callable[[int, int, ReplicateResult | None], None]  # (finished, total, the replicate just finished)
@@ -159,11 +160,11 @@ def run_power(
 
 
 def rates_note(spec: PowerSpec) -> str | None:
-    """The figure's line on a capped loop rate (it is what gets shown and published); None at the protocol's rates."""
+    """The figure's line on a capped loop rate (it is what gets shown and published; the words the run printed);
+    None at the protocol's rates."""
     if spec.sim_rate_hz is None:
         return None
-    rates = ", ".join(f"{c} {r:g} Hz" for c, r in spec.loop_rates().items())
-    return f"simulated loop rates: {rates} (cap {spec.sim_rate_hz:g} Hz; the protocol's: --full-rate)"
+    return loop_rates_line(spec.loop_rates(), spec.sim_rate_hz)
 
 
 def _atomic(path: Path, write: Callable[[Path], Any]) -> None:

@@ -130,10 +130,13 @@ def test_sim_rate_caps_the_replicates_loops_and_the_run_says_which_rates_it_used
     assert settings["loop_rates_hz"] == {"haptic": loop} and settings["fingerprint"]["sim_rate_hz"] == rate
 
 
-def test_the_power_figure_names_a_capped_loop_rate():
+def test_the_power_figure_names_a_capped_loop_rate_in_the_words_the_run_printed():
     from studyctl.power import prepare_power
+    from studyctl.report.loop_rates import loop_rates_line
     from studyctl.workflows.power import rates_note
 
     spec = prepare_power("data_driven_palpation", sizes="2", replicates=1, sim_rate_hz=250)
-    assert rates_note(spec) == ("simulated loop rates: haptic 250 Hz (cap 250 Hz; the protocol's: --full-rate)")
+    assert rates_note(spec) == loop_rates_line(spec.loop_rates(), spec.sim_rate_hz)
+    assert rates_note(spec) == ("loop rates: haptic 250 Hz (rate-adjustable loops capped at 250 Hz; --full-rate for "
+                                "the protocol's rates)")
     assert rates_note(prepare_power("data_driven_palpation", sizes="2", replicates=1)) is None
