@@ -83,14 +83,14 @@ def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCO
     ``protocol``/``plan``/``n``/``seed`` are the seed-000 study's by default (other values: tests)."""
     import tempfile
 
-    from studyctl.power import prepare_power
+    from studyctl.bench.power_curve import cli_spec
     from studyctl.power.executor import SerialBackend
     from studyctl.power.pool import MIN_POOL_FACTOR, build_pool
     from studyctl.power.summary import summarise
     from studyctl.power.twostage import Stage2, compare
 
     stage2_reps, exact_reps = (20, 2) if quick else (400, 20)
-    spec = prepare_power(protocol, plan, sizes=(n,), replicates=stage2_reps, seed=seed)
+    spec = cli_spec(protocol, plan, (n,), stage2_reps, seed)
     with tempfile.TemporaryDirectory(prefix="studyctl-bench-pool-") as folder:
         t0, c0 = time.perf_counter(), time.process_time()
         pool = build_pool(spec, folder, MIN_POOL_FACTOR * n)
@@ -139,13 +139,14 @@ def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCO
 
 def run(quick: bool = False) -> BenchResult:
     """Measure replicates per second (see the module docs); ``quick`` uses 4 participants throughout."""
-    from studyctl.power import prepare_power
+    from studyctl.bench.power_curve import cli_spec
     from studyctl.power.executor import DaskBackend, SerialBackend
+    from studyctl.report.loop_rates import loop_rates_line
 
     big, small, per_cluster = (4, 4, 2) if quick else (25, 8, 4)
     workers = os.cpu_count() or 1
     load_start = os.getloadavg()[0]
-    spec = prepare_power(PROTOCOL, PROTOCOL, sizes=(small, big) if small != big else (big,), replicates=1, seed=SEED)
+    spec = cli_spec(PROTOCOL, PROTOCOL, (small, big) if small != big else (big,), 1, SEED)
     _warm()
     serial = SerialBackend(None)
     figures: dict[str, float] = {}
@@ -200,7 +201,8 @@ def run(quick: bool = False) -> BenchResult:
     peers = {f"replicates_per_s_cluster_{big}": figures[f"replicates_per_s_serial_{big}"]}
     notes = [
         f"seed-000 study ({PROTOCOL}), master seed {SEED}; each replicate = N virtual participants' whole "
-        "sessions through the engine into an in-memory SQLite store + the shipped analysis plan",
+        "sessions through the engine into an in-memory SQLite store + the shipped analysis plan; "
+        f"{loop_rates_line(spec.loop_rates(), spec.sim_rate_hz)}, as studyctl power runs it by default",
         f"local cluster: {workers} single-threaded worker processes on 127.0.0.1 (os.cpu_count() = {workers}); "
         "start-up and imports excluded (cluster_startup_s given separately)",
         "peer of replicates_per_s_cluster_* = the serial run in this process, same bench run",

@@ -12,7 +12,10 @@ replicate of the same study measured in the same run (one replicate at the small
 
 Pools come from ``$STUDYCTL_BENCH_POOL_DIR`` (default ``reports/power-pools``, where ``studyctl power --two-stage``
 keeps them): the largest pool file of each protocol there. Stage-2 timing does not depend on how the pool's people
-were simulated, so a pool built by an earlier code version is used as it is (its key is in the notes). The sizes
+were simulated, so a pool built by an earlier code version or at another loop rate is used as it is (its key and rate
+are in the notes). The peer's full-engine replicate runs at the loop rates ``studyctl power`` uses by default
+(:func:`cli_spec`: seed 001's 1 kHz needle loop at 250 Hz, seed 000's 50 Hz loops as they are); ``loop_rate_hz_<tag>``
+says the fastest loop it simulated. The sizes
 are the default ones when the pool holds 20 × their largest, else the five largest block-completing sizes it
 holds 20 × of; a pool too small even for that is used for timing only and the notes say so. ``--quick``: 50
 replicates per size."""
@@ -96,10 +99,23 @@ def _stage2(spec: Any, path: Path, chunks: int, size: int, todo: list[tuple[int,
             "overhead_pct": 100.0 * (1.0 - busy / (max(workers, 1) * wall)) if wall > 0 else math.nan}
 
 
+def cli_spec(protocol: str, plan: str, sizes: tuple[int, ...], replicates: int, seed: int | None) -> Any:
+    """The power spec ``studyctl power PROTOCOL --plan PLAN`` runs by default (shipped population,
+    the rate-adjustable loops capped at the CLI's default rate, :func:`studyctl.power.spec.default_sim_rate`), so a
+    bench times what users get."""
+    from studyctl.power import prepare_power
+    from studyctl.power.spec import default_sim_rate
+    from studyctl.protocol import load_protocol, resolve_protocol
+
+    loaded = load_protocol(resolve_protocol(protocol))
+    return prepare_power(loaded, plan, sizes=sizes, replicates=replicates, seed=seed,
+                         sim_rate_hz=default_sim_rate(loaded))
+
+
 def curve(protocol: str, sizes: tuple[int, ...], replicates: int, folder: Path,
           workers: int = 2) -> tuple[dict, list, list]:
-    from studyctl.power import prepare_power
     from studyctl.power.executor import SerialBackend
+    from studyctl.report.loop_rates import loop_rates_line
 
     found = _largest_pool(folder, protocol)
     if found is None:
@@ -108,7 +124,7 @@ def curve(protocol: str, sizes: tuple[int, ...], replicates: int, folder: Path,
     path, chunks, size, key = found
     people = chunks * size
     sizes, valid = _sizes(sizes, people)
-    spec = prepare_power(protocol, protocol, sizes=sizes, replicates=replicates, seed=key["seed"])
+    spec = cli_spec(protocol, protocol, sizes, replicates, key["seed"])
     todo = [(n, r) for n in sizes for r in range(replicates)]
     run = _stage2(spec, path, chunks, size, todo, workers)
     with sqlite3.connect(path) as c:
@@ -129,12 +145,15 @@ def curve(protocol: str, sizes: tuple[int, ...], replicates: int, folder: Path,
         f"pool_people_{tag}": float(people), f"pool_build_cpu_s_{tag}": float(build_cpu),
         f"exact_cpu_s_per_replicate_{tag}_n{sizes[0]}": done[0].cpu_seconds,
         f"exact_s_per_replicate_{tag}_n{sizes[0]}": exact_wall,
+        f"loop_rate_hz_{tag}": max(spec.loop_rates().values(), default=math.nan),
     }
+    pool_rate = "the protocol's rates" if key.get("sim_rate_hz") is None else f"{key['sim_rate_hz']:g} Hz"
     rows = [{"protocol": protocol, "sizes": ",".join(map(str, sizes)), "replicates": total, "seconds": wall,
              "cpu_seconds": cpu, "workers": workers, "overhead_pct": run["overhead_pct"], "pool": people}]
     notes = [f"{protocol}: {people}-person pool {path.name} (seed {key['seed']}, code "
-             f"{str(key.get('code_sha256'))[:12]}, population {str(key.get('traits_sha256'))[:12]}); sizes "
-             f"{', '.join(map(str, sizes))}"
+             f"{str(key.get('code_sha256'))[:12]}, population {str(key.get('traits_sha256'))[:12]}, simulated at "
+             f"{pool_rate}); sizes "
+             f"{', '.join(map(str, sizes))}; full-engine peer's {loop_rates_line(spec.loop_rates(), spec.sim_rate_hz)}"
              + ("" if valid else f"; below 20 × {max(sizes)}: timing only, not a valid power curve")]
     return figures, rows, notes
 

@@ -151,3 +151,33 @@ def test_curve_bench_sizes_follow_the_pool():
     assert _sizes(default, 400) == ((8, 11, 14, 17, 20), True)
     assert _sizes(default, 320) == ((8, 10, 12, 14, 16), True)
     assert _sizes(default, 36) == (default, False)
+
+
+def test_curve_bench_times_what_studyctl_power_runs_by_default(tmp_path, monkeypatch):
+    """Seed 001's full-engine peer and stage 2 get the CLI's default cap (250 Hz), seed 000 its 50 Hz loops, and the
+    JSON figures and notes say the rate (the library's prepare_power alone would run seed 001 at 1 kHz)."""
+    import json
+    import sqlite3
+    from types import SimpleNamespace
+
+    import studyctl.bench.power_curve as pc
+    from studyctl.power.executor import SerialBackend
+    from studyctl.power.pool import _SCHEMA
+
+    for name in ("needle_insertion-x", "bio_inspired_palpation-x"):
+        with sqlite3.connect(tmp_path / f"{name}.sqlite") as c:
+            c.executescript(_SCHEMA)
+            c.execute("INSERT INTO meta VALUES ('key', ?)", (json.dumps({"chunk_size": 12, "seed": 1}),))
+            c.executemany("INSERT INTO chunks VALUES (?, 1, 1, 'w')", [(k,) for k in range(2)])
+    seen = []
+    monkeypatch.setattr(pc, "_stage2", lambda spec, *a: seen.append(("stage2", spec.sim_rate_hz)) or {
+        "wall": 1.0, "cpu": 1.0, "busy": 1.0, "count": 1, "start_s": 0.0, "tasks": 1, "overhead_pct": 0.0})
+    monkeypatch.setattr(SerialBackend, "run", lambda self, spec, tasks, keep: seen.append(
+        ("exact", spec.sim_rate_hz, set(spec.loop_rates().values()))) or keep(SimpleNamespace(cpu_seconds=1.0)))
+    figures, _, notes = pc.curve("needle_insertion", (4, 6, 8, 10, 12), 1, tmp_path, 0)
+    assert seen == [("stage2", 250.0), ("exact", 250.0, {250.0})]
+    assert figures["loop_rate_hz_needle"] == 250.0 and "capped at 250 Hz" in notes[0]
+    seen.clear()
+    figures, _, notes = pc.curve("bio_inspired_palpation", (8, 12, 16, 20, 25), 1, tmp_path, 0)
+    assert seen == [("stage2", None), ("exact", None, {50.0})]
+    assert figures["loop_rate_hz_bio"] == 50.0 and "(the protocol's rates)" in notes[0]
