@@ -26,7 +26,8 @@ from palpation_practice_decision import typical_person  # noqa: E402
 from studyctl.controllers.bio_inspired import BioInspiredController  # noqa: E402
 from studyctl.controllers.palpation import LinearController, PiecewiseController  # noqa: E402
 from studyctl.participants.palpator import VirtualPalpator  # noqa: E402
-from studyctl.participants.palpator_perception import CHANNELS, STOP  # noqa: E402
+from studyctl.participants.palpator_perception import STOP  # noqa: E402
+from studyctl.participants.palpator_press import CHANNELS  # noqa: E402
 
 
 class _Watched(VirtualPalpator):

@@ -70,9 +70,9 @@ from studyctl.errors import ModelParameterError
 from studyctl.models.perception import Sense
 from studyctl.participants.palpator_decision import CellDecision, _scipy_stats
 from studyctl.participants.palpator_params import NEVER, PARAMS
-from studyctl.participants.palpator_perception import CHANNELS, STOP, TRAVEL, VISUAL, PressNotes, _CellEvidence
+from studyctl.participants.palpator_perception import STOP, TRAVEL, VISUAL, PressNotes, _CellEvidence
 from studyctl.participants.palpator_practice import CueWeights, Familiarisation
-from studyctl.participants.palpator_press import PressPlanning, _lerp, _press_pose, _Segment, _stop_press
+from studyctl.participants.palpator_press import CHANNELS, PressPlanning, _lerp, _press_pose, _Segment, _stop_press
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 from studyctl.plugins.params import Param, validate_params
 
@@ -124,7 +124,6 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
             raise ModelParameterError(f"virtual_palpator participant: sure_odds {p['sure_odds']} must be 0 (off) or "
                                       "at least 1 (a tumour at least as likely as not: the report level or beyond)")
         self._settles = p["lift_rule"] == "settled"
-        self._settle_channels = CHANNELS
         self._rng: np.random.Generator | None = None
         self.trials_done = 0
         self.practises = bool(p["familiarise"])  # the engine runs the familiarisation as a practice for this person
@@ -239,7 +238,7 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
 
     def _hold_while_rising(self, seg: _Segment, elapsed: float, percept: Mapping[str, Any]) -> None:
         """``lift_rule: settled``: about to release, stay at the bottom one more tick while a felt cue still rises."""
-        seg.trace.append(tuple(float(percept.get(ch) or 0.0) for ch in self._settle_channels))
+        seg.trace.append(tuple(float(percept.get(ch) or 0.0) for ch in CHANNELS))
         if (elapsed >= seg.duration - seg.ramp and seg.held < self.params["settle_max_s"] - 1e-9
                 and self._rising(seg)):
             step = self._tick_s

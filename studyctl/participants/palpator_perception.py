@@ -17,9 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from studyctl.participants.palpator_press import _Segment
+from studyctl.participants.palpator_press import CHANNELS, _Segment
 
-CHANNELS = ("balloon_psi", "vibration_ms2")
 VISUAL = ("view", "yield")  # the note key of the camera cue: hand depth / seen tip depth at the bottom
 STOP = ("stop", "early")  # the note key of a press stopped by a strong sensation
 TRAVEL = ("travel", "stop")  # the note key of how far the hand went before the feedback said enough (log 1/depth)

@@ -14,6 +14,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+# the feedback a press delivers, in this order wherever a press's feel is kept (notes, the settle trace); defined
+# here, the module the perception mixin builds on, so both read one tuple without importing each other
+CHANNELS = ("balloon_psi", "vibration_ms2")
+
 
 @dataclass
 class _Segment:
@@ -116,7 +120,7 @@ class PressPlanning:
             return False
         back = trace[max(len(trace) - 1 - self._settle_ticks, 0)]
         now = trace[-1]
-        for i, ch in enumerate(self._settle_channels):
+        for i, ch in enumerate(CHANNELS):
             sense = self.senses[ch]
             if now[i] > sense.threshold and now[i] > back[i] * (1.0 + sense.weber):
                 return True

@@ -155,3 +155,24 @@ def test_stop_ratio_acts_for_a_person_who_practised():
     assert stops > 0
     off, none = _practised_stops(0.0)
     assert none == 0 and off._usual == {}
+
+
+def test_the_settle_trace_is_kept_and_read_in_one_channel_order():
+    """lift_rule settled: the press's trace (palpator.py) and the rise test on it (palpator_press.py) index the
+    same CHANNELS: a vibration rise of more than its Weber step (0.2) over settle_s is a rise, the same step on the
+    balloon's slot (Weber 0.1) read as vibration would not be; a cue the trace does not keep (the view) is none."""
+    from studyctl.participants.palpator_press import CHANNELS, _Segment
+
+    assert CHANNELS == ("balloon_psi", "vibration_ms2")
+    person = VirtualPalpator({"lift_rule": "settled"})
+    grid = {"columns": 7, "rows": 1, "cell_mm": 20.0}
+    person.begin_trial(TrialInfo("linear", 600.0, 50.0, public={"grid": grid}), np.random.default_rng(0))
+    seg = _Segment("press", 10.0, (0.0, 0.0, 0.0), (0.0, 0.0, 3.0), cell=(1, 1), ramp=1.0, intended=3.0)
+    feel = [{"balloon_psi": 1.0, "vibration_ms2": 2.0, "view": {"depth_mm": d}} for d in (1.0, 2.0, 3.0)]
+    for f in feel:
+        person._hold_while_rising(seg, 0.5, f)  # descending: traced, never held
+    assert seg.trace == [(1.0, 2.0)] * 3 and not person._rising(seg)
+    person._hold_while_rising(seg, 0.5, {"balloon_psi": 1.0, "vibration_ms2": 2.0 * 1.15})
+    assert not person._rising(seg)  # 15 %: above the balloon's Weber step, below the vibration's
+    person._hold_while_rising(seg, 0.5, {"balloon_psi": 1.0, "vibration_ms2": 2.0 * 1.25})
+    assert seg.trace[-1] == (1.0, 2.5) and person._rising(seg)
