@@ -124,7 +124,6 @@ class SessionRunner(TrialSteps):
         self.ui = ui
         self.participant = participant
         self.clock = clock
-        self.factory = factory
         self.virtual = virtual
         self.progress = progress
         self._clock0 = clock.now()
@@ -392,7 +391,8 @@ class SessionRunner(TrialSteps):
         return child() if callable(child) else SimulatedClock(0.0)
 
     def _rate(self, cond: ConditionSpec) -> float:
-        return condition_rate(cond, self.factory)
+        # the plugin factory has one holder, the trial executor, which builds every plugin of the session
+        return condition_rate(cond, self.trials.factory)
 
     def virtual_device(self, name: str) -> bool:
         """True when the device plugin ``name`` is simulated (its trials run in this process)."""

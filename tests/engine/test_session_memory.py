@@ -77,6 +77,22 @@ def test_full_run_visits_every_step_in_order_and_records_before_acting():
     assert all(d.written[-1] == {"balloon_pct": 0.0} and d.closed == 1 for d in ToyDevice.instances)
 
 
+def test_the_session_loads_its_plugins_through_the_trial_executor_alone():
+    """The runner keeps no second factory: a condition's loop rate (the trial clock's tick) comes from the
+    controller the trial executor would build, so a session never times a trial by one factory and builds it
+    from another."""
+
+    class Faster(PLUGINS["controller"]["toy_linear"]):
+        rate_hz = 125.0
+
+    r = runner(MemoryRecorder(toy_plan(), seed=7))
+    assert "factory" not in vars(r)
+    conds = r.plan.conditions
+    assert (r._rate(conds["A"]), r._rate(conds["B"])) == (50.0, 50.0)
+    r.trials.factory = MappingFactory({**PLUGINS, "controller": {"toy_linear": Faster}})
+    assert (r._rate(conds["A"]), r._rate(conds["B"])) == (125.0, 50.0)
+
+
 def test_reports_validated_and_stored_with_time():
     rec = MemoryRecorder(toy_plan(), seed=3)
     runner(rec).run()
