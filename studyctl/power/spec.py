@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +85,13 @@ class PowerSpec:
 
     def loop_rates(self) -> dict[str, float]:
         """Per condition with a controller, the loop rate (Hz) the simulated sessions run at (the cap applied)."""
+        return dict(self._loop_rates)  # a copy: the cached one stays as computed
+
+    @cached_property
+    def _loop_rates(self) -> dict[str, float]:
+        # A run asks 3-4 times (the printed line, the figure's note, power_run.json, the result); the protocol is
+        # parsed and planned once per spec. cached_property writes the instance's __dict__, past the frozen
+        # __setattr__; dataclasses.replace builds a new spec, so a changed cap is never answered from this one.
         return loop_rates(self.load_protocol(), self.sim_rate_hz)
 
     def tasks(self) -> list[tuple[int, int]]:

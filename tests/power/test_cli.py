@@ -140,3 +140,24 @@ def test_the_power_figure_names_a_capped_loop_rate_in_the_words_the_run_printed(
     assert rates_note(spec) == ("loop rates: haptic 250 Hz (rate-adjustable loops capped at 250 Hz; --full-rate for "
                                 "the protocol's rates)")
     assert rates_note(prepare_power("data_driven_palpation", sizes="2", replicates=1)) is None
+
+
+def test_a_specs_loop_rates_parse_its_protocol_once(monkeypatch):
+    """A run asks its spec for the loop rates 3-4 times (printed line, figure note, power_run.json, result): the
+    protocol text is parsed and planned for them once; a copy with another cap answers for its own cap, and the
+    answer survives the pickling that sends a spec to workers."""
+    import dataclasses
+    import pickle
+
+    import studyctl.power.spec as spec_module
+    from studyctl.power import prepare_power
+
+    spec = prepare_power("data_driven_palpation", sizes="2", replicates=1, sim_rate_hz=250)
+    parsed = []
+    real = spec_module.load_protocol_text
+    monkeypatch.setattr(spec_module, "load_protocol_text", lambda *a: parsed.append(a) or real(*a))
+    spec.loop_rates()["haptic"] = 1.0  # a caller's change stays its own
+    assert [spec.loop_rates() for _ in range(3)] == [{"haptic": 250.0}] * 3
+    assert len(parsed) == 1
+    assert dataclasses.replace(spec, sim_rate_hz=500.0).loop_rates() == {"haptic": 500.0}
+    assert pickle.loads(pickle.dumps(spec)).loop_rates() == {"haptic": 250.0}
