@@ -151,11 +151,13 @@ def register_sim(app: typer.Typer) -> None:
         # refused by a small process (issue 19); check_simulation checks the rest
         proto = load_protocol(resolve_protocol(protocol))
         precheck_yaml_file(population, "population file")
-        from studyctl.workflows.simulate import check_simulation, choose_population, simulate_study
+        from studyctl.workflows.simulate import check_simulation, choose_population, loop_rates_note, simulate_study
 
         folder = out or Path(f"{Path(protocol).stem}-sim")
         # Every input checked before the progress bar starts: a mistake is one Error line, nothing else.
         check_simulation(protocol, participants, sim_rate_hz, out_dir=folder, db=db)
+        if sim_rate_hz is not None:  # what the cap did, in power's words (the protocol's rates if it slowed nothing)
+            typer.echo(loop_rates_note(proto, sim_rate_hz), err=True)
         pop = choose_population(proto, population, say=lambda line: typer.echo(line, err=True))
         with Progress(
             TextColumn("{task.description}"),

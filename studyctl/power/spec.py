@@ -221,11 +221,18 @@ def loop_rates(protocol: Any, sim_rate_hz: float | None) -> dict[str, float]:
     return rates
 
 
+def slowing_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
+    """``sim_rate_hz`` when it slows one of ``protocol``'s feedback loops, else None: the sessions then run at the
+    protocol's rates (no rate-adjustable loop faster than the cap, e.g. seed 000's 50 Hz controllers)."""
+    if sim_rate_hz is None or loop_rates(protocol, sim_rate_hz) == loop_rates(protocol, None):
+        return None
+    return float(sim_rate_hz)
+
+
 def default_sim_rate(protocol: Any) -> float | None:
     """The command's default cap for ``protocol``: :data:`POWER_SIM_RATE_HZ` when it slows one of its loops, else
     None (the protocol's rates; e.g. seed 000's 50 Hz controllers, which are not rate-adjustable)."""
-    capped = loop_rates(protocol, POWER_SIM_RATE_HZ) != loop_rates(protocol, None)
-    return POWER_SIM_RATE_HZ if capped else None
+    return slowing_cap(protocol, POWER_SIM_RATE_HZ)
 
 
 def _check_rate_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
@@ -234,8 +241,9 @@ def _check_rate_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
     if sim_rate_hz is None:
         return None
     check_sim_rate(sim_rate_hz)
-    if loop_rates(protocol, sim_rate_hz) != loop_rates(protocol, None):
-        return float(sim_rate_hz)
+    cap = slowing_cap(protocol, sim_rate_hz)
+    if cap is not None:
+        return cap
     loops = {loop.controller: (loop.rate_hz, loop.adjustable)
              for loop in feedback_loops(_sample_plan(protocol), EntryPointFactory()).values()}
     seen = "; ".join(f"{name} {rate:g} Hz{'' if adj else ', not rate-adjustable'}"

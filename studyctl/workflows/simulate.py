@@ -21,6 +21,7 @@ from studyctl.populations import SHIPPED, describe_choice
 from studyctl.populations import population_for as cohort_population  # re-exported for callers
 from studyctl.protocol import load_protocol, resolve_protocol
 from studyctl.protocol.schedule import allocate_strata
+from studyctl.report.loop_rates import loop_rates_line
 from studyctl.store.enrollment import enroll, study_protocol
 from studyctl.store.status import study_status
 from studyctl.store.workspace import init_workspace, open_study
@@ -91,6 +92,17 @@ def check_simulation(protocol: str | Path, participants: int, sim_rate_hz: float
 
         check_new_workspace(Path(out_dir).expanduser(), db)
     return path
+
+
+def loop_rates_note(protocol: Any, sim_rate_hz: float) -> str:
+    """The loop-rate line ``studyctl power`` prints (:func:`studyctl.report.loop_rates.loop_rates_line`) for a
+    simulation of the loaded ``protocol`` capped at ``sim_rate_hz``: the protocol's rates when the cap slows none of
+    its loops (a study with no rate-adjustable loop faster than it), so such a run is not silently taken for a
+    capped one."""
+    from studyctl.power.spec import loop_rates, slowing_cap
+
+    cap = slowing_cap(protocol, sim_rate_hz)
+    return loop_rates_line(loop_rates(protocol, cap), cap, undo="leave --sim-rate-hz out")
 
 
 @dataclass(frozen=True)

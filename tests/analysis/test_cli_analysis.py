@@ -126,3 +126,16 @@ def test_simulate_of_own_protocol_file_does_not_suggest_a_plan_that_does_not_exi
     nxt = next(line for line in out.splitlines() if "next:" in line)
     assert "studyctl report PLAN.yaml --workspace" in nxt and "my_palpation" not in nxt
     assert "no shipped analysis plan is named 'my_palpation'" in out and "data_driven_palpation" in out
+
+
+@pytest.mark.parametrize(("protocol", "line"), [
+    # seed 000: 50 Hz controllers, not rate-adjustable: the cap slows nothing, and the run says so (it ran silently)
+    ("bio_inspired_palpation", "loop rates: no_feedback, piecewise, linear, bio_inspired 50 Hz (the protocol's rates)"),
+    ("data_driven_palpation", "loop rates: haptic 250 Hz (rate-adjustable loops capped at 250 Hz; leave --sim-rate-hz "
+                              "out for the protocol's rates)"),
+])
+def test_simulate_says_what_its_rate_cap_did_in_powers_words(tmp_path, capsys, protocol, line):
+    code, out, err = run(capsys, "simulate", protocol, "-n", "1", "-s", "1", "-o", str(tmp_path / "ws"),
+                         "--sim-rate-hz", "250")
+    assert code == 0, err
+    assert line in err.splitlines() and "loop rates" not in out

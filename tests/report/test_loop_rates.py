@@ -23,6 +23,13 @@ def test_protocol_rates_and_a_study_without_a_loop():
                                                                  "capped at 437.5 Hz;")
 
 
+def test_a_command_without_full_rate_names_its_own_way_back():
+    assert loop_rates_line({"haptic": 250.0}, 250.0, undo="leave --sim-rate-hz out") == (
+        "loop rates: haptic 250 Hz (rate-adjustable loops capped at 250 Hz; leave --sim-rate-hz out for the protocol's "
+        "rates)")
+    assert loop_rates_line({"haptic": 50.0}, None, undo="x").endswith("(the protocol's rates)")
+
+
 def test_no_module_outside_report_writes_the_loop_rate_line_itself():
     """Formatting lives in report/: a second 'loop rates: ...' f-string elsewhere would drift from this one."""
     root = Path(studyctl.__file__).parent
