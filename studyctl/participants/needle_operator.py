@@ -411,6 +411,10 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         aim = (tum[0] + extra * u[0], tum[1] + extra * u[1], tum[2] + extra * u[2])
         st.guided = self._trusts_guide()
         speed = self._channel_speed() if st.guided else st.v_ins
+        if trust and not st.realtime and p.cue_reach >= 0.5:
+            # the trusted cue will mark the stop (``cue_reach``): at its reach pace until margin_mm short of the planned
+            # depth, where _on_insert slows it to its own pace to feel for the tumour
+            speed = max(speed, st.v_app)
         start_line(self._st, b, u, pl.marker, stop, speed, aim=aim)
         st.stop_reason = "depth"
         return ()
@@ -440,7 +444,9 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         b = self._belief(percept)
         tum = pl.tumour
         miss = math.dist(b, tum)
-        if st.stop_reason == "cue" and (seen or learn):  # was the felt cue the tumour? learn from it
+        # a cue felt on the leg just ended but too late to stop on (``cue_learn_late``): the scan judges it as well
+        late = seen and st.stop_reason != "cue" and st.cue.felt and p.cue_learn_late >= 0.5
+        if (st.stop_reason == "cue" and (seen or learn)) or late:  # was the felt cue the tumour? learn from it
             learn_trust(self.trust_cue, st.info.condition, p.cue_trust_rate, miss <= 2.5 * p.accept_mm)
         # after each correction it grows more lenient: a looser placement is accepted rather than a fourth try
         if miss <= p.accept_mm * (1.0 + 0.5 * st.corrections):

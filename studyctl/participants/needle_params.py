@@ -124,6 +124,21 @@ PARAMS = (
     Param("cue_trust_rate", 0.8, 0.0, 1.0, unit="fraction",
           source="CHOSEN: learning rate of trust in the axial cue: a cue confirmed by a scan moves trust this "
                  "fraction of the way to 1 (a wrong one towards 0); trusted from 0.5 (between-person trait)"),
+    Param("cue_learn_late", 0.0, 0.0, 1.0, unit="0/1",
+          source="CHOSEN (0: off, only a cue it stopped on teaches trust): 1 lets a cue it felt too late to stop on "
+                 "(the leg ended within its reaction time) teach trust as well, judged by the scan that follows: the "
+                 "felt rise and the image of the tip at the tumour come together as for a cue it stopped on. Trust in "
+                 "an aid grows with its observed reliability (Lee & See 2004, Hum Factors 46:50-80), and what is "
+                 "observed is the felt push, not whether the hand stopped for it. Measured in session 33 (12 v6 "
+                 "people, first ES trial): 1 of 6 correction legs that ended without a cue stop had felt the cue"),
+    Param("cue_reach", 0.0, 0.0, 1.0, unit="0/1",
+          source="CHOSEN (0: off, it advances at its insertion pace whatever it trusts): 1 lets a person who trusts "
+                 "the scenario's axial cue advance at its free-reach pace (approach_speed_ratio, the cap inside a "
+                 "trusted channel too) until margin_mm short of the planned depth, then feel for the tumour at its "
+                 "own pace as before: the cue, not its position sense, will mark where to stop, so the advance need "
+                 "not be paced for stopping at an unseen depth (reliance follows trust, Lee & See 2004; the paper's "
+                 "participants felt 'increased confidence in proceeding toward the target', Selim et al. 2024). "
+                 "Faster, its hand slips more sideways (signal-dependent motor noise): the cost is simulated, not set"),
     Param("guide_trust_rate", 0.8, 0.0, 1.0, unit="fraction",
           source="CHOSEN: learning rate of trust in a felt guidance channel, per trial in which it was felt"),
     Param("preentry_mm", 8.0, 0.0, 40.0, unit="mm",
@@ -175,6 +190,8 @@ class OperatorParams:
     margin_mm: float
     overshoot_mm: float
     cue_trust_rate: float
+    cue_learn_late: float
+    cue_reach: float
     guide_trust_rate: float
     preentry_mm: float
     home_x_mm: float

@@ -258,3 +258,57 @@ def test_it_decides_at_decision_hz_in_seconds_whatever_the_loop_rate(rate):
     assert sum(dt for _, dt in decided) == pytest.approx(1.0)
     if rate == 1000.0:  # unchanged at the protocol's rate: the same ticks and the same dt, bit for bit
         assert [k for k, _ in decided] == list(range(0, 1000, 10)) and {dt for _, dt in decided} == {10 / 1000.0}
+
+
+def test_with_cue_learn_late_a_cue_felt_too_late_to_stop_on_is_judged_by_the_next_scan():
+    """A correction leg can end (at the believed centroid) within the reaction time after a cue was felt: the stop is
+    then the leg's end, not the cue, and the scan showing the tip at the tumour taught nothing (session 33, 12 v6
+    people's first ES trials: 1 of the 6 legs that ended without a cue stop). With ``cue_learn_late`` a cue felt on
+    the leg just ended is judged by that scan as one stopped on would be: confirmed where the tip is at the tumour, a
+    false alarm where it is not; off (the default), neither."""
+
+    def judged(params, tip, felt=True, trust=None):
+        op = VirtualNeedleOperator({"cue_trust_rate": 0.8, **params})
+        if trust is not None:
+            op.trust_cue["ES"] = trust
+        op.begin_trial(TrialInfo("ES", 90.0, 1000.0, "on_request"), np.random.default_rng(1))
+        op._make_plan((0.0, 0.0, -20.0), (0.0, 0.0, 35.0))
+        op.s.stop_reason, op.s.cue.felt = "correct", felt
+        op._judge(30.0, {"x_mm": tip[0], "y_mm": tip[1], "z_mm": tip[2]})
+        return op.trust_cue.get("ES", 0.0)
+
+    at = (0.0, 0.0, -19.5)  # the scan shows the tip at the tumour
+    assert judged({}, at) == 0.0  # default: a cue it did not stop on teaches nothing
+    assert judged({"cue_learn_late": 1.0}, at) == pytest.approx(0.8)  # confirmed, as a cue stopped on would be
+    assert judged({"cue_learn_late": 1.0}, at, felt=False) == 0.0  # nothing felt on the leg: nothing to learn
+    assert judged({"cue_learn_late": 1.0}, (0.0, 8.0, -10.0), trust=0.8) == pytest.approx(0.16)  # a false alarm
+
+
+def test_with_cue_reach_a_trusted_cue_lets_it_advance_at_its_reach_pace_and_feel_for_the_tumour_at_its_own():
+    """Trusted-cue ES trials spent 9.8 s advancing at the person's insertion pace, ESG trials 4.5 s inside the channel
+    (session 33, 12 v6 people x 3 trials, population seed 5). With ``cue_reach`` a person who trusts the scenario's
+    cue advances at its reach pace (the channel's cap) and slows to its own pace margin_mm short of the planned depth,
+    where it feels for the tumour; off (the default), untrusted, or with a live view, it advances at its own pace."""
+
+    def entered(params, trust=1.0, visual="on_request", label="ES"):
+        op = VirtualNeedleOperator(params)
+        op.trust_cue[label] = trust
+        op.begin_trial(TrialInfo(label, 90.0, 1000.0, visual), np.random.default_rng(1))
+        op._make_plan((0.0, 0.0, -20.0), (0.0, 0.0, 35.0))
+        op.s.axis = (0.0, 0.0, -1.0)
+        op._enter_insert({"x_mm": 0.0, "y_mm": 0.0, "z_mm": 35.0})
+        return op
+
+    op = entered({"cue_reach": 1.0})
+    st = op.s
+    assert st.move.v == pytest.approx(st.v_app) and st.v_app == pytest.approx(st.v_ins * op.p.approach_speed_ratio)
+    assert entered({}).s.move.v == pytest.approx(entered({}).s.v_ins)  # default: its own pace
+    assert entered({"cue_reach": 1.0}, trust=0.3).s.move.v == pytest.approx(st.v_ins)  # not (yet) trusted
+    rt = entered({"cue_reach": 1.0}, visual="realtime", label="RT")
+    assert rt.s.move.v == pytest.approx(rt.s.v_ins)  # watching the tip live it stops by sight
+    # margin_mm short of the planned depth it slows to its own pace to feel for the tumour (sure of the line: no check)
+    st.sense.sig_lat = 0.1
+    op._on_insert(1.0, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": -20.0 + op.p.margin_mm + 10.0})
+    assert st.move.v == pytest.approx(st.v_app)
+    op._on_insert(1.1, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": -20.0 + op.p.margin_mm - 0.5})
+    assert st.move.v == pytest.approx(st.v_ins)
