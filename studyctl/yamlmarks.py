@@ -16,6 +16,7 @@ from typing import Any
 
 import yaml
 
+from studyctl.errors import UsageError
 from studyctl.inputs import read_text
 from studyctl.problems import KeyPath, Mark, Problem, show
 
@@ -263,8 +264,6 @@ def load_marked(text: str, filename: str, *, merge_keys: bool = True, text_keys:
 def load_plain(text: str, filename: str) -> Any:
     """Bounded ``yaml.safe_load``: the data of ``text`` (keys as YAML typed them, merge keys expanded), or
     :class:`~studyctl.errors.UsageError` naming ``filename:line`` for a syntax error or a hostile document."""
-    from studyctl.errors import UsageError
-
     marked = load_marked(text, filename)
     fatal = [p for p in marked.problems if p.kind in (SYNTAX, TOO_BIG, MERGE_KEY)]
     if fatal:

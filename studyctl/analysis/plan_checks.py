@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from studyctl.analysis.metric_defs import BUILTIN, KINDS
-from studyctl.errors import ProtocolError
+from studyctl.errors import NotFoundError, ProtocolError
 from studyctl.problems import format_path
 from studyctl.suggest import did_you_mean
 from studyctl.yamlmarks import MarkedData
@@ -233,7 +233,6 @@ def check_names(plan: AnalysisPlan, doc: MarkedData) -> list[str]:
 
 def shipped_protocol(name: str) -> Protocol | None:
     """The shipped protocol called ``name``, or None when there is none (a study of one's own)."""
-    from studyctl.errors import NotFoundError
     from studyctl.protocol import load_protocol
     from studyctl.resources import resource_dir
 

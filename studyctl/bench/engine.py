@@ -31,7 +31,7 @@ from studyctl.engine.recorder import MemoryRecorder
 from studyctl.engine.session import SessionRunner
 from studyctl.engine.store_recorder import StoreRecorder
 from studyctl.engine.ui import VirtualUI
-from studyctl.errors import BenchmarkError
+from studyctl.errors import BenchmarkError, PluginError
 from studyctl.plugins.interfaces import (
     Action,
     ChannelLimit,
@@ -136,7 +136,6 @@ def _store(folder: Path, name: str) -> tuple[StudyStore, int]:
 def _palpation_trials_per_s(folder: Path, n: int) -> tuple[float, float] | None:
     """The seed-000 stack on the store, if its plugins are installed (else None)."""
     from studyctl.engine.factory import EntryPointFactory, build_participant
-    from studyctl.errors import PluginError
 
     factory = EntryPointFactory()
     try:

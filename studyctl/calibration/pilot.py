@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from studyctl.errors import NotFoundError, PopulationError
 from studyctl.populations.targets import Target, TargetSet, load_targets_file
 
 
@@ -26,7 +27,6 @@ def pilot_targets(db: str, plan: Any, protocol: Any, *, template: str | Path | N
     """
     from studyctl.analysis import compute_metrics, run_plan
     from studyctl.calibration.simulated import simulated_values
-    from studyctl.errors import NotFoundError, PopulationError
     from studyctl.store.workspace import open_study
 
     if "://" not in db and not Path(db).is_file():

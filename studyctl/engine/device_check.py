@@ -19,6 +19,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
+from studyctl.errors import UsageError
 from studyctl.plugins.interfaces import Controller, Observation, TrialInfo
 
 # Fractions of the check's duration: safe commands, then over the limits, then NaN, then a stall.
@@ -145,7 +146,6 @@ def check_device(
     (default: the device's ``rate_hz`` parameter, else 1 kHz for force devices and 50 Hz for others)."""
     from studyctl.devices.emulation import emulated  # noqa: PLC0415
     from studyctl.engine.servo import ServoSpec, run_trial_in_servo_process  # noqa: PLC0415
-    from studyctl.errors import UsageError  # noqa: PLC0415
     from studyctl.plugins.registry import load_plugin  # noqa: PLC0415
 
     if not (0.5 <= seconds <= 600):
@@ -239,7 +239,6 @@ def calibrate_device(
     emulator's for rehearsals) and record its id in a ``device_calibration`` event."""
     from studyctl.devices.emulation import emulated  # noqa: PLC0415
     from studyctl.engine.factory import _call_with_supported  # noqa: PLC0415
-    from studyctl.errors import UsageError  # noqa: PLC0415
     from studyctl.plugins.registry import load_plugin  # noqa: PLC0415
     from studyctl.store.models import DeviceCalibration  # noqa: PLC0415
 

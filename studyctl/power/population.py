@@ -46,8 +46,10 @@ import pandas as pd
 
 from studyctl.engine.factory import EntryPointFactory
 from studyctl.errors import ModelParameterError, NotFoundError, ProtocolError, UsageError
+from studyctl.inputs import read_text
 from studyctl.plugins.interfaces import Action, Participant, TrialInfo
 from studyctl.suggest import nearest
+from studyctl.yamlmarks import load_plain
 
 _SECTIONS = ("baseline", "condition_effects", "group_effects", "between_sd")
 
@@ -154,8 +156,6 @@ def load_population(path: str | Path) -> Population:
         raise NotFoundError(
             f"population file {str(path)!r} does not exist; pass a YAML file with a population: section"
         )
-    from studyctl.inputs import read_text
-    from studyctl.yamlmarks import load_plain
 
     try:
         data = load_plain(read_text(file, "population file", error=ProtocolError), str(file))

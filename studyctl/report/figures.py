@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from studyctl.errors import ConfigError
 from studyctl.report.apa import p_text
 from studyctl.report.style import PALETTE, stars
 
@@ -68,8 +69,6 @@ def _wrap_title(fig: Figure) -> None:
 def figure_bytes(fig: Figure, fmt: str = "png") -> bytes:
     """The figure as ``fmt`` bytes: PNG at :data:`DPI`, or vector SVG / PDF (fonts as text in SVG)."""
     if fmt not in FORMATS:
-        from studyctl.errors import ConfigError
-
         raise ConfigError(f"figure format {fmt!r} is not one of {', '.join(FORMATS)}")
     _wrap_title(fig)
     _panel_letters(fig)

@@ -17,7 +17,7 @@ import pandas as pd
 
 from studyctl.calibration import distance, simulated_values
 from studyctl.calibration.simulated import SimulatedStats, SimulatedValue
-from studyctl.errors import SessionInterrupted, UsageError
+from studyctl.errors import SessionInterrupted, StudyctlError, UsageError
 from studyctl.workflows.calibration_spec import CalibrationSpec
 
 
@@ -67,8 +67,6 @@ def evaluate(spec: CalibrationSpec, values: dict[str, float], *, participants: i
 
     A candidate whose simulation fails with a studyctl error (e.g. the participant refuses a value) gets the
     distance :data:`FAILED_DISTANCE` and the error as a note, so the search goes on elsewhere."""
-    from studyctl.errors import StudyctlError
-
     try:
         return _evaluate(spec, values, participants=participants, targets=targets, sim_se=sim_se, client=client)
     except SessionInterrupted:

@@ -202,3 +202,19 @@ def test_collection_imports_leave_scipy_stats_out():
             "             if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_the_exception_tree_is_imported_at_module_level_below_the_cli() -> None:
+    """studyctl.errors imports nothing of studyctl, so an import of it inside a function dodges no cycle and saves
+    no time (every layer has loaded it by then); it only hides from the top of the file what the module raises.
+    The CLI alone imports lazily on purpose (a refused input is answered before the library loads)."""
+    hidden = []
+    for module, path in _modules().items():
+        if _package(module) in ("cli", "__main__"):
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        for fn in ast.walk(tree):
+            if isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+                hidden += [f"{module} line {node.lineno}" for node in ast.walk(fn)
+                           if isinstance(node, ast.ImportFrom) and node.module == "studyctl.errors"]
+    assert not hidden, "import studyctl.errors at the top of the file:\n" + "\n".join(sorted(set(hidden)))

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from studyctl.errors import StatsInputError
 from studyctl.stats import TestSummary
 
 # How samples are formed from the tidy metric table.
@@ -122,8 +123,6 @@ def below(p: float, alpha: float) -> bool:
 
 def pair_index(levels: Sequence[str], group1: str, group2: str) -> tuple[int, int]:
     """Indices of a pairwise result's two groups among ``levels`` (the names the test was given)."""
-    from studyctl.errors import StatsInputError
-
     try:
         return list(levels).index(group1), list(levels).index(group2)
     except ValueError:
