@@ -37,6 +37,12 @@ W_VIBRATION = (99.0 / 24.0) ** 0.1 - 1.0
 # pressure (Fig. 3b), C0 at the balloon's discernible threshold: studyctl.models.bhf_constants.balloon_constants()
 # gives K_pf 1.2350 and w 0.11405 (tested).
 K_PF, C0_BALLOON, W_BALLOON = 1.235, 36.0, 0.114
+# The same procedure on stimuli that stop where the balloon's SA1 response stops rising (control 86, 0.54 N on the
+# 2 mm disc; bhf_constants.balloon_constants(top="unsaturated") gives K_pf 1.3677, w 0.09697, tested). The paper on
+# Fig. 3b: "the static pressure produced by the pneumatic balloon is below the force level that causes SA1 afferent
+# responses to saturate" (Results II.B); over 40-99 our SA1 is flat from 0.54 N, so the shipped pair departs from
+# it. Not the default: set k_pf and w_balloon to these in a protocol (the fix's landing-rule runs: README seed 000).
+K_PF_UNSATURATED, W_BALLOON_UNSATURATED = 1.3677, 0.09697
 
 
 class BioInspiredController(PalpationController):
