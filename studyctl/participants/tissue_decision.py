@@ -38,7 +38,8 @@ class SpotDecision:
 
     def _found_enough(self) -> bool:
         """A targeted searcher ends its survey once it has felt as many clear spots as it expects nodules (known
-        from the practice run): ``expect_spots`` spots each above ``stop_z`` SDs. Checked every third press."""
+        from the practice run): ``expect_spots`` spots each above ``stop_z`` SDs; with ``stop_yield`` also once it
+        expects the rest of its survey to find too little (:func:`survey_yield`). Checked every third press."""
         p = self.params
         if p["expect_spots"] <= 0 or len(self._presses) < p["stop_min_presses"]:
             return False
@@ -48,7 +49,15 @@ class SpotDecision:
         if ev is None:
             return False
         spots = self._clusters(*ev, threshold=p["stop_z"], limit=p["expect_spots"])
-        return len(spots) >= p["expect_spots"]
+        if len(spots) >= p["expect_spots"]:
+            return True
+        if p["stop_yield"] <= 0 or self._slide_mode:  # a slid survey's plan is lines, not the pressed area
+            return False
+        # what it has covered: the share of its planned survey lattice already pressed (what it did, nothing hidden)
+        covered = 1.0 - len(self._plan) / max(self._survey_total, 1)
+        left = survey_yield(p["expect_spots"] - len(spots), covered, p["stop_detect_belief"])
+        self._stop_yield_left = left
+        return left < p["stop_yield"]
 
     def _evidence(self, follow_up: bool = False) -> tuple[np.ndarray, ...] | None:
         """Per press: position, combined stiffness contrast and its noise (inverse-variance cue fusion).
@@ -297,6 +306,23 @@ class SpotDecision:
         self.experience.append({"condition": self.info.condition, "cues": list(self.perceived.get("cues", [])),
                                 "z_max": self.perceived.get("z_max", math.nan), "direct": self._direct})
         return [(x, y) for x, y, *_ in spots]
+
+
+def survey_yield(missing: int, covered: float, detect: float) -> float:
+    """How many of its ``missing`` expected nodules a searcher expects the rest of its survey to find, having
+    pressed the share ``covered`` of the block and believing it would have felt a nodule under the pressed area with
+    chance ``detect``.
+
+    Why: each nodule not yet felt lies, a priori, anywhere on the block; it was not felt either because it lies in
+    the unpressed part (prior ``1 - covered``) or because it was missed under the pressed part (``covered · (1 -
+    detect)``), so it is in the unpressed part with posterior ``(1 - covered) / (1 - covered · detect)`` (Bayes;
+    the search-effort update of Stone 1975), and finishing the survey feels it there with chance ``detect``. A
+    person who trusts its presses fully (``detect`` → 1) expects every missing nodule in the part left, so only full
+    coverage ends its survey; one who doubts them expects the rest of the survey to add less."""
+    if missing <= 0 or covered >= 1.0:
+        return 0.0
+    covered = max(covered, 0.0)
+    return missing * detect * (1.0 - covered) / (1.0 - covered * detect)
 
 
 def local_medians(survey_values: np.ndarray, near: np.ndarray) -> np.ndarray:

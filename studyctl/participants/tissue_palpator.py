@@ -43,8 +43,11 @@ one report per tick, then the participant finishes.
 Re-palpation stops when a spot is decided: a Wald sequential probability ratio test per spot (nodule with the
 contrast the survey suggested vs none, error rates ``follow_up_error``) over the re-palpation presses near it
 is checked before each follow-up press, so a clear spot is settled by one or two presses and an ambiguous one
-gets the whole 3 × 3 grid. The survey itself always covers the visible
-surface: with the nodule count unknown nothing the participant felt can tell it that no nodule remains.
+gets the whole 3 × 3 grid. The survey covers the visible surface unless the
+person expects a number of nodules (``expect_spots``, from the practice run) and has felt that many clear spots, or,
+with ``stop_yield``, expects the presses it has left to find fewer nodules than that (the unfelt ones may lie in the
+part still unpressed or have been missed under the part pressed, ``stop_detect_belief``): it stops once it believes
+it has found what there is to find (seed 003's time ran "until they thought they had found all the nodules").
 
 Practice (``practice``: weights or learn; off by default): the engine runs seed 003's practice block before each
 feedback condition's test (``info.public["practice"]``, its nodules shown as ``marks``); the person presses near each
@@ -197,6 +200,8 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
         self._follow_up: dict[str, Any] = {}
         self._direct = False
         self._stopped_early = False
+        self._survey_total = 0
+        self._stop_yield_left = math.nan  # stop_yield: nodules it expected the rest of its survey to find (last look)
         # how far the watched point has gone into the tissue per millimetre the hand was told to press, as learnt
         # over this trial's presses (1: as in the air); the press is steered with the inverse as extra gain
         self._press_yield = 1.0
@@ -253,6 +258,7 @@ class VirtualTissuePalpator(PressPerception, SlideSurvey, SpotDecision, Question
                 "virtual_tissue_palpator: no press point fits on the visible surface; lower margin_mm or the spacings"
             )
         self._stage = "survey"
+        self._survey_total = len(plan)  # the survey lattice planned over the visible block (stop_yield's coverage)
         if self._marks is not None:
             if not self._marks:
                 raise ModelParameterError("virtual_tissue_palpator: practice: weights|learn needs the practice block's "

@@ -157,6 +157,15 @@ PARAMS = (
     Param("stop_z", 8.0, low=1.0, high=1000.0,
           source="FITTED: how clear (SDs of the press noise) each expected spot must feel before the survey stops; "
           "very high for a systematic searcher who covers the whole surface anyway"),
+    Param("stop_yield", 0.0, low=0.0, high=20.0,
+          source="CHOSEN: a searcher who expects expect_spots nodules also ends its survey once the nodules it expects "
+          "the rest of its planned survey to find fall below this many (0: off, only the count ends it early); 0.5: "
+          "it stops once it believes finishing more likely to find nothing than something. Seed 003's detection time "
+          "'was recorded until they thought they had found all the nodules' (§2.7); the expected yield of the area "
+          "still unsearched is Bayesian search theory's (Stone 1975, Theory of Optimal Search)"),
+    Param("stop_detect_belief", 0.8, low=0.05, high=0.99,
+          source="CHOSEN: the chance a person believes a nodule under the area it has pressed would have felt clear; "
+          "below 1 a nodule not yet felt may be one missed there, not only one in the area still unpressed"),
     Param("stop_min_presses", 10, low=5, high=500, kind=int,
           source="CHOSEN: survey presses a targeted searcher makes before it may end its survey: it first learns what "
           "the tissue around feels like (the noise its spots stand out of is estimated from these presses)"),

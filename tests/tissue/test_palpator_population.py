@@ -221,3 +221,65 @@ def test_with_both_feedbacks_a_press_steered_by_feel_no_longer_waits_for_the_slo
     assert ff[0].detection_time_s == ff[1].detection_time_s and ff[0].report_hits == ff[1].report_hits
     broken = _trial_003({**person, "press_steer": "felt"}, seed=11, controller="FF", cparams={"max_force_n": 0.01})
     assert ff[1].nodules_found >= 2 and broken[0].nodules_found == 0
+
+
+def test_survey_yield_is_the_expected_finds_of_the_area_left():
+    """Bayes over where an unfelt nodule is: in the unpressed part (prior 1 - covered) or missed under the pressed
+    part (covered · (1 - detect)); finishing finds it there with chance detect."""
+    from studyctl.participants.tissue_decision import survey_yield
+
+    assert survey_yield(1, 0.0, 0.8) == pytest.approx(0.8)  # nothing pressed: it is somewhere ahead
+    assert survey_yield(1, 0.75, 0.8) == pytest.approx(0.8 * 0.25 / (1 - 0.75 * 0.8))  # 0.5
+    assert survey_yield(2, 0.5, 0.8) == pytest.approx(2 * survey_yield(1, 0.5, 0.8))
+    assert survey_yield(0, 0.1, 0.8) == 0.0 and survey_yield(1, 1.0, 0.8) == 0.0
+    # the more it trusts its presses, the more a nodule not yet felt must lie ahead
+    assert survey_yield(1, 0.6, 0.95) > survey_yield(1, 0.6, 0.8) > survey_yield(1, 0.6, 0.5)
+
+
+class _TwoClearSpots(VirtualTissuePalpator):
+    """A person whose survey has felt two clear spots (its own evidence, stubbed at the cluster step)."""
+
+    def _evidence(self, follow_up=False):
+        return np.zeros((5, 2)), np.zeros(5), np.ones(5)
+
+    def _clusters(self, pts, contrast, sigma, threshold, limit):
+        return [(10.0, 10.0, 9.0, 0.3), (50.0, 50.0, 7.0, 0.2)][:limit]
+
+
+def _stops_after(params, covered_share):
+    person = _TwoClearSpots({"expect_spots": 3, "stop_min_presses": 10, **params})
+    person.begin_trial(TrialInfo(condition="FF", time_limit_s=10.0, rate_hz=250.0, visual="realtime", public={}),
+                       np.random.default_rng(0))
+    person._presses = [{}] * 60  # a multiple of 3: the rule is looked at
+    person._survey_total = 100
+    person._plan = [(0.0, 0.0)] * round(100 * (1 - covered_share))
+    return person._found_enough()
+
+
+def test_a_searcher_who_expects_little_more_from_its_survey_ends_it():
+    """stop_yield: two of the three expected nodules felt clearly; the third is believed found by the rest of the
+    survey with chance survey_yield(1, covered, 0.8), which falls below 0.5 at 76 % covered. Off by default: only
+    the third clear spot ends the survey, as before."""
+    assert _stops_after({"stop_yield": 0.5}, 0.80) is True
+    assert _stops_after({"stop_yield": 0.5}, 0.70) is False
+    assert _stops_after({}, 0.80) is False and _stops_after({}, 0.99) is False
+    assert VirtualTissuePalpator({}).params["stop_yield"] == 0.0
+
+
+@pytest.mark.slow
+def test_a_survey_ended_on_its_expected_yield_is_shorter_and_a_broken_controller_is_still_noticed():
+    """FF, a searcher who expects the block's three nodules: with stop_yield it ends its survey once the rest is
+    expected to find under half a nodule, so it presses less of the block and finishes sooner, and still finds
+    nodules; off, it presses the whole block unless all three felt clear. A broken FF (no force) gives it no clear
+    spot, so it believes every nodule may still lie ahead, presses nearly the whole block and finds nothing."""
+    person = {**PERSON_003, "expect_spots": 3, "stop_min_presses": 40, "stop_z": 3.5}
+    runs = [_trial_003({**person, "stop_yield": y}, seed=11, controller="FF") for y in (0.0, 0.5)]
+    surveyed = [sum(r["stage"] == "survey" for r in p._presses) for _, p in runs]
+    assert surveyed[1] < surveyed[0], surveyed
+    assert runs[1][1].perceived["survey_stopped_early"]
+    assert runs[1][0].detection_time_s < runs[0][0].detection_time_s
+    assert runs[1][0].nodules_found >= 2
+    broken, broken_p = _trial_003({**person, "stop_yield": 0.5}, seed=11, controller="FF",
+                                  cparams={"max_force_n": 0.01})
+    assert broken.nodules_found == 0
+    assert sum(r["stage"] == "survey" for r in broken_p._presses) > 0.9 * broken_p._survey_total
