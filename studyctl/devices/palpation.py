@@ -107,7 +107,7 @@ class SimulatedPalpationDevice(ParamDevice):
         self._reset_state()
 
     def _reset_state(self) -> None:
-        self._command = {"balloon_pct": 0.0, "vibration_pct": 0.0}
+        self._set_command({"balloon_pct": 0.0, "vibration_pct": 0.0})
         self._psi = 0.0
         self._speed = 0.0
         self._t = None
@@ -115,6 +115,7 @@ class SimulatedPalpationDevice(ParamDevice):
         self._dt = None
         self._decay = (1.0, 1.0)
         self._last_sample: tuple[float, dict[str, float]] | None = None
+        self._motor_out: tuple[float, tuple[float, float]] | None = None  # (speed, motor.output(speed)) last given
 
     # -- Device --------------------------------------------------------------------------------------
     def open(self) -> None:
@@ -122,7 +123,7 @@ class SimulatedPalpationDevice(ParamDevice):
         self._open = True
 
     def close(self) -> None:
-        self._command = {"balloon_pct": 0.0, "vibration_pct": 0.0}
+        self._set_command({"balloon_pct": 0.0, "vibration_pct": 0.0})
         self._open = False
 
     def apply_input(self, inputs: Channels) -> None:
@@ -166,15 +167,33 @@ class SimulatedPalpationDevice(ParamDevice):
         return Observation(t, values, sample_t=t, faults=faults)
 
     def write(self, command: Channels) -> None:
-        for name in self._command:
+        held = self._command
+        changed = False
+        for name in held:
             if name in command:
-                self._command[name] = float(command[name])
+                value = float(command[name])
+                # equal values give equal targets (each target subtracts a non-zero constant first, so ±0 agree)
+                changed = changed or value != held[name]
+                held[name] = value
+        if changed:
+            self._set_command(held)
 
     def feedback(self) -> dict[str, float]:
-        hz, ms2 = self.motor.output(self._speed)
+        # the motor's output is a function of its speed alone, which stays put for many ticks (off, or settled)
+        speed = self._speed
+        cached = self._motor_out
+        if cached is None or cached[0] != speed:
+            cached = self._motor_out = (speed, self.motor.output(speed))
+        hz, ms2 = cached[1]
         return {"balloon_psi": self._psi, "vibration_hz": hz, "vibration_ms2": ms2}
 
     # -- internals -----------------------------------------------------------------------------------
+    def _set_command(self, command: dict[str, float]) -> None:
+        """Hold ``command`` and the actuators' static targets for it: a target depends on the command alone, and
+        the command changes far less often than the loop ticks (read() steps the lags every tick)."""
+        self._command = command
+        self._targets = (self.balloon._target(command["balloon_pct"]), self.motor._target(command["vibration_pct"]))
+
     def _advance(self, t: float) -> None:
         """Run the actuator dynamics from the previous read to ``t`` under the last command."""
         last = self._t
@@ -184,9 +203,12 @@ class SimulatedPalpationDevice(ParamDevice):
                 self._dt = dt
                 self._decay = (self.balloon.decay(dt), self.motor.decay(dt))
             decay_psi, decay_speed = self._decay
-            command = self._command
-            self._psi = self.balloon.step_decayed(self._psi, command["balloon_pct"], decay_psi)
-            self._speed = self.motor.step_decayed(self._speed, command["vibration_pct"], decay_speed)
+            target_psi, target_speed = self._targets
+            # _FirstOrderActuator.step_decayed (models.palpation_hw.decayed_step) with the held targets, inline:
+            # the same operations on the same numbers, without four calls a tick
+            psi, speed = self._psi, self._speed
+            self._psi = target_psi if decay_psi is None else target_psi + (psi - target_psi) * decay_psi
+            self._speed = target_speed if decay_speed is None else target_speed + (speed - target_speed) * decay_speed
         self._t = t
 
     def _fault_at(self, t: float) -> str | None:

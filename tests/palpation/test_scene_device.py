@@ -274,3 +274,40 @@ def test_device_read_equals_the_model_methods_tick_by_tick():
                                   "vibration_ms2": motor.output(speed)[1]}
         command = {"balloon_pct": float(rng.uniform(0, 110)), "vibration_pct": float(rng.uniform(0, 100))}
         dev.write(command)
+
+
+def test_held_and_partial_commands_give_the_model_lags_tick_by_tick():
+    """The device holds each command's actuator targets and the motor's output between ticks (a loop writes the
+    same command for many ticks): held, repeated, one-channel and off commands must still give, every tick, what
+    the models compute from scratch, bit for bit, and a new command must move the lag at once."""
+    from studyctl.models.palpation_hw import BalloonModel, VibrationMotorModel
+
+    dev = SimulatedPalpationDevice({}, scene=scene(), rng=np.random.default_rng(2))
+    balloon, motor = BalloonModel(), VibrationMotorModel()
+    dev.open()
+    rng = np.random.default_rng(9)
+    command = {"balloon_pct": 0.0, "vibration_pct": 0.0}
+    psi = speed = 0.0
+    t, last = 0.0, None
+    for k in range(2000):
+        t += 0.02
+        dev.apply_input({"x_mm": 70.0, "y_mm": 70.0, "depth_mm": 3.0})
+        dev.read(t)
+        if last is not None:
+            psi = balloon.step(psi, command["balloon_pct"], t - last)
+            speed = motor.step(speed, command["vibration_pct"], t - last)
+        last = t
+        hz, ms2 = motor.output(speed)
+        assert dev.feedback() == {"balloon_psi": psi, "vibration_hz": hz, "vibration_ms2": ms2}, k
+        phase = (k // 50) % 4
+        if phase == 0:  # off: the lags settle to exactly zero and stay there
+            new = {"balloon_pct": 0.0, "vibration_pct": 0.0}
+        elif phase == 1:  # the same command written again every tick
+            new = {"balloon_pct": 80.0, "vibration_pct": 60.0}
+        elif phase == 2:  # one channel at a time, the other held
+            name, top = ("balloon_pct", 110) if k % 2 else ("vibration_pct", 100)
+            new = {name: float(rng.uniform(0, top))}
+        else:  # a command held for runs of ticks
+            new = {"balloon_pct": 40.0 + (k // 10) % 5, "vibration_pct": 30.0 + (k // 10) % 7}
+        command = {**command, **new}
+        dev.write(new)
