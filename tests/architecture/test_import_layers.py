@@ -204,6 +204,24 @@ def test_collection_imports_leave_scipy_stats_out():
     assert out.stdout.strip() == "[]", out.stdout
 
 
+@pytest.mark.slow
+def test_collecting_the_compiled_capr_tests_leaves_numba_out():
+    """numba costs about 0.25 s CPU to import; the compiled-tick tests ask whether it is installed without importing
+    it, so collecting the suite does not pay for it (the tests import it when they run)."""
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[2]
+    code = ("import contextlib, io, sys\n"
+            "import pytest\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            "    code = pytest.main(['--collect-only', '-q', '-p', 'no:cacheprovider', '-m', '',\n"
+            "                        'tests/palpation/test_capr_compiled.py'])\n"
+            "print(int(code), 'numba' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=repo)
+    assert out.stdout.split() == ["0", "False"], out.stdout + out.stderr
+
+
 def test_the_exception_tree_is_imported_at_module_level_below_the_cli() -> None:
     """studyctl.errors imports nothing of studyctl, so an import of it inside a function dodges no cycle and saves
     no time (every layer has loaded it by then); it only hides from the top of the file what the module raises.

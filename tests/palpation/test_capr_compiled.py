@@ -3,6 +3,7 @@ runs wherever the compiled one is absent, not proven equal, or turned off."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
 import sys
@@ -14,7 +15,10 @@ import studyctl.models
 from studyctl.errors import ModelParameterError
 from studyctl.models import capr
 
-pytest.importorskip("numba")  # the `fast` extra (the `test` extra installs it)
+# the `fast` extra (the `test` extra installs it), asked for without importing numba: its import (~0.25 s CPU) would
+# be paid by every collection of the suite, and the tests import it when they run
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed (the `fast` "
+                                "extra)")
 
 
 @pytest.fixture(scope="module")
