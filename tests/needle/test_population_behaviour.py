@@ -56,15 +56,18 @@ def test_population_people_differ_and_stay_in_the_declared_ranges():
         assert all(declared[name].low <= v <= declared[name].high for v in values)
 
 
-@pytest.mark.slow  # 24 whole needle trials: ~45 s in the loaded fast run
-def test_esg_with_bl_physics_loses_its_advantage():
-    """The same people told 'ESG' but given BL physics (a broken controller) need more time and scans."""
+@pytest.mark.slow  # 24 whole needle trials each: ~45 s in the loaded fast run
+@pytest.mark.parametrize("label", ["ESG", "ES"])
+def test_with_bl_physics_the_enhanced_scenario_loses_its_advantage(label):
+    """The same people told 'ESG' (or 'ES') but given BL physics (a broken controller) need more time and scans. ES
+    too, since what a person does with a trusted cue (cue_learn_late, cue_reach) acts only on a cue it felt: given
+    BL physics, time ratio ESG 0.607, ES 0.799 with v6 and 0.748 with cue_learn_late + cue_reach (session 33)."""
     people = _people(4, 11)
     sites = [[2, 5, 9], [4, 7, 11], [1, 6, 10], [3, 8, 12]]
     real, broken = [], []
     for i, person in enumerate(people):
-        real += _run("ESG", "ESG", person, sites[i], seed=100 + i)
-        broken += _run("ESG", "BL", person, sites[i], seed=100 + i)
+        real += _run(label, label, person, sites[i], seed=100 + i)
+        broken += _run(label, "BL", person, sites[i], seed=100 + i)
     real_scans, real_time = np.mean([r[0] for r in real]), np.mean([r[1] for r in real])
     broken_scans, broken_time = np.mean([r[0] for r in broken]), np.mean([r[1] for r in broken])
     assert real_time < 0.92 * broken_time  # same people, same trial streams: only the physics differs
