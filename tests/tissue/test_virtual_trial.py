@@ -14,11 +14,14 @@ from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import run_trial
 from studyctl.models.palpation_metrics import chance_hit_probability, score_trial
 from studyctl.participants import (
+    tissue_cue_learning,
     tissue_decision,
+    tissue_hand,
     tissue_palpator,
     tissue_params,
     tissue_perception,
     tissue_questionnaire,
+    tissue_slide,
 )
 from studyctl.participants.tissue_palpator import VirtualTissuePalpator
 from studyctl.plugins.interfaces import TrialInfo
@@ -26,7 +29,9 @@ from studyctl.scenes.tissue import StiffnessTissueScene
 
 
 def test_the_palpator_never_sees_the_truth():
-    for module in (tissue_palpator, tissue_perception, tissue_decision, tissue_questionnaire, tissue_params):
+    # every module of the person but tissue_practice, whose practice blocks show the nodules on purpose
+    for module in (tissue_palpator, tissue_hand, tissue_perception, tissue_decision, tissue_questionnaire,
+                   tissue_params, tissue_slide, tissue_cue_learning):
         source = inspect.getsource(module)
         assert "truth" not in source.replace("Never the scene's truth", ""), module.__name__
     assert "scene" not in inspect.signature(VirtualTissuePalpator).parameters
