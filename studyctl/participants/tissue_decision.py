@@ -144,6 +144,12 @@ class SpotDecision:
             return None
         d2 = ((pts[:, None, :] - pts[None, survey, :]) ** 2).sum(axis=2)
         near = d2 <= p["baseline_radius_mm"] ** 2
+        if p["baseline_height_mm"] > 0:
+            # A thin layer over the table presses firmer: the person, who sees how thick the tissue is where it
+            # presses, judges a spot against presses where it looks about as thick (its edges and corners against
+            # each other, not against the thick middle).
+            h = np.array([self._height(x, y) for x, y in pts])
+            near &= np.abs(h[:, None] - h[None, survey]) <= p["baseline_height_mm"]
         scaled: list[tuple[np.ndarray, float, np.ndarray, str]] = []  # contrast, its noise SD, finite, cue
         for values, name in cues:
             sv = values[survey]

@@ -145,6 +145,9 @@ PARAMS = (
     # ---- decision
     Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm",
           source="CHOSEN: a spot is compared with the tissue around it"),
+    Param("baseline_height_mm", 0.0, low=0.0, high=100.0, unit="mm",
+          source="CHOSEN: a spot is compared only with presses where the visible tissue is within this of its "
+          "thickness (a thin layer over the table presses firmer; 0: any thickness)"),
     Param("cluster_radius_mm", 10.0, low=1.0, high=100.0, unit="mm", source="CHOSEN: a nodule's reach"),
     Param("z_threshold", 3.0, low=0.5, high=50.0,
           source="FITTED: confidence to report: a spot's averaged contrast in SDs of the press noise"),
