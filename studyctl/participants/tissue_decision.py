@@ -55,9 +55,7 @@ class SpotDecision:
             return False
         # what it has covered: the share of its planned survey lattice already pressed (what it did, nothing hidden)
         covered = 1.0 - len(self._plan) / max(self._survey_total, 1)
-        left = survey_yield(p["expect_spots"] - len(spots), covered, p["stop_detect_belief"])
-        self._stop_yield_left = left
-        return left < p["stop_yield"]
+        return survey_yield(p["expect_spots"] - len(spots), covered, p["stop_detect_belief"]) < p["stop_yield"]
 
     def _evidence(self, follow_up: bool = False) -> tuple[np.ndarray, ...] | None:
         """Per press: position, combined stiffness contrast and its noise (inverse-variance cue fusion).

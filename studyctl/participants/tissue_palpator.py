@@ -202,7 +202,6 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         self._direct = False
         self._stopped_early = False
         self._survey_total = 0
-        self._stop_yield_left = math.nan  # stop_yield: nodules it expected the rest of its survey to find (last look)
         # how far the watched point has gone into the tissue per millimetre the hand was told to press, as learnt
         # over this trial's presses (1: as in the air); the press is steered with the inverse as extra gain
         self._press_yield = 1.0
