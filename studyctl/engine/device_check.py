@@ -138,6 +138,15 @@ def _limits_of(device_cls: type, params: Mapping[str, Any]) -> Any:
     return _call_with_supported(device_cls, params=dict(params), scene=None, rng=np.random.default_rng(0)).limits
 
 
+def _fault_detail(payload: dict[str, Any]) -> str:
+    """What a fault event says beyond its rule: its error or sensor faults, else its measured fields (a stale
+    sensor's ``age_s`` and ``limit_s``), so the coordinator reads why, not a bare rule name."""
+    if "error" in payload or "faults" in payload:
+        return str(payload.get("error", payload.get("faults")))
+    return ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                     for k, v in payload.items() if k not in ("rule", "channel", "state"))
+
+
 def check_device(
     name: str, params: Mapping[str, Any] | None = None, *, emulate: bool = False, seconds: float = 3.0,
     rate_hz: float | None = None,
@@ -194,7 +203,7 @@ def check_device(
     checks.append(SafetyCheck("watchdog", bool(tripped),
                               f"a {ctrl_params['stall_s'] * 1000:.0f} ms stall put the device in its safe state "
                               f"({', '.join(tripped)})" if tripped else "the stall was not noticed"))
-    other_faults = tuple(sorted({f"{p.get('rule')}: {p.get('error', p.get('faults', ''))}" for _t, k, p in events
+    other_faults = tuple(sorted({f"{p.get('rule')}: {_fault_detail(p)}" for _t, k, p in events
                                  if k == "device_fault" and p.get("rule") not in ("missed_deadline", "loop_stalled")}))
     # pacing before the deliberate stall (tick times as the loop stamped them)
     ts = np.asarray([t for t in times if t < PHASES["stall_at"] * seconds])
