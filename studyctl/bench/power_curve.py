@@ -101,10 +101,10 @@ def _stage2(spec: Any, path: Path, chunks: int, size: int, todo: list[tuple[int,
 
 def cli_spec(protocol: str, plan: str, sizes: tuple[int, ...], replicates: int, seed: int | None) -> Any:
     """The power spec ``studyctl power PROTOCOL --plan PLAN`` runs by default (shipped population,
-    the rate-adjustable loops capped at the CLI's default rate, :func:`studyctl.power.spec.default_sim_rate`), so a
-    bench times what users get."""
+    the rate-adjustable loops capped at the CLI's default rate,
+    :func:`studyctl.engine.loop_rates.default_sim_rate`), so a bench times what users get."""
+    from studyctl.engine.loop_rates import default_sim_rate
     from studyctl.power import prepare_power
-    from studyctl.power.spec import default_sim_rate
     from studyctl.protocol import load_protocol, resolve_protocol
 
     loaded = load_protocol(resolve_protocol(protocol))

@@ -11,7 +11,7 @@ calls) nor by a profiler (it inflates many small calls most). This benchmark spl
    participant's own per-tick work is gone. ``replay_same_samples`` checks that the replayed sessions stored
    exactly the samples of the real ones (1.0), which is what makes the difference the participant's.
 
-Figures per protocol (the demo's loop rates, :data:`studyctl.workflows.demo.DEMO_SIM_RATE_HZ` for the tissue
+Figures per protocol (the demo's loop rates, :data:`studyctl.engine.loop_rates.SIM_RATE_HZ` for the tissue
 loops): ``us_per_tick`` (CPU µs per loop tick, whole loop), ``participant_us_per_tick`` (what replay saved),
 ``other_us_per_tick`` (engine loop, safety layer, device, controller, scene, sample sink),
 ``participant_share`` of the loop, ``outside_loop_share`` (the session's CPU outside trial loops: store writes
@@ -160,7 +160,7 @@ def split(protocol: str, n: int, rate: float | None) -> dict[str, float]:
 def run(quick: bool = False) -> BenchResult:
     import os
 
-    from studyctl.workflows.demo import DEMO_SIM_RATE_HZ
+    from studyctl.engine.loop_rates import SIM_RATE_HZ
 
     figures: dict[str, float] = {"load_1min_start": os.getloadavg()[0]}
     rows = []
@@ -168,7 +168,7 @@ def run(quick: bool = False) -> BenchResult:
         n = n_quick if quick else n_full
         if n == 0:
             continue
-        got = split(protocol, n, DEMO_SIM_RATE_HZ)
+        got = split(protocol, n, SIM_RATE_HZ)
         rows.append({"protocol": protocol, "participants": n, **got})
         for key, value in got.items():
             figures[f"{key}_{protocol}"] = value

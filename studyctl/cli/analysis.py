@@ -17,6 +17,7 @@ from studyctl.cli.common import (
     output_console,
     workspace_arg,
 )
+from studyctl.engine.loop_rates import SIM_RATE_HZ
 from studyctl.resources import shipped_names
 
 
@@ -208,7 +209,7 @@ def register_sim(app: typer.Typer) -> None:
         workers: int = typer.Option(None, "--workers", help="Parallel worker processes (default: CPU cores)."),
         as_json: bool = typer.Option(False, "--json", help="Print the per-study summary as JSON."),
         sim_rate_hz: float = typer.Option(
-            250.0,  # studyctl.workflows.demo.DEMO_SIM_RATE_HZ (not imported here: the CLI starts without pandas)
+            SIM_RATE_HZ,
             "--sim-rate-hz",
             help="Loop rate of the simulated 1 kHz tissue and needle controllers (physics stays at the device's rate); "
             "`studyctl bench simrate` shows what it changes.",
@@ -220,7 +221,7 @@ def register_sim(app: typer.Typer) -> None:
         """Simulate the four reference studies (paper-sized), analyse them and write their reports."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from studyctl.engine.api import check_sim_rate
+        from studyctl.engine.loop_rates import check_sim_rate
         from studyctl.workflows.demo import REFERENCE_STUDIES, run_demo
 
         if not full_rate:

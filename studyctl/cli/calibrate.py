@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from studyctl.cli.common import complete_shipped
+from studyctl.engine.loop_rates import SIM_RATE_HZ
 
 
 def register(app: typer.Typer) -> None:
@@ -30,7 +31,7 @@ def register(app: typer.Typer) -> None:
                                        "seeds, the same for every candidate)."),
         workers: int = typer.Option(None, "--workers", help="Local worker processes for the replicate studies "
                                     "(default: min(replicates, CPU cores))."),
-        sim_rate_hz: float = typer.Option(250.0, "--sim-rate-hz", help="Loop rate of rate-adjustable "
+        sim_rate_hz: float = typer.Option(SIM_RATE_HZ, "--sim-rate-hz", help="Loop rate of rate-adjustable "
                                           "controllers (the 1 kHz tissue and needle loops), as `studyctl demo` runs "
                                           "them."),
         evaluations: int = typer.Option(24, "--evaluations", help="Candidate populations to try (the optimiser's "

@@ -153,7 +153,7 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"--full-rate and --sim-rate-hz {sim_rate_hz:g} contradict each other: --full-rate runs "
                              "every loop at its protocol's rate; give one of them")
         if not full_rate and sim_rate_hz is None:
-            from studyctl.power.spec import default_sim_rate
+            from studyctl.engine.loop_rates import default_sim_rate
 
             sim_rate_hz = default_sim_rate(loaded_protocol)
         trait_file = _is_trait_file(population)

@@ -25,11 +25,12 @@ from sqlalchemy import select
 from studyctl.devices.emulation import emulated
 from studyctl.engine.clock import Clock, PacedClock, RealClock, SimulatedClock
 from studyctl.engine.factory import EntryPointFactory, PluginFactory, build_participant
+from studyctl.engine.loop_rates import simulation_rates
 from studyctl.engine.plan import SessionPlan, Step
 from studyctl.engine.planning import plan_for_participant
 from studyctl.engine.preflight import preflight
 from studyctl.engine.seeding import answer_rng, person_traits, session_seed
-from studyctl.engine.session import SessionResult, SessionRunner, condition_rate
+from studyctl.engine.session import SessionResult, SessionRunner
 from studyctl.engine.store_recorder import StoreRecorder, refuse_second_session
 from studyctl.engine.ui import Script, ScriptedUI, SessionUI, VirtualUI
 from studyctl.errors import NotFoundError, PopulationError, SessionError, UsageError
@@ -344,39 +345,6 @@ def run_session(
                    participant=participant, ui=ui, clock=clock, script=script, factory=factory, progress=progress,
                    speed=speed, log=log, frontend=frontend, person_params=person_params, rehearse=rehearse,
                    servo=servo, calibrations=(store, int(target.id)), lsl=lsl)
-
-
-def check_sim_rate(sim_rate_hz: float) -> float:
-    """``sim_rate_hz`` if it is a usable simulation loop rate (a positive, finite number of Hz)."""
-    if not (0 < sim_rate_hz < float("inf")):
-        raise UsageError(f"--sim-rate-hz (the simulation loop rate) must be a positive number of Hz, got {sim_rate_hz}")
-    return float(sim_rate_hz)
-
-
-@dataclass(frozen=True)
-class FeedbackLoop:
-    """A condition's feedback loop: its controller, the rate it runs at, and whether a simulated session may run
-    it slower (``Controller.rate_adjustable``)."""
-
-    controller: str
-    rate_hz: float
-    adjustable: bool
-
-
-def feedback_loops(plan: SessionPlan, factory: PluginFactory) -> dict[str, FeedbackLoop]:
-    """The feedback loop of each condition that has one (a controller, not a manual condition)."""
-    return {cid: FeedbackLoop(cond.controller, condition_rate(cond, factory),
-                              bool(getattr(factory.load("controller", cond.controller), "rate_adjustable", False)))
-            for cid, cond in plan.conditions.items() if cond.controller and not cond.manual}
-
-
-def simulation_rates(plan: SessionPlan, factory: PluginFactory, sim_rate_hz: float) -> dict[str, float]:
-    """Loop rate per condition for a simulated session capped at ``sim_rate_hz``: the conditions whose
-    controller is ``rate_adjustable`` and faster than the cap (manual conditions and fixed-rate controllers
-    keep their rates)."""
-    check_sim_rate(sim_rate_hz)
-    return {cid: float(sim_rate_hz) for cid, loop in feedback_loops(plan, factory).items()
-            if loop.adjustable and loop.rate_hz > sim_rate_hz}
 
 
 def _session_head(store: StudyStore, session_id: int) -> dict:

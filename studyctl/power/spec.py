@@ -19,9 +19,8 @@ from typing import Any
 from studyctl import __version__
 from studyctl.analysis import AnalysisPlan, load_plan
 from studyctl.analysis.catalog import TESTS
-from studyctl.engine.api import check_sim_rate, feedback_loops, simulation_rates
 from studyctl.engine.factory import EntryPointFactory
-from studyctl.engine.planning import plan_for_participant
+from studyctl.engine.loop_rates import check_sim_rate, loop_rates, protocol_loops, sample_plan, slowing_cap
 from studyctl.engine.preflight import preflight
 from studyctl.errors import UsageError
 from studyctl.power.population import Population, population_model
@@ -30,9 +29,6 @@ from studyctl.power.target import check_complete_blocks, check_target
 from studyctl.protocol import Planner, Protocol, load_protocol, load_protocol_text, resolve_protocol
 from studyctl.resources import shipped_names, shipped_plan_for
 
-#: `studyctl power`'s loop-rate cap when none is given: the demo's and calibration's 250 Hz for the rate-adjustable
-#: 1 kHz loops (seed 001 at 250 Hz moves no metric beyond the 1 kHz seeds' own spread: benchmarks, `simrate`).
-POWER_SIM_RATE_HZ = 250.0
 #: Row kinds of a plan's result that are hypothesis tests (intervals and descriptives are not).
 TEST_KINDS = ("omnibus", "two_sample", "pairwise", "posthoc")
 MAX_REPLICATES = 1_000_000
@@ -199,40 +195,9 @@ def check_plan_matches(plan: Any, protocol: Any, protocol_label: str) -> None:
         )
 
 
-def _sample_plan(protocol: Any) -> Any:
-    """The session plan of the first stratum's first sequence (every person's plan has the same conditions)."""
-    schedule = Planner(protocol).expand(seed=0, slot=0, stratum=protocol.stratum_ids[0])
-    return plan_for_participant(protocol, schedule)
-
-
 def _preflight(protocol: Any) -> None:
     """Plugins the simulated sessions need exist (PluginError names the missing one)."""
-    preflight(_sample_plan(protocol), EntryPointFactory(), virtual=True, person_participant=False).raise_if_missing()
-
-
-def loop_rates(protocol: Any, sim_rate_hz: float | None) -> dict[str, float]:
-    """Per condition with a controller, the loop rate its simulated sessions run at under the cap ``sim_rate_hz``
-    (None: the protocol's rates; :func:`studyctl.engine.api.simulation_rates` says which loops a cap slows)."""
-    factory = EntryPointFactory()
-    plan = _sample_plan(protocol)
-    rates = {cid: loop.rate_hz for cid, loop in feedback_loops(plan, factory).items()}
-    if sim_rate_hz is not None:
-        rates.update(simulation_rates(plan, factory, sim_rate_hz))
-    return rates
-
-
-def slowing_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
-    """``sim_rate_hz`` when it slows one of ``protocol``'s feedback loops, else None: the sessions then run at the
-    protocol's rates (no rate-adjustable loop faster than the cap, e.g. seed 000's 50 Hz controllers)."""
-    if sim_rate_hz is None or loop_rates(protocol, sim_rate_hz) == loop_rates(protocol, None):
-        return None
-    return float(sim_rate_hz)
-
-
-def default_sim_rate(protocol: Any) -> float | None:
-    """The command's default cap for ``protocol``: :data:`POWER_SIM_RATE_HZ` when it slows one of its loops, else
-    None (the protocol's rates; e.g. seed 000's 50 Hz controllers, which are not rate-adjustable)."""
-    return slowing_cap(protocol, POWER_SIM_RATE_HZ)
+    preflight(sample_plan(protocol), EntryPointFactory(), virtual=True, person_participant=False).raise_if_missing()
 
 
 def _check_rate_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
@@ -244,8 +209,7 @@ def _check_rate_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
     cap = slowing_cap(protocol, sim_rate_hz)
     if cap is not None:
         return cap
-    loops = {loop.controller: (loop.rate_hz, loop.adjustable)
-             for loop in feedback_loops(_sample_plan(protocol), EntryPointFactory()).values()}
+    loops = {loop.controller: (loop.rate_hz, loop.adjustable) for loop in protocol_loops(protocol).values()}
     seen = "; ".join(f"{name} {rate:g} Hz{'' if adj else ', not rate-adjustable'}"
                      for name, (rate, adj) in sorted(loops.items()))
     faster = [rate for rate, adj in loops.values() if adj]

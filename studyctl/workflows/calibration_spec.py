@@ -152,7 +152,7 @@ def prepare_calibration(
         raise UsageError(f"--evaluations must be at least {len(fps) + 1} (the free parameters + 1), "
                          f"got {evaluations!r}")
     if sim_rate_hz is not None:
-        from studyctl.engine.api import check_sim_rate
+        from studyctl.engine.loop_rates import check_sim_rate
 
         check_sim_rate(sim_rate_hz)
     if workers is None:

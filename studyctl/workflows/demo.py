@@ -29,7 +29,7 @@ from typing import Any
 import pandas as pd
 
 from studyctl.analysis.plan import load_plan
-from studyctl.engine.api import check_sim_rate
+from studyctl.engine.loop_rates import SIM_RATE_HZ, check_sim_rate
 from studyctl.errors import ConfigError, StudyctlError
 from studyctl.report.build import ensure_writable
 from studyctl.report.demo_index import agreement_line, demo_index_html, headline_tests
@@ -44,10 +44,6 @@ REFERENCE_STUDIES: tuple[tuple[str, int], ...] = (
     ("pseudo_haptic_palpation", 20),
 )
 DEFAULT_SEED = 2024
-#: Loop-rate cap of the demo's simulated sessions (controllers that allow it: the 1 kHz tissue and needle
-#: controllers).
-#: ``studyctl bench simrate`` measures what it changes against the protocols' 1 kHz; ``--full-rate`` lifts it.
-DEMO_SIM_RATE_HZ = 250.0
 MARKER = ".studyctl-demo"  # written into folders the demo created, so a re-run may replace them
 
 Event = tuple[str, str, int, int, str]  # (study, stage, done, total, message)
@@ -191,7 +187,7 @@ def run_demo(
     seed: int = DEFAULT_SEED,
     studies: Sequence[tuple[str, int]] = REFERENCE_STUDIES,
     workers: int | None = None,
-    sim_rate_hz: float | None = DEMO_SIM_RATE_HZ,
+    sim_rate_hz: float | None = SIM_RATE_HZ,
     on_event: Callable[[Event], None] | None = None,
 ) -> DemoResult:
     """Run the whole demo; see the module docstring.

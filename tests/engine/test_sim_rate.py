@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from studyctl.devices.force3d import SimulatedForceDevice
-from studyctl.engine.api import simulation_rates
 from studyctl.engine.factory import EntryPointFactory
+from studyctl.engine.loop_rates import simulation_rates
 from studyctl.engine.plan import ConditionSpec, SessionPlan, Step
 from studyctl.errors import SessionError, UsageError
 from studyctl.workflows.simulate import create_cohort, run_participant

@@ -57,15 +57,27 @@ def test_demo_output_must_be_writable(tmp_path):
         run_demo(blocker / "reports", studies=[("bio_inspired_palpation", 1)], workers=1)
 
 
-def test_the_cli_default_loop_rate_is_the_library_default():
-    """The CLI keeps its own literal (it starts without importing pandas); both must say the same."""
+def test_every_default_loop_rate_is_the_one_in_engine_loop_rates():
+    """demo (CLI and library), calibrate and bench tick read one constant; no command keeps a literal of its own."""
     import inspect
 
-    from studyctl.cli.analysis import register_sim
-    from studyctl.workflows.demo import DEMO_SIM_RATE_HZ
+    import typer
 
-    assert f"{DEMO_SIM_RATE_HZ!r},  # studyctl.workflows.demo.DEMO_SIM_RATE_HZ" in inspect.getsource(register_sim)
-    assert inspect.signature(run_demo).parameters["sim_rate_hz"].default == DEMO_SIM_RATE_HZ
+    from studyctl.cli import analysis, calibrate
+    from studyctl.engine.loop_rates import SIM_RATE_HZ
+
+    def cli_default(register, command: str) -> float:
+        app = typer.Typer()
+        register(app)
+        click = typer.main.get_command(app)
+        cmd = click.commands[command] if hasattr(click, "commands") else click
+        return next(p.default for p in cmd.params if p.name == "sim_rate_hz")
+
+    assert cli_default(analysis.register_sim, "demo") == SIM_RATE_HZ
+    assert cli_default(calibrate.register, "calibrate") == SIM_RATE_HZ
+    assert inspect.signature(run_demo).parameters["sim_rate_hz"].default == SIM_RATE_HZ
+    for module in (analysis, calibrate):
+        assert "250.0" not in inspect.getsource(module)
 
 
 @pytest.mark.slow
