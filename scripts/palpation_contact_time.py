@@ -52,9 +52,10 @@ WEBER = {"balloon_psi": 0.10, "vibration_ms2": 0.20}  # the typical person's Web
 CONTROLLERS = (NoFeedback, PiecewiseController, LinearController, BioInspiredController)
 
 
-def logged_trial(params: dict, controller_cls, k: int):
-    """Run trial ``k`` and return its samples (with the delivered cues), its presses and its scene's truth."""
-    person = VirtualPalpator(params)
+def logged_trial(params: dict, controller_cls, k: int, person: VirtualPalpator | None = None):
+    """Run trial ``k`` and return its samples (with the delivered cues), its presses and its scene's truth. A caller
+    that watches the person's own state passes its ``person`` (built from ``params``)."""
+    person = VirtualPalpator(params) if person is None else person
     presses: list[dict] = []
     feel: list[tuple[float, float, float]] = []
     rows: list[tuple[float, float, float, float]] = []
