@@ -122,7 +122,8 @@ def run_controller(params: dict, cls, trials: int) -> dict[str, str]:
     plain = df[df["spot"] == "other"]
     sweep_tumour = tumour[tumour["round"] == 0]
     out = {"controller": cls.name}
-    out["presses/trial soft/medium/hard"] = "/".join(f"{per_trial.get(c, 0.0):.2f}" for c in ("soft", "medium", "hard"))
+    out["presses/trial on the soft/medium/hard cell"] = "/".join(
+        f"{per_trial.get(c, 0.0):.2f}" for c in ("soft", "medium", "hard"))
     out["presses/trial neighbour/other"] = f"{per_trial.get('neighbour', 0):.2f}/{per_trial.get('other', 0):.2f}"
     out["re-probe rounds/trial"] = f"{np.mean(rounds):.2f}"
     for spot in ("tumour", "other"):
@@ -131,7 +132,7 @@ def run_controller(params: dict, cls, trials: int) -> dict[str, str]:
         out[f"after sweep, {spot}: decided/undecided/dismissed"] = "/".join(
             f"{share.get(s, 0.0):.2f}" for s in ("decided", "undecided", "dismissed"))
     for spot in ("soft", "medium", "hard", "other"):
-        out[f"reported: {spot}"] = f"{rep[rep['spot'] == spot]['reported'].mean():.2f}"
+        out[f"{spot} cell reported (share)"] = f"{rep[rep['spot'] == spot]['reported'].mean():.2f}"
     for how in ("evidence", "guess"):
         made = [right for kind, right in outcomes if kind == how]
         out[f"reports on {how}/trial: right/wrong"] = f"{sum(made) / trials:.2f}/{(len(made) - sum(made)) / trials:.2f}"
