@@ -7,6 +7,10 @@ person at the demo's 250 Hz loop. Every trial row, event payload and sample stre
 compared with ``pinned_sessions.json``. Sample chunks are hashed per stream as wholes: where chunk boundaries
 fall follows wall time.
 
+Trials and the number of sample streams are pinned for every machine; events and samples per platform
+(``tests/platform_pins.py``: numpy's CPU dispatch and the numeric libraries' versions decide a force trace's last
+bits). On a platform with no pin yet only the portable parts are compared, with a warning naming the platform.
+
 If the simulated sessions were meant to change (a participant's behaviour, a scene's or controller's numbers,
 a population), re-pin with ``STUDYCTL_REPIN=1 pytest tests/engine/test_pinned_sessions.py -m ''`` and say why
 in the commit. A change that is only meant to be faster must pass without re-pinning.
@@ -21,6 +25,7 @@ import sqlite3
 from pathlib import Path
 
 import pytest
+from platform_pins import no_pin_here, platform_description, platform_key
 
 from studyctl.workflows.simulate import simulate_study
 
@@ -72,17 +77,30 @@ def session_digest(database: Path) -> dict[str, str]:
     }
 
 
+PORTABLE = ("trials", "streams")  # the same on every machine; events and samples carry force traces' last bits
+
+
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_seeded_sessions_are_pinned(case: str, tmp_path: Path) -> None:
     protocol, people, seed, rate = CASES[case]
     simulate_study(protocol, people, seed, tmp_path / "ws", sim_rate_hz=rate)
     got = session_digest(tmp_path / "ws" / "study.db")
     pinned = json.loads(PINNED.read_text()) if PINNED.exists() else {}
+    key = platform_key()
     if os.environ.get("STUDYCTL_REPIN") == "1":
-        pinned[case] = got
+        entry = pinned.setdefault(case, {})
+        entry.update({k: got[k] for k in PORTABLE})
+        entry.setdefault("platforms", {})[key] = {"platform": platform_description(),
+                                   **{k: v for k, v in got.items() if k not in PORTABLE}}
         PINNED.write_text(json.dumps(pinned, indent=1, sort_keys=True) + "\n")
-    changed = [k for k, v in got.items() if pinned.get(case, {}).get(k) != v]
+    entry = pinned.get(case, {})
+    here = entry.get("platforms", {}).get(key)
+    if here is None:
+        no_pin_here(f"{case} events and samples", "tests/engine/pinned_sessions.json")
+    want = {k: entry.get(k) for k in PORTABLE}
+    want.update({k: v for k, v in (here or {}).items() if k != "platform"})
+    changed = [k for k, v in want.items() if got.get(k) != v]
     assert not changed, (
-        f"{case}: the stored {', '.join(changed)} differ from tests/engine/pinned_sessions.json; if the simulated "
-        "sessions were meant to change, re-pin with STUDYCTL_REPIN=1 (see this file's docstring)"
+        f"{case}: the stored {', '.join(changed)} differ from tests/engine/pinned_sessions.json (platform {key}); if "
+        "the simulated sessions were meant to change, re-pin with STUDYCTL_REPIN=1 (see this file's docstring)"
     )
