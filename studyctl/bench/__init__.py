@@ -7,6 +7,7 @@ Each benchmark is a module ``studyctl.bench.<name>`` with a function
 from __future__ import annotations
 
 import importlib
+import inspect
 import pkgutil
 import time
 from collections.abc import Callable
@@ -15,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from studyctl.errors import NotFoundError
+from studyctl.errors import NotFoundError, UsageError
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,21 @@ def load(name: str) -> Callable[..., BenchResult]:
     if name not in available():
         raise NotFoundError(f"unknown benchmark {name!r}; available: {', '.join(available())}")
     return importlib.import_module(f"studyctl.bench.{name}").run
+
+
+def worker_options(name: str, workers: int | None) -> dict[str, int]:
+    """``run``'s keyword for ``--workers``: only benchmarks that start a cluster take it, and bad values are refused
+    here, before a benchmark starts its minutes of work."""
+    if workers is None:
+        return {}
+    if "workers" not in inspect.signature(load(name)).parameters:
+        takes = sorted(n for n in available() if "workers" in inspect.signature(load(n)).parameters)
+        raise UsageError(f"--workers {workers}: benchmark {name!r} starts no cluster; only {', '.join(takes)} take "
+                         "--workers (drop the option)")
+    if workers < 1:
+        raise UsageError(f"--workers {workers}: a cluster needs at least 1 worker; use --workers 1 to run serially "
+                         "without a cluster")
+    return {"workers": workers}
 
 
 def time_calls(fn: Callable[[], object], repeat: int, warmup: int = 3) -> np.ndarray:

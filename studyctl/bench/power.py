@@ -137,14 +137,59 @@ def two_stage_figures(quick: bool, protocol: str = PROTOCOL, plan: str = PROTOCO
     return figures, rows, notes
 
 
-def run(quick: bool = False) -> BenchResult:
-    """Measure replicates per second (see the module docs); ``quick`` uses 4 participants throughout."""
+def cluster_keys(big: int, small: int, per_cluster: int, workers: int = 2) -> list[str]:
+    """The figures only a local cluster of ``workers`` measures (null when the bench runs with ``--workers 1``)."""
+    return [f"replicates_per_s_cluster_{big}", f"cpu_s_per_replicate_cluster_{big}", f"cores_used_cluster_{big}",
+            *(f"replicates_per_s_cluster_{small}_r{k}" for k in range(workers, per_cluster + 1, workers)),
+            "speedup_cluster", "cpu_efficiency_cluster", "cluster_startup_s"]
+
+
+def _cluster_figures(spec: Any, big: int, small: int, per_cluster: int, workers: int,
+                     rows: list[dict[str, Any]], serial: dict[str, float]) -> dict[str, float]:
+    """Time the same replicates on a local Dask cluster of ``workers`` processes; ``serial`` holds this run's
+    serial figures (the cluster's peer), ``rows`` gets the table rows."""
+    from studyctl.power.executor import DaskBackend
+
+    figures: dict[str, float] = {}
+    t_start = time.perf_counter()
+    cluster = DaskBackend.local(workers, None)
+    try:
+        figures["cluster_startup_s"] = time.perf_counter() - t_start
+        cluster.client.run(_warm)
+        c_big, _, rc_big = _timed(cluster, spec, [(big, r) for r in range(workers)])
+        figures[f"replicates_per_s_cluster_{big}"] = workers / c_big
+        figures[f"cpu_s_per_replicate_cluster_{big}"] = sum(r.cpu_seconds for r in rc_big) / len(rc_big)
+        figures[f"cores_used_cluster_{big}"] = sum(r.cpu_seconds for r in rc_big) / c_big
+        rows.append({"backend": f"local cluster ({workers} workers)", "participants": big, "replicates": workers,
+                     "seconds": c_big, "replicates_per_s": workers / c_big})
+        c_small, stamps, _ = _timed(cluster, spec, [(small, r) for r in range(per_cluster)])
+        for k in range(workers, per_cluster + 1, workers):
+            rate = k / stamps[k - 1]
+            figures[f"replicates_per_s_cluster_{small}_r{k}"] = rate
+            rows.append({"backend": f"local cluster ({workers} workers)", "participants": small, "replicates": k,
+                         "seconds": stamps[k - 1], "replicates_per_s": rate})
+    finally:
+        cluster.close()
+    figures["speedup_cluster"] = figures[f"replicates_per_s_cluster_{big}"] / serial[f"replicates_per_s_serial_{big}"]
+    # The same ratio in CPU time (replicates per CPU-second): 1.0 means the workers waste nothing; the wall-time
+    # speedup is then bounded by how many cores the machine gave the cluster (cores_used_cluster_*).
+    figures["cpu_efficiency_cluster"] = (serial[f"cpu_s_per_replicate_serial_{big}"]
+                                         / figures[f"cpu_s_per_replicate_cluster_{big}"])
+    return figures
+
+
+def run(quick: bool = False, workers: int | None = None) -> BenchResult:
+    """Measure replicates per second (see the module docs); ``quick`` uses 4 participants throughout.
+
+    ``workers``: processes of the local cluster (default one per core). 1 runs everything serially in this
+    process and starts no cluster (a shared machine): the cluster figures are then null, and the notes say so."""
     from studyctl.bench.power_curve import cli_spec
-    from studyctl.power.executor import DaskBackend, SerialBackend
+    from studyctl.power.executor import SerialBackend
     from studyctl.report.loop_rates import loop_rates_line
 
     big, small, per_cluster = (4, 4, 2) if quick else (25, 8, 4)
-    workers = os.cpu_count() or 1
+    asked = workers
+    workers = workers or os.cpu_count() or 1
     load_start = os.getloadavg()[0]
     spec = cli_spec(PROTOCOL, PROTOCOL, (small, big) if small != big else (big,), 1, SEED)
     _warm()
@@ -169,43 +214,26 @@ def run(quick: bool = False) -> BenchResult:
                      "replicates_per_s": 1.0 / s_small})
     figures[f"seconds_per_participant_serial_{big}"] = s_big / big
 
-    t_start = time.perf_counter()
-    cluster = DaskBackend.local(workers, None)
-    try:
-        startup = time.perf_counter() - t_start
-        cluster.client.run(_warm)
-        c_big, _, rc_big = _timed(cluster, spec, [(big, r) for r in range(workers)])
-        figures[f"replicates_per_s_cluster_{big}"] = workers / c_big
-        figures[f"cpu_s_per_replicate_cluster_{big}"] = sum(r.cpu_seconds for r in rc_big) / len(rc_big)
-        figures[f"cores_used_cluster_{big}"] = sum(r.cpu_seconds for r in rc_big) / c_big
-        rows.append({"backend": f"local cluster ({workers} workers)", "participants": big, "replicates": workers,
-                     "seconds": c_big, "replicates_per_s": workers / c_big})
-        c_small, stamps, _ = _timed(cluster, spec, [(small, r) for r in range(per_cluster)])
-        for k in range(workers, per_cluster + 1, workers):
-            rate = k / stamps[k - 1]
-            figures[f"replicates_per_s_cluster_{small}_r{k}"] = rate
-            rows.append({"backend": f"local cluster ({workers} workers)", "participants": small, "replicates": k,
-                         "seconds": stamps[k - 1], "replicates_per_s": rate})
-    finally:
-        cluster.close()
-    figures["speedup_cluster"] = figures[f"replicates_per_s_cluster_{big}"] / figures[f"replicates_per_s_serial_{big}"]
-    # The same ratio in CPU time (replicates per CPU-second): 1.0 means the workers waste nothing; the wall-time
-    # speedup is then bounded by how many cores the machine gave the cluster (cores_used_cluster_*).
-    figures["cpu_efficiency_cluster"] = (figures[f"cpu_s_per_replicate_serial_{big}"]
-                                         / figures[f"cpu_s_per_replicate_cluster_{big}"])
+    if workers > 1:
+        figures.update(_cluster_figures(spec, big, small, per_cluster, workers, rows, figures))
+    else:
+        # null, not a guess: one worker would only time the serial path again, plus a scheduler
+        figures.update(dict.fromkeys(cluster_keys(big, small, per_cluster), None))
     figures["workers"] = float(workers)
-    figures["cluster_startup_s"] = startup
     figures["load_1min_start"] = load_start
     figures["load_1min_end"] = os.getloadavg()[0]
     # the serial run is the cluster's peer in this run
-    peers = {f"replicates_per_s_cluster_{big}": figures[f"replicates_per_s_serial_{big}"]}
+    peers = {f"replicates_per_s_cluster_{big}": figures[f"replicates_per_s_serial_{big}"]} if workers > 1 else {}
     notes = [
         f"seed-000 study ({PROTOCOL}), master seed {SEED}; each replicate = N virtual participants' whole "
         "sessions through the engine into an in-memory SQLite store + the shipped analysis plan; "
         f"{loop_rates_line(spec.loop_rates(), spec.sim_rate_hz)}, as studyctl power runs it by default",
-        f"local cluster: {workers} single-threaded worker processes on 127.0.0.1 (os.cpu_count() = {workers}); "
-        "start-up and imports excluded (cluster_startup_s given separately)",
-        "peer of replicates_per_s_cluster_* = the serial run in this process, same bench run",
+        (f"local cluster: {workers} single-threaded worker processes on 127.0.0.1 (os.cpu_count() = "
+         f"{os.cpu_count()}); start-up and imports excluded (cluster_startup_s given separately); peer of "
+         "replicates_per_s_cluster_* = the serial run in this process, same bench run" if workers > 1 else
+         "--workers 1: serial only, no Dask cluster started (a shared machine); the cluster figures "
+         f"({', '.join(cluster_keys(big, small, per_cluster))}) are null, not measured, and the curve's stage 2 "
+         "runs serially in this process"),
         f"machine load (1-min average) {load_start:.1f} at start, {figures['load_1min_end']:.1f} at end, on "
         f"{workers} cores: other processes share the cores, so wall-time rates and the speedup depend on it",
     ]
@@ -219,7 +247,8 @@ def run(quick: bool = False) -> BenchResult:
     # the issue's curve (5 sizes × 1,000 stage-2 replicates per protocol) from the stored pools, same run
     from studyctl.bench.power_curve import run as curve_run
 
-    curve = curve_run(quick)
+    # --workers 1 runs the curve's stage 2 serially too; unasked, the curve keeps its own setting
+    curve = curve_run(quick, workers=asked)
     figures.update({k: v for k, v in curve.figures.items() if not k.startswith("load_")})
     peers.update(curve.peers)
     rows += curve.tables.get("runs", [])

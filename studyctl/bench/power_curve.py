@@ -158,9 +158,14 @@ def curve(protocol: str, sizes: tuple[int, ...], replicates: int, folder: Path,
     return figures, rows, notes
 
 
-def run(quick: bool = False) -> BenchResult:
+def run(quick: bool = False, workers: int | None = None) -> BenchResult:
+    """Time the curves (see the module docs). ``workers`` (``studyctl bench --workers``) overrides
+    ``$STUDYCTL_BENCH_WORKERS``; as there, 1 means serially in this process, no cluster (the variable's 0)."""
     folder = Path(os.environ.get("STUDYCTL_BENCH_POOL_DIR", "reports/power-pools")).expanduser()
-    workers = int(os.environ.get("STUDYCTL_BENCH_WORKERS", "2"))
+    if workers is None:
+        workers = int(os.environ.get("STUDYCTL_BENCH_WORKERS", "2"))
+    elif workers == 1:
+        workers = 0
     replicates = 50 if quick else REPLICATES
     load_start = os.getloadavg()[0]
     figures: dict[str, float] = {"replicates_per_size": float(replicates), "load_1min_start": load_start}

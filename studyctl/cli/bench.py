@@ -16,9 +16,12 @@ def register(app: typer.Typer) -> None:
         name: str = typer.Argument(..., help="Benchmark to run (store, schedule, engine, capr, stats, …)."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON object with the figures."),
         quick: bool = typer.Option(False, "--quick", help="Fewer repetitions: a smoke run, not a measurement."),
+        workers: int | None = typer.Option(
+            None, "--workers", help="Local Dask workers of benchmarks that start a cluster (power, power_curve); "
+            "1 runs serially without a cluster, for a shared machine. Default: one per core."),
     ) -> None:
         """Measure one capability's speed (and speed against error) and print its figures."""
-        result = bench_lib.load(name)(quick=quick)
+        result = bench_lib.load(name)(quick=quick, **bench_lib.worker_options(name, workers))
         if as_json:
             typer.echo(json.dumps(result.to_json(), default=float))
             return

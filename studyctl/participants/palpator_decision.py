@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from studyctl.models.grid_cells import within_one_cell
+from studyctl.participants.exact_mean import numpy_mean
 from studyctl.participants.palpator_perception import STOP, VISUAL, _CellEvidence
 from studyctl.plugins.interfaces import Action, Request
 
@@ -62,7 +63,7 @@ class CellDecision:
         if self.cues is not None:
             if not ev.combined or self._ref_combined is None:
                 return -math.inf
-            return (float(np.mean(ev.combined)) - self._ref_combined) / (self.cues.spread / math.sqrt(len(ev.combined)))
+            return (numpy_mean(ev.combined) - self._ref_combined) / (self.cues.spread / math.sqrt(len(ev.combined)))
         stats = _scipy_stats()
         best = -math.inf
         for key in self._keys:
@@ -79,7 +80,7 @@ class CellDecision:
             sigma = self.senses[key[0]].sigma
             if self.params["judge_spread"]:
                 sigma = max(sigma, self._spread.get(key, 0.0))
-            z = (float(np.mean(logs)) - ref[key]) / (sigma / math.sqrt(len(logs)))
+            z = (numpy_mean(logs) - ref[key]) / (sigma / math.sqrt(len(logs)))
             if key == VISUAL:
                 z *= self.params["visual_trust"]
             best = max(best, z)
