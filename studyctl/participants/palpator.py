@@ -156,6 +156,7 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
         # Within-person pace of this trial.
         self._pace = max(1.0 + p["speed_trial_cv"] * rng.standard_normal(), 0.3)
         self._tick_s = 1.0 / max(info.rate_hz, 1.0)
+        self._report_by_s = info.time_limit_s - 2.0 / max(info.rate_hz, 1.0) - 1.0  # act() compares it every tick
         self._settle_ticks = max(round(p["settle_s"] / self._tick_s), 1)
         self.columns, self.rows, self.cell_mm, self.origin = _grid(info.public, p)
         self.evidence: dict[tuple[int, int], _CellEvidence] = {}
@@ -189,7 +190,7 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
             return Action(requests=(Request("finish"),))
         self._note(percept)
         # Leave time to report before a time limit ends the trial.
-        if t >= self.info.time_limit_s - 2.0 / max(self.info.rate_hz, 1.0) - 1.0:
+        if t >= self._report_by_s:
             return self._decide_and_finish()
         while True:
             if self._seg_index >= len(self._plan) and self._practice:
@@ -227,12 +228,17 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
                     seg.lift = "looked"
             if self._settles:
                 self._hold_while_rising(seg, elapsed, percept)
-        frac = 0.0 if seg.duration <= 0 else min(max(elapsed / seg.duration, 0.0), 1.0)
-        pose = _lerp(seg.start, seg.end, frac) if seg.kind == "move" else _press_pose(seg, elapsed)
+        if seg.kind == "press":
+            pose = _press_pose(seg, elapsed)
+            # what the participant believes its depth is: the actual depth without its own motor error
+            self._belief_depth = pose[2] / seg.scale
+            self._pressing = seg
+        else:
+            frac = 0.0 if seg.duration <= 0 else min(max(elapsed / seg.duration, 0.0), 1.0)
+            pose = _lerp(seg.start, seg.end, frac)
+            self._belief_depth = 0.0
+            self._pressing = None
         self._pose = pose
-        # what the participant believes its depth is: the actual depth without its own motor error
-        self._belief_depth = pose[2] / seg.scale if seg.kind == "press" else 0.0
-        self._pressing = seg if seg.kind == "press" else None
         return Action(inputs={"x_mm": pose[0], "y_mm": pose[1], "depth_mm": pose[2]})
 
 

@@ -22,6 +22,7 @@ from studyctl.participants.palpator_press import CHANNELS, _Segment
 VISUAL = ("view", "yield")  # the note key of the camera cue: hand depth / seen tip depth at the bottom
 STOP = ("stop", "early")  # the note key of a press stopped by a strong sensation
 TRAVEL = ("travel", "stop")  # the note key of how far the hand went before the feedback said enough (log 1/depth)
+_NUMBER = (int, float)  # a delivered value that is a number (what isinstance(v, int | float) accepts)
 
 
 @dataclass
@@ -47,17 +48,22 @@ class PressNotes:
         notes = self._notes
         for ch, peak_key, cp_keys in self._note_keys:
             v = percept.get(ch)
-            v = float(v) if isinstance(v, int | float) and math.isfinite(v) else 0.0
+            # (int, float), not int | float: the same test, but a tuple is checked faster (this runs every tick)
+            v = float(v) if isinstance(v, _NUMBER) and math.isfinite(v) else 0.0
             if v > notes.get(peak_key, 0.0) or peak_key not in notes:
                 notes[peak_key] = v
+            if cp_keys[-1][1] in notes:
+                # checkpoints increase, so the deepest one noted means all are (the usual case once a press is down)
+                continue
             for c, ck in cp_keys:
                 if ck not in notes and believed >= c * seg.intended - 1e-9:
                     notes[ck] = v
         view = percept.get("view")
-        if isinstance(view, Mapping) and believed > 0:
+        # a dict is a Mapping: the exact type check first spares the ABC's slower isinstance on every tick
+        if (type(view) is dict or isinstance(view, Mapping)) and believed > 0:
             seen = view.get("depth_mm")
             # at the deepest point of the press: the hand's depth against the tip depth the camera shows
-            if isinstance(seen, int | float) and seen > 0 and believed >= notes.get(("view", "hand"), 0.0):
+            if isinstance(seen, _NUMBER) and seen > 0 and believed >= notes.get(("view", "hand"), 0.0):
                 notes[("view", "hand")] = believed
                 notes[("view", "seen")] = float(seen) / seg.scale  # seen as a fraction of what the hand did
 

@@ -128,7 +128,9 @@ class PressPlanning:
 
 
 def _lerp(a, b, f):
-    return tuple(x + (y - x) * f for x, y in zip(a, b, strict=True))
+    """The point a fraction ``f`` of the way from pose ``a`` to pose ``b`` (3-tuples; written out: a move's every tick
+    calls it)."""
+    return (a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f, a[2] + (b[2] - a[2]) * f)
 
 
 def _stop_press(seg: _Segment, elapsed: float, keep_tempo: bool = False) -> None:

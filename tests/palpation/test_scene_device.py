@@ -311,3 +311,35 @@ def test_held_and_partial_commands_give_the_model_lags_tick_by_tick():
             new = {"balloon_pct": 40.0 + (k // 10) % 5, "vibration_pct": 30.0 + (k // 10) % 7}
         command = {**command, **new}
         dev.write(new)
+
+
+def test_sensor_noise_is_the_device_streams_draws_in_order_drawn_in_blocks():
+    """read() draws its sensor noise from the device's own Generator a block at a time (a scalar draw a tick cost
+    a tenth of the tick): the counts must be those of one draw a tick, in order, across block boundaries and a
+    close/open (the stream goes on), and the Generator must be drawn only a whole block at a time."""
+    from studyctl.devices.palpation import NOISE_BLOCK, forceps_contact
+    from studyctl.models.palpation_hw import A201
+
+    s = scene()
+    dev = SimulatedPalpationDevice({"sensor_noise_lsb": 3.0}, scene=s, rng=np.random.default_rng(4))
+    scalar = np.random.default_rng(4)
+    dev.open()
+    for k in range(2 * NOISE_BLOCK + 17):
+        if k == NOISE_BLOCK // 2:
+            dev.close()
+            dev.open()
+        x, y, depth = 70.0 + k % 13, 60.0 + k % 7, 1.0 + k % 5
+        dev.apply_input({"x_mm": x, "y_mm": y, "depth_mm": depth})
+        got = dev.read(0.02 * k).values["adc"]
+        if k == 0:  # one block drawn, not one number
+            assert dev.rng.bit_generator.state == _drawn(4, NOISE_BLOCK)
+        force = forceps_contact(s, x, y, depth, 0.5)[1]
+        z = scalar.standard_normal()
+        assert got == float(int(min(max(round(A201.count_of_force(force) + 3.0 * z), 0), A201.adc_max))), k
+
+
+def _drawn(seed: int, draws: int) -> dict:
+    """The state of a Generator seeded ``seed`` after ``draws`` standard normals."""
+    g = np.random.default_rng(seed)
+    g.standard_normal(draws)
+    return g.bit_generator.state
