@@ -2,16 +2,16 @@
 
 Usage: ``python scripts/palpation_learnt_dprime.py [TRIALS]`` (default 24 per controller; ~25 s CPU).
 
-The shipped population's typical person (``palpation_practice_decision.py``'s) practises on the example phantom and
-then palpates, TRIALS times per controller (the broken-controller test's sites and seeds). Kept: every practice
-press's log-notes (on each mark, and on plain sponge) and, in each trial, each cell's first press. Each learner of
-:mod:`studyctl.participants.palpator_practice` (``diagonal``, ``shrinkage``) is then fitted on the presses of one
-practice (what a person has: 3 marks x 4 presses and 12 plain), of m practices pooled (m x as many presses, as if
-the person had pressed m times as long), and of all TRIALS practices at once (a learner with little sampling noise),
-and judged on the trials' first presses: d' per class = mean minus plain cells' mean over their SD, each trial's
-evidence centred on its median cell (as the person's reference). Why: v5's learnt d' on soft tumours (0.09) sat far
-below the ideal observer's (0.69, ``palpation_cue_dprime.py``); this separates the learner's form from the number of
-presses it learns from.
+The shipped population's typical person (``palpation_practice_decision.py``'s) practises on the example phantom and then
+palpates, TRIALS times per controller (the broken-controller test's sites and seeds). Kept: every practice press's
+log-notes (on each mark, and on plain sponge) and, in each trial, each cell's first press. Each learner of
+:mod:`studyctl.participants.palpator_practice` (``diagonal``, ``by_mark``, ``shrinkage``) is then fitted on the presses
+of one practice (what a person has: 3 marks x 4 presses and 12 plain), of m practices pooled (m x as many presses, as if
+the person had pressed m times as long), and of all TRIALS practices at once (a learner with little sampling noise), and
+judged on the trials' first presses: d' per class = mean minus plain cells' mean over their SD, each trial's evidence
+centred on its median cell (as the person's reference). Why: v5's learnt d' on soft tumours (0.09) sat far below the
+ideal observer's (0.69, ``palpation_cue_dprime.py``); this separates the learner's form from the number of presses it
+learns from.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ def capture(controller_cls, trials: int, params: dict) -> list[dict]:
         def keep(p, example, kept=kept):
             marked = {(m["col"], m["row"]) for m in example.marks()}
             kept["tumour"] = [logs for cell, logs in p._press_logs if cell in marked]
+            kept["marks"] = [cell for cell, _ in p._press_logs if cell in marked]
             kept["plain"] = [logs for cell, logs in p._press_logs if cell not in marked]
 
         _, scene = trial_after_practice(person, controller_cls, k, after_practice=keep)
@@ -87,12 +88,13 @@ def main(argv: list[str]) -> None:
         rows = capture(controller_cls, trials, params)
         print(controller_cls.name)
         for m in (1, 2, 3, 5, trials):
-            for rule in ("diagonal", "shrinkage"):
+            for rule in ("diagonal", "by_mark", "shrinkage"):
                 def learnt(i, m=m, rule=rule, rows=rows):
                     pooled = [rows[(i + j) % len(rows)] for j in range(m)]
                     tumour = [p for r in pooled for p in r.get("tumour", [])]
+                    marks = [c for r in pooled for c in r.get("marks", [])]  # every practice marks the same cells
                     plain = [p for r in pooled for p in r.get("plain", [])]
-                    return learn_cue_weights(tumour, plain, rows[i]["floor"], 3 / 49, rule)
+                    return learn_cue_weights(tumour, plain, rows[i]["floor"], 3 / 49, rule, marks)
 
                 d = dprime(rows, learnt)
                 label = "all practices" if m == trials else f"{m} practice{'s' if m > 1 else ''}"

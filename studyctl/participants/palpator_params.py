@@ -109,10 +109,13 @@ PARAMS = (
           "run), pressing each marked site and plain sponge practice_presses times, and then judges cells by the "
           "cues that told tumour from sponge, weighted by how much and how reliably they did "
           "(studyctl.participants.palpator_practice). False: no practice; cells judged by their strongest cue"),
-    Param("cue_learning", "diagonal", kind=str, choices=("diagonal", "shrinkage"), source="CHOSEN: how practice "
-          "weights the cues. diagonal: each by its mean difference over its variance, kept when t >= 2 (independent "
-          "cues, Ernst & Banks 2002). shrinkage: one linear discriminant over all noted cues, correlations shrunk "
-          "towards none by the data-chosen intensity (Schäfer & Strimmer 2005), no cue weighted against its move"),
+    Param("cue_learning", "diagonal", kind=str, choices=("diagonal", "by_mark", "shrinkage"), source="CHOSEN: how "
+          "practice weights the cues. diagonal: each by its mean difference over its variance, kept when t >= 2 "
+          "(independent cues, Ernst & Banks 2002). by_mark: the same with the variance taken within each marked site "
+          "(Fisher's pooled within-class variance, Duda, Hart & Stork 2001: the practice shows which mark is which "
+          "tumour, so their differences are not noise). shrinkage: one linear discriminant over all noted cues, "
+          "correlations shrunk towards none by the data-chosen intensity (Schäfer & Strimmer 2005), no cue weighted "
+          "against its move"),
     Param("practice_presses", 4, 1, 20, kind=int, source="CHOSEN: presses on each marked site in practice (and as "
           "many on plain sponge, at different cells); 3 sites x 4 + 12 plain presses take ~20 s of the 5 min"),
     Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "

@@ -14,7 +14,9 @@ little weight. Because the notes of one press are correlated (checkpoints of one
 combined evidence is taken from the plain practice presses themselves, not from the sum of the cue variances.
 ``cue_learning: shrinkage`` (off by default) solves one discriminant over all noted cues instead
 (:func:`shrinkage_weights`); measured on the real presses it is no better: with ~12 presses per kind the weights are
-noisy whichever form they take (README, "What practice learns").
+noisy whichever form they take (README, "What practice learns"). ``cue_learning: by_mark`` (off by default) takes
+the tumour presses' variance within each marked site: the marks show which tumour is which (Methods II.D.3), so the
+spread between a hard and a soft mark is not press-to-press noise; measured, it barely moves what is learnt (README).
 
 :class:`Familiarisation` is the palpator's side of it (a mixin of
 :class:`~studyctl.participants.palpator.VirtualPalpator`): which sites the practice presses, and the learning once
@@ -24,7 +26,7 @@ they are pressed.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -89,9 +91,24 @@ def _noted(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Mapping[Key, f
     return out
 
 
+def _within_ss(values: Sequence[float], groups: Sequence[Hashable]) -> tuple[float, int]:
+    """Sum of squares of ``values`` about their own group's mean, and the number of groups."""
+    by: dict[Hashable, list[float]] = {}
+    for v, g in zip(values, groups, strict=True):
+        by.setdefault(g, []).append(v)
+    return sum(sum((v - sum(vs) / len(vs)) ** 2 for v in vs) for vs in by.values()), len(by)
+
+
 def _diagonal_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Mapping[Key, float]],
-                      floor: Mapping[str, float]) -> tuple[list[Key], list[float], list[float]]:
-    """Each cue on its own: weight = mean difference / variance, kept only when it stood out (t ≥ MIN_T)."""
+                      floor: Mapping[str, float], marks: Sequence[Hashable] | None = None,
+                      ) -> tuple[list[Key], list[float], list[float]]:
+    """Each cue on its own: weight = mean difference / variance, kept only when it stood out (t ≥ MIN_T).
+
+    ``marks`` (one per tumour press: which marked site it was on) takes the tumour presses' variance about each
+    mark's own mean (Fisher's pooled within-class variance, Duda, Hart & Stork 2001, sec. 3.8): the practice shows
+    which mark is which tumour, so how far a hard mark moves a cue beyond a soft one is not press-to-press noise.
+    None: about the mean of all tumour presses (the shipped form, where the spread between the marks counts as noise).
+    """
     keys: list[Key] = []
     weights: list[float] = []
     centres: list[float] = []
@@ -99,7 +116,11 @@ def _diagonal_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Map
         t = [p[key] for p in tumour if key in p]
         s = [p[key] for p in plain if key in p]
         mt, ms = sum(t) / len(t), sum(s) / len(s)
-        pooled = (sum((v - mt) ** 2 for v in t) + sum((v - ms) ** 2 for v in s)) / max(len(t) + len(s) - 2, 1)
+        if marks is None:
+            ss_t, groups = sum((v - mt) ** 2 for v in t), 1
+        else:
+            ss_t, groups = _within_ss(t, [g for p, g in zip(tumour, marks, strict=True) if key in p])
+        pooled = (ss_t + sum((v - ms) ** 2 for v in s)) / max(len(t) + len(s) - 1 - groups, 1)
         var = max(pooled, floor.get(key[0], 0.0), 1e-12)
         if abs(mt - ms) < MIN_T * math.sqrt(var * (1 / len(t) + 1 / len(s))):
             continue
@@ -161,16 +182,20 @@ def shrinkage_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Map
 
 
 def learn_cue_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Mapping[Key, float]],
-                      floor: Mapping[str, float], prior: float = 0.0, rule: str = "diagonal") -> CueWeights | None:
+                      floor: Mapping[str, float], prior: float = 0.0, rule: str = "diagonal",
+                      marks: Sequence[Hashable] | None = None) -> CueWeights | None:
     """Weights from the log-notes of practice presses on marked tumours and on plain sponge (one mapping per press).
 
     ``floor``: per channel, the variance no cue of it can go below (the sense's own Weber noise squared); ``prior``:
     the share of the phantom's cells that were marked tumours (kept for the report criterion); ``rule``: diagonal
-    (each cue on its own, kept when t ≥ 2) or shrinkage (:func:`shrinkage_weights`). None when no cue was noted
-    often enough or the combined evidence does not vary on plain sponge.
+    (each cue on its own, kept when t ≥ 2), by_mark (the same, its variance within each marked site: ``marks`` names
+    the site of each tumour press) or shrinkage (:func:`shrinkage_weights`). None when no cue was noted often enough
+    or the combined evidence does not vary on plain sponge.
     """
-    learn = shrinkage_weights if rule == "shrinkage" else _diagonal_weights
-    keys, weights, centres = learn(tumour, plain, floor)
+    if rule == "shrinkage":
+        keys, weights, centres = shrinkage_weights(tumour, plain, floor)
+    else:
+        keys, weights, centres = _diagonal_weights(tumour, plain, floor, marks if rule == "by_mark" else None)
     if not keys:
         return None
     draft = CueWeights(tuple(keys), tuple(weights), tuple(centres), 1.0, 0.0)
@@ -218,12 +243,13 @@ class Familiarisation:
     def _learn_and_finish(self) -> Action:
         """End of practice: learn the cue weights from the presses on the marks and on plain sponge, then finish."""
         tumour = [logs for cell, logs in self._press_logs if cell in self._marked]
+        marks = [cell for cell, _ in self._press_logs if cell in self._marked]
         plain = [logs for cell, logs in self._press_logs if cell not in self._marked]
         floor = {ch: sense.sigma**2 for ch, sense in self.senses.items()}
         floor[VISUAL[0]] = self.senses["view"].sigma ** 2
         # what the example phantom showed: this many marked tumours among its cells (the prior of the report rule)
         prior = len(self._marked) / max(self.columns * self.rows, 1)
-        self.cues = learn_cue_weights(tumour, plain, floor, prior, self.params["cue_learning"])
+        self.cues = learn_cue_weights(tumour, plain, floor, prior, self.params["cue_learning"], marks)
         self._finished = True
         return Action(inputs={"x_mm": self._pose[0], "y_mm": self._pose[1], "depth_mm": -5.0},
                       requests=(Request("finish"),))

@@ -76,6 +76,30 @@ def test_shrinkage_keeps_weak_cues_that_the_t_filter_drops_and_never_reads_a_cue
         VirtualPalpator({"cue_learning": "lda"})
 
 
+def test_by_mark_does_not_count_the_difference_between_the_marks_as_noise():
+    """The practice marks a hard, a medium and a soft tumour (Methods II.D.3). A note moves hard presses 9 SD above
+    sponge, medium 4.5 and soft 1.5 (press noise SD 0.1). About the mean of all tumour presses (diagonal) the spread
+    between the marks looks like noise: the note's variance is inflated ~6x and its weight falls with it. Within each
+    mark (by_mark) the variance is the presses' own, so the weight is the mean difference over the press noise."""
+    rng = np.random.default_rng(3)
+    a = ("vibration_ms2", "peak")
+    floor = {"vibration_ms2": 1e-4}
+    shifts = {"hard": 0.9, "medium": 0.45, "soft": 0.15}
+    tumour, marks = [], []
+    for cls, shift in shifts.items():
+        for _ in range(4):
+            tumour.append({a: shift + rng.normal(0.0, 0.1)})
+            marks.append(cls)
+    plain = [{a: rng.normal(0.0, 0.1)} for _ in range(12)]
+    pooled = learn_cue_weights(tumour, plain, floor, 3 / 49, "diagonal", marks)
+    within = learn_cue_weights(tumour, plain, floor, 3 / 49, "by_mark", marks)
+    assert pooled is not None and within is not None
+    var_within = 0.01  # the presses' own noise
+    assert within.weights[0] == pytest.approx(0.5 / var_within, rel=0.5)
+    assert within.weights[0] > 3 * pooled.weights[0]
+    assert VirtualPalpator({"cue_learning": "by_mark"}).params["cue_learning"] == "by_mark"
+
+
 def test_practice_presses_the_marks_and_plain_sponge_then_finishes():
     person = VirtualPalpator({"familiarise": True, "practice_presses": 3})
     assert person.practises and person.cues is None
