@@ -16,6 +16,7 @@ from studyctl.participants.tissue_cue_learning import amplitude, excess, sums
 from studyctl.participants.tissue_perception import _depth_matched
 from studyctl.participants.tissue_practice import learn, near_marks, nodule_contrast
 from studyctl.participants.tissue_practice import trust as practice_trust
+from studyctl.participants.tissue_rim import expected_firmness, learn_rim
 
 
 def _cue_signal(z: np.ndarray, statistic: str = "spread") -> float:
@@ -103,7 +104,8 @@ class SpotDecision:
         survey's windows), else the untaught ``force_trust`` / ``cursor_trust``."""
         p = self.params
         untaught = {"force": p["force_trust"], "cursor": p["cursor_trust"]}
-        learnt = self._practised()
+        # a person who practised only for the thickness prior (practice: none) keeps its untaught weights
+        learnt = self._practised() if p["practice"] != "none" else None
         weights = practice_trust(learnt) if learnt else None
         if weights is None:
             return untaught, False
@@ -123,30 +125,25 @@ class SpotDecision:
         p = self.params
         rows = self._presses
         pts = np.array([[r["x"], r["y"]] for r in rows])
-        cues: list[tuple[np.ndarray, str]] = []
-        force = np.array([r["force"] for r in rows])
-        if np.isfinite(force[survey]).sum() >= 5 and np.nanmedian(force[survey]) > 0.02:
-            felt = np.array([r.get("felt", math.nan) for r in rows])
-            seen = np.array([r.get("seen", math.nan) for r in rows])
-            cues.append((_depth_matched(felt, seen, survey), "force"))
-        ratio = np.array([r["ratio"] for r in rows])
-        if np.isfinite(ratio[survey]).sum() >= 5:
-            visual_force = self._r0() * ratio - 1.0
-            if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
-                # the slowing grows with depth as the force does: compared at like depths, as the push is
-                seen = np.array([r.get("ratio_seen", math.nan) for r in rows])
-                cues.append((_depth_matched(visual_force, seen, survey), "cursor"))
+        cues = self._cue_values(survey)
         self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum()),
                           "survey_stopped_early": self._stopped_early}
         if not cues:
             return None
+        rim = self.rim_learnt.get(self.info.condition, {}) if self._marks is None and not self._slide_mode else {}
+        if rim:
+            # what practice taught: plain tissue feels firmer where it looks thinner; each press is judged against
+            # what it expected at the thickness it sees there (thickness_prior, tissue_rim)
+            h = self._heights(pts)
+            cues = [(values / expected_firmness(rim[name], h), name) if name in rim else (values, name)
+                    for values, name in cues]
         d2 = ((pts[:, None, :] - pts[None, survey, :]) ** 2).sum(axis=2)
         near = d2 <= p["baseline_radius_mm"] ** 2
         if p["baseline_height_mm"] > 0:
             # A thin layer over the table presses firmer: the person, who sees how thick the tissue is where it
             # presses, judges a spot against presses where it looks about as thick (its edges and corners against
             # each other, not against the thick middle).
-            h = np.array([self._height(x, y) for x, y in pts])
+            h = self._heights(pts)
             near &= np.abs(h[:, None] - h[None, survey]) <= p["baseline_height_mm"]
         scaled: list[tuple[np.ndarray, float, np.ndarray, str]] = []  # contrast, its noise SD, finite, cue
         for values, name in cues:
@@ -167,6 +164,29 @@ class SpotDecision:
                 contrast, sigma = contrast / sigma, 1.0
             scaled.append((contrast, sigma, ok, name))
         return scaled
+
+    def _cue_values(self, survey: np.ndarray) -> list[tuple[np.ndarray, str]]:
+        """Per cue perceived, each press's reading compared at like depths with the ``survey`` presses (the push
+        felt; the force the cursor's slowing reads, when pseudo-haptics is on), and the cue's name."""
+        rows = self._presses
+        cues: list[tuple[np.ndarray, str]] = []
+        force = np.array([r["force"] for r in rows])
+        if np.isfinite(force[survey]).sum() >= 5 and np.nanmedian(force[survey]) > 0.02:
+            felt = np.array([r.get("felt", math.nan) for r in rows])
+            seen = np.array([r.get("seen", math.nan) for r in rows])
+            cues.append((_depth_matched(felt, seen, survey), "force"))
+        ratio = np.array([r["ratio"] for r in rows])
+        if np.isfinite(ratio[survey]).sum() >= 5:
+            visual_force = self._r0() * ratio - 1.0
+            if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
+                # the slowing grows with depth as the force does: compared at like depths, as the push is
+                seen = np.array([r.get("ratio_seen", math.nan) for r in rows])
+                cues.append((_depth_matched(visual_force, seen, survey), "cursor"))
+        return cues
+
+    def _heights(self, pts: np.ndarray) -> np.ndarray:
+        """How thick the tissue looks at each point (the person sees the slab and where it presses)."""
+        return np.array([self._height(x, y) for x, y in pts])
 
     def _slide_signals(self, z_by_cue: dict[str, np.ndarray]) -> dict[str, float]:
         """Each slid cue's weight: what it showed in this trial (``reliability``) or over the person's slid trials
@@ -273,7 +293,11 @@ class SpotDecision:
             mark = near_marks(pts, self._marks, 0.5 * p["press_spacing_mm"] + p["tolerance_mm"])
             plain = mark < 0
             scaled = self._cue_contrasts(plain) if len(pts) >= 5 and plain.sum() >= 5 else None
-            self.learnt[self.info.condition] = learn(scaled, mark) if scaled else {}
+            if self.params["practice"] != "none":
+                self.learnt[self.info.condition] = learn(scaled, mark) if scaled else {}
+            if self.params["thickness_prior"] == "learn":
+                cues = self._cue_values(plain) if len(pts) >= 5 and plain.sum() >= 5 else []
+                self.rim_learnt[self.info.condition] = learn_rim(cues, plain, self._heights(pts))
             return []
         ev = self._evidence()
         self.perceived.update(self._follow_up)

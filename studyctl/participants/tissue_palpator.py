@@ -143,10 +143,13 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         self._cue_learning = CueReliability(self.params["cue_prior_windows"], self.params["cue_excess"])
         # practice: weights|learn: the engine runs each feedback condition's practice block (nodules visible) for this
         # person; what it learnt there, per condition (tissue_practice), applies to that condition's test
-        self.practises = self.params["practice"] != "none"
+        # thickness_prior: learn: the practice block also teaches how firm the tissue feels where it looks thin
+        self._learns_rim = self.params["thickness_prior"] == "learn"
+        self.practises = self.params["practice"] != "none" or self._learns_rim
         # press_steer: felt: once a push is felt, a press is steered by the hand's travel, not the cursor's
         self._steer_felt = self.params["press_steer"] == "felt"
         self.learnt: dict[str, dict[str, dict[str, float]]] = {}
+        self.rim_learnt: dict[str, dict[str, dict[str, float]]] = {}  # per condition, per cue (tissue_rim)
 
     def memory(self) -> Mapping[str, Any]:
         """What carries over between trials: the cue tallies of slide_fusion: pooled and what each condition's
@@ -157,6 +160,9 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             out["slid_cues"] = self._cue_learning.to_json()
         if self.practises:
             out["practice"] = {cond: {name: dict(c) for name, c in cues.items()} for cond, cues in self.learnt.items()}
+        if self._learns_rim:
+            out["thickness_prior"] = {cond: {name: dict(c) for name, c in cues.items()}
+                                      for cond, cues in self.rim_learnt.items()}
         return out
 
     def recall(self, memory: Mapping[str, Any]) -> None:
@@ -165,8 +171,10 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             self._cue_learning.load(cues)
         learnt = memory.get("practice")
         if isinstance(learnt, Mapping):
-            self.learnt = {str(cond): {str(name): {k: float(v) for k, v in c.items()} for name, c in cues.items()}
-                           for cond, cues in learnt.items()}
+            self.learnt = _learnt_from(learnt)
+        rim = memory.get("thickness_prior")
+        if isinstance(rim, Mapping):
+            self.rim_learnt = _learnt_from(rim)
 
     # ------------------------------------------------------------------ trial set-up
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
@@ -460,3 +468,8 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
                 self._goal, self._settle_at = None, math.inf
                 self._next_press()
 
+
+def _learnt_from(stored: Mapping[str, Any]) -> dict[str, dict[str, dict[str, float]]]:
+    """What a condition's practice taught, per cue, as stored in a session's memory (JSON)."""
+    return {str(cond): {str(name): {k: float(v) for k, v in c.items()} for name, c in cues.items()}
+            for cond, cues in stored.items()}

@@ -148,6 +148,11 @@ PARAMS = (
     Param("baseline_height_mm", 0.0, low=0.0, high=100.0, unit="mm",
           source="CHOSEN: a spot is compared only with presses where the visible tissue is within this of its "
           "thickness (a thin layer over the table presses firmer; 0: any thickness)"),
+    Param("thickness_prior", "none", kind=str, choices=("none", "learn"), source=(
+        "CHOSEN: (the physics: Hayes et al. 1972, in studyctl.participants.tissue_rim) learn: from its plain practice "
+        "presses the person learns how much firmer the tissue feels where it looks thinner (contrast on visible "
+        "thickness, a line) and judges each test press against what that line expects there; the practice block "
+        "runs even with practice: none, whose cue weights then stay untaught; none: off")),
     Param("cluster_radius_mm", 10.0, low=1.0, high=100.0, unit="mm", source="CHOSEN: a nodule's reach"),
     Param("z_threshold", 3.0, low=0.5, high=50.0,
           source="FITTED: confidence to report: a spot's averaged contrast in SDs of the press noise"),

@@ -42,8 +42,9 @@ def test_shipped_populations_and_targets_load(protocol):
     assert any(t.statistic == "verdict" and t.role == "validation" for t in targets.targets)
 
 
-def _trial_002(params, *, seed, ff=None):
-    """One seed 002 haptic trial through the trial loop; returns (score, participant)."""
+def _trial_002(params, *, seed, ff=None, person=None, practice=False):
+    """One seed 002 haptic trial through the trial loop (``practice``: the practice block, its nodules shown as
+    marks, for a ``person`` who then goes on to a test trial); returns (score, participant)."""
     spec = {"phantom": "seed002_curved"}
     ff = ff or {}
     cparams = {"horizontal": "off", "release_on_retract": False, **ff}
@@ -51,23 +52,37 @@ def _trial_002(params, *, seed, ff=None):
     scene = StiffnessTissueScene.build(spec, {"orientation_deg": 0.0}, needs, np.random.default_rng(seed))
     device = SimulatedForceDevice({}, scene, np.random.default_rng(seed + 1))
     device.open()
-    person = VirtualTissuePalpator(params)
-    info = TrialInfo(condition="haptic", time_limit_s=600.0, rate_hz=250.0, visual="realtime",
-                     public={**scene.public(), "trial_index": 1})
+    person = person or VirtualTissuePalpator(params)
+    public = {**scene.public(), "trial_index": 1}
+    if practice:
+        public.update(practice=True, marks=list(scene.marks()), requests=["finish"])
+    info = TrialInfo(condition="haptic", time_limit_s=600.0, rate_hz=250.0, visual="realtime", public=public)
     out = run_trial(info=info, controller=StiffnessMapForceFeedback(cparams, scene), device=device,
                     participant=person, clock=SimulatedClock(), rng=np.random.default_rng(seed + 2), view=scene.view)
     device.close()
     assert out.ended_by == "finish"
+    if practice:
+        return None, person
     score = score_trial(out.reports, scene.truth()["nodules"], hit_radius_mm=10.0, duration_s=out.duration_s)
     return score, person
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("extra", [{}, {"baseline_height_mm": 3.0}], ids=["v3", "like-thickness"])
+def _practised_trial_002(params, *, seed, ff=None):
+    """A practice block (same phantom, its nodules shown) when the person practises, then the test trial."""
+    person = VirtualTissuePalpator(params)
+    if person.practises:
+        _trial_002(params, seed=seed + 100, ff=ff, person=person, practice=True)
+    return _trial_002(params, seed=seed, ff=ff, person=person)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("extra", [{}, {"baseline_height_mm": 3.0}, {"thickness_prior": "learn"}],
+                         ids=["v3", "like-thickness", "thickness-prior"])
 def test_force_feedback_without_force_loses_its_advantage(extra):
     person = {**PERSON_002, **extra}
-    working = [_trial_002(person, seed=s)[0] for s in (11, 12)]
-    broken = [_trial_002(person, seed=s, ff={"max_force_n": 0.01})[0] for s in (11, 12)]
+    working = [_practised_trial_002(person, seed=s)[0] for s in (11, 12)]
+    broken = [_practised_trial_002(person, seed=s, ff={"max_force_n": 0.01})[0] for s in (11, 12)]
     # of 4: compared at like depths nodule A feels ~2.5 times as stiff as its surroundings, and this person reports
     # only spots at least 0.4 as clear as the clearest, so A is reported in both trials and B (0.4-0.6) may not be
     assert sum(sc.nodules_found for sc in working) >= 2
@@ -296,5 +311,20 @@ def test_a_person_who_judges_spots_against_like_thickness_leaves_the_thin_corner
     person = {**PERSON_002, "tempo": 1.97, "z_threshold": 2.43, "report_fraction": 0.39, "max_reports": 3}
     old, _ = _trial_002(person, seed=12)
     new, _ = _trial_002({**person, "baseline_height_mm": 3.0}, seed=12)
+    assert (old.nodules_found, old.false_reports) == (2, 1)
+    assert (new.nodules_found, new.false_reports) == (2, 0)
+
+
+@pytest.mark.slow
+def test_a_person_who_learnt_how_firm_thin_tissue_feels_leaves_the_thin_corner_unreported():
+    # The same trial as above: without the prior the corner at (10, 6) is a third report. After a practice block on
+    # the same phantom (nodules shown) the person has learnt from its plain presses that the tissue feels firmer
+    # where it looks thinner (thickness_prior: learn, tissue_rim) and judges the corner against that expectation.
+    person = {**PERSON_002, "tempo": 1.97, "z_threshold": 2.43, "report_fraction": 0.39, "max_reports": 3}
+    old, _ = _trial_002(person, seed=12)
+    new, learner = _practised_trial_002({**person, "thickness_prior": "learn"}, seed=12)
+    line = learner.rim_learnt["haptic"]["force"]
+    assert line["b_per_mm"] < 0  # thinner looks firmer: what the plain practice presses showed
+    assert learner.learnt == {}  # practice: none: the cue weights stay untaught
     assert (old.nodules_found, old.false_reports) == (2, 1)
     assert (new.nodules_found, new.false_reports) == (2, 0)
