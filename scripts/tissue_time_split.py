@@ -18,6 +18,7 @@ and PHF+FF the slowest, where the paper's people were fastest with it; this says
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections import defaultdict
@@ -35,6 +36,8 @@ from studyctl.plugins.interfaces import TrialInfo
 from studyctl.scenes.tissue import StiffnessTissueScene
 
 PHASES = ("travel", "press", "dwell", "lift")
+# the press descent split where the watched point (cursor, else hand) is: above the visible surface or in the tissue
+PRESS_PARTS = ("press in air", "press in tissue")
 
 
 class Watched(VirtualTissuePalpator):
@@ -44,11 +47,31 @@ class Watched(VirtualTissuePalpator):
         super().begin_trial(info, rng)
         self.split: dict[tuple[str, str], float] = defaultdict(float)
         self.holds: list[tuple[str, float, float]] = []  # stage, planned hold, time held
+        # each press's descent: stage, time to the wanted depth, ended by the phase timeout, the push felt then
+        self.descents: list[tuple[str, float, bool, float]] = []
+        self._part = "setup"
 
     def act(self, t, percept):
-        # the tick's time belongs to the phase the person was in since its last tick
-        self.split[(getattr(self, "_stage", "setup"), self._phase)] += max(t - self._t_prev, 0.0)
-        return super().act(t, percept)
+        # the tick's time belongs to the phase (and press part) the person was in since its last tick
+        dt = max(t - self._t_prev, 0.0)
+        stage = getattr(self, "_stage", "setup")
+        self.split[(stage, self._phase)] += dt
+        self.split[(stage, self._part)] += dt
+        phase, phase_t = self._phase, self._phase_t
+        out = super().act(t, percept)
+        if phase == "press" and self._phase != "press":
+            force = math.sqrt(sum(float(percept.get(k, 0.0)) ** 2 for k in ("fx_n", "fy_n", "fz_n")))
+            timeout = phase_t + self._dt >= self.params["phase_timeout_s"]
+            self.descents.append((stage, phase_t + self._dt, timeout, force))
+        self._part = self._press_part(percept) if self._phase == "press" else ""
+        return out
+
+    def _press_part(self, percept) -> str:
+        view = percept.get("view") or {}
+        watched = view.get("cursor_mm") or (percept.get("x_mm"), percept.get("y_mm"), percept.get("z_mm"))
+        if watched[2] is None:
+            watched = self._hand
+        return PRESS_PARTS[0] if float(watched[2]) > self._press["h"] else PRESS_PARTS[1]
 
     def _record(self, press):
         self.holds.append((self._stage, press.get("hold", 0.0), self._phase_t))
@@ -83,8 +106,12 @@ def main(argv: list[str]) -> None:
         split: dict[tuple[str, str], float] = defaultdict(float)
         n = defaultdict(float)
         verdicts: dict[str, int] = defaultdict(int)
+        all_descents: list[tuple[str, float, bool, float]] = []
+        yields: list[float] = []
         for seed in range(100, 100 + seeds):
             person, out, score = trial(params, cond, seed)
+            all_descents += person.descents
+            yields.append(person._press_yield)
             for key, s in person.split.items():
                 split[key] += s
             for stage in ("survey", "follow_up"):
@@ -113,7 +140,15 @@ def main(argv: list[str]) -> None:
                    f"{n[f'{stage} planned hold s'] / presses:.2f} s, held {n[f'{stage} held s'] / presses:.2f} s"
                    ) if presses else ""
             print(f"  {stage:9s} {total:6.1f} s = {parts}; {presses / k:5.1f} presses{per}")
-        other = sum(s for (st, ph), s in split.items() if ph not in PHASES) / k
+            descents = [(d, to, f) for st, d, to, f in all_descents if st == stage]
+            if descents:
+                air, tissue = (split[(stage, part)] / k for part in PRESS_PARTS)
+                print(f"  {'':9s} press = in air {air:5.1f} + in tissue {tissue:5.1f} s; per descent "
+                      f"{sum(d for d, _, _ in descents) / len(descents):.2f} s, ended by the phase timeout "
+                      f"{sum(to for _, to, _ in descents) / len(descents):.0%}"
+                      f", push felt at the bottom {sum(f for *_, f in descents) / len(descents):.2f} N; learnt press "
+                      f"yield at the trial's end {sum(yields) / len(yields):.2f}")
+        other = sum(s for (st, ph), s in split.items() if ph not in PHASES + PRESS_PARTS + ("",)) / k
         print(f"  other (setup, decide, report) {other:.2f} s")
         print("  " + ", ".join(f"{key} {val / k:.2f}" for key, val in n.items() if "presses" not in key
                                and "hold" not in key and "held" not in key)

@@ -213,6 +213,7 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         # how far the watched point has gone into the tissue per millimetre the hand was told to press, as learnt
         # over this trial's presses (1: as in the air); the press is steered with the inverse as extra gain
         self._press_yield = 1.0
+        self._bottom_pushes: list[float] = []  # the push felt at each press's bottom so far (press_force_stop)
         # a sliding survey (slide_survey, where the cursor slows): the line each start point slides to
         self._slide_mode = False
         self._slide_ends: dict[tuple[float, float], tuple[float, float]] = {}
@@ -364,6 +365,15 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         # positional: a frozen dataclass built from keywords costs twice as much, once per tick
         return Action({"x_mm": h[0], "y_mm": h[1], "z_mm": h[2]})
 
+    def _push_reached(self, cursor, force: float) -> bool:
+        """``press_force_stop``: where a cursor shows the press and a push is felt, the felt push reaching its
+        fraction of the median bottom push of this trial's earlier presses ends the press as the cursor reaching the
+        wanted depth does (redundant signals, Miller 1982). Off (0) by default; nothing felt never ends a press."""
+        stop = self.params["press_force_stop"]
+        if stop <= 0 or cursor is None or force <= 0.02 or len(self._bottom_pushes) < 3:
+            return False
+        return force >= stop * float(np.median(self._bottom_pushes))
+
     def _inputs(self) -> dict[str, float]:
         h = self._hand
         return {"x_mm": h[0], "y_mm": h[1], "z_mm": h[2]}
@@ -420,7 +430,7 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             near = steer[2] <= self._target[2] + p["tolerance_mm"]
             if p["press_adaptation"] > 0 and "in_at" not in press and steer[2] <= press["h"]:
                 press["in_at"] = (steer[2], self._hand[2])  # the steered point enters the tissue (adaptation only)
-            if near or timed_out or force >= p["max_press_force_n"]:
+            if near or timed_out or force >= p["max_press_force_n"] or self._push_reached(cursor, force):
                 self._adapt_press_gain(press, steer)
                 if self._slide_start(press, ctrl):
                     return
@@ -428,6 +438,8 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
                 press["bx"], press["by"], press["bz"] = ctrl[0], ctrl[1], ctrl[2]
                 press["hold"] = self._hold_time(press, force)
                 press["w_t"], press["w_c"], press["w_felt"], press["w_since"] = [], [], 0.0, None
+                if force > 0.02:  # the push felt at this press's bottom (press_force_stop's reference)
+                    self._bottom_pushes.append(force)
         elif phase == "dwell":
             # the force and indentation held at the bottom, averaged over the hold (judged from the terminal
             # force, Tan et al. 1995), so a transient of the hand's own dynamics does not count as stiffness

@@ -142,6 +142,11 @@ PARAMS = (
           source="CHOSEN: practice presses within half a press spacing of each visible nodule (and twice as many "
           "on plain tissue)"),
     Param("max_press_force_n", 3.0, low=0.1, high=20.0, unit="N", source="CHOSEN: below the Omni's 3.3 N"),
+    Param("press_force_stop", 0.0, low=0.0, high=2.0,
+          source="CHOSEN: (0 = off, the default) with a felt push and a cursor both showing the press, it also ends "
+          "when the push reaches this fraction of the median push felt at the bottom of this trial's earlier "
+          "presses, whichever of the two signals comes first (redundant signals: a race of two cues, Miller 1982); "
+          "without it the press waits for the slowed cursor to reach the wanted depth"),
     # ---- decision
     Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm",
           source="CHOSEN: a spot is compared with the tissue around it"),

@@ -328,3 +328,20 @@ def test_a_person_who_learnt_how_firm_thin_tissue_feels_leaves_the_thin_corner_u
     assert learner.learnt == {}  # practice: none: the cue weights stay untaught
     assert (old.nodules_found, old.false_reports) == (2, 1)
     assert (new.nodules_found, new.false_reports) == (2, 0)
+
+
+def test_with_both_feedbacks_a_press_may_end_on_the_felt_push_before_the_slowed_cursor_reaches_depth():
+    """PHF+FF, press_force_stop 1 (off by default): the press ends on whichever signal comes first, the cursor at the
+    wanted depth or the push reaching the trial's usual bottom push, so it no longer waits for the cursor that
+    pseudo-haptics slows in the tissue; a broken FF (no force) gives no push to stop on and is still noticed."""
+    seen, seen_p = _trial_003(PERSON_003, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    raced, raced_p = _trial_003({**PERSON_003, "press_force_stop": 1.0}, seed=11, controller="PHF_FF",
+                                person_cls=_PressClock)
+    per_press = [p.spent_s / len(p._presses) for p in (seen_p, raced_p)]
+    # measured at this seed: 0.82 -> 0.75 s per press (the push reaches its usual level only near the bottom)
+    assert per_press[1] < 0.95 * per_press[0], per_press
+    assert raced.detection_time_s < seen.detection_time_s
+    assert VirtualTissuePalpator({}).params["press_force_stop"] == 0.0  # off by default
+    broken = _trial_003({**PERSON_003, "press_force_stop": 1.0}, seed=11, controller="FF",
+                        cparams={"max_force_n": 0.01})
+    assert broken[0].nodules_found == 0
