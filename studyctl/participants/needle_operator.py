@@ -60,7 +60,7 @@ from studyctl.participants.needle_params import DEFAULTS, PARAMS, OperatorParams
 from studyctl.participants.needle_perception import PositionSense, feel_force
 from studyctl.participants.needle_questionnaire import judge_item
 from studyctl.participants.needle_senses import OperatorSenses
-from studyctl.participants.needle_trial import Line, MinJerk, Phase, TrialState, learn_trust
+from studyctl.participants.needle_trial import Line, MinJerk, Phase, TrialState
 from studyctl.plugins.interfaces import Action, Participant, Request, TrialInfo
 
 __all__ = ["DEFAULTS", "PARAMS", "OperatorParams", "Phase", "VirtualNeedleOperator"]
@@ -88,21 +88,27 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         self.wall_k: dict[str, float] = {}
         # scenario labels whose channel it has pushed against on purpose (``probe_mm``: once per scenario)
         self.probed: set[str] = set()
+        # scenario labels in which it has felt a clear axial cue (``cue_by_feel``; empty otherwise)
+        self.clear_cue_in: set[str] = set()
         self.s: TrialState | None = None
 
     # ------------------------------------------------------------------ session and trial set-up
     def memory(self) -> dict[str, Any]:
         """What it has learnt to trust per scenario, and its own trial record, stored by the engine with each
         finished trial: a session resumed in a new process goes on as the uninterrupted one would."""
-        return {"trust_cue": dict(self.trust_cue), "trust_guide": dict(self.trust_guide),
-                "wall_k": dict(self.wall_k), "probed": sorted(self.probed),
-                "history": [dict(r) for r in self.history]}
+        memory = {"trust_cue": dict(self.trust_cue), "trust_guide": dict(self.trust_guide),
+                  "wall_k": dict(self.wall_k), "probed": sorted(self.probed),
+                  "history": [dict(r) for r in self.history]}
+        if self.clear_cue_in:  # only with cue_by_feel: the stored memory of other sessions stays as it was
+            memory["clear_cue_in"] = sorted(self.clear_cue_in)
+        return memory
 
     def recall(self, memory: Mapping[str, Any]) -> None:
         self.trust_cue = {str(k): float(v) for k, v in (memory.get("trust_cue") or {}).items()}
         self.trust_guide = {str(k): float(v) for k, v in (memory.get("trust_guide") or {}).items()}
         self.wall_k = {str(k): float(v) for k, v in (memory.get("wall_k") or {}).items()}
         self.probed = {str(k) for k in (memory.get("probed") or [])}
+        self.clear_cue_in = {str(k) for k in (memory.get("clear_cue_in") or [])}
         self.history = [dict(r) for r in (memory.get("history") or [])]
 
     def begin_trial(self, info: TrialInfo, rng: np.random.Generator) -> None:
@@ -286,6 +292,7 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
             else:
                 # a force cue: stop, hold, relax the push
                 st.cue_on_correction = st.stop_reason == "correct"
+                self._felt_clear_cue()  # with cue_by_feel, a clear one marks this scenario as giving it
                 return self._stop(t, percept, "cue")
         mv = st.move
         if not isinstance(mv, Line):
@@ -447,7 +454,7 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         # a cue felt on the leg just ended but too late to stop on (``cue_learn_late``): the scan judges it as well
         late = seen and st.stop_reason != "cue" and st.cue.felt and p.cue_learn_late >= 0.5
         if (st.stop_reason == "cue" and (seen or learn)) or late:  # was the felt cue the tumour? learn from it
-            learn_trust(self.trust_cue, st.info.condition, p.cue_trust_rate, miss <= 2.5 * p.accept_mm)
+            self._learn_from_cue(miss <= 2.5 * p.accept_mm)
         # after each correction it grows more lenient: a looser placement is accepted rather than a fourth try
         if miss <= p.accept_mm * (1.0 + 0.5 * st.corrections):
             return self._begin_finish(percept, t, "in_tumour")

@@ -139,6 +139,22 @@ PARAMS = (
                  "not be paced for stopping at an unseen depth (reliance follows trust, Lee & See 2004; the paper's "
                  "participants felt 'increased confidence in proceeding toward the target', Selim et al. 2024). "
                  "Faster, its hand slips more sideways (signal-dependent motor noise): the cost is simulated, not set"),
+    Param("cue_by_feel", 0.0, 0.0, 1.0, unit="0/1",
+          source="CHOSEN (0: off, trust in the axial cue is learnt per scenario label from any cue it stopped on): 1 "
+                 "makes the trust belong to the cue as felt, not to the scenario's name. Only a clear cue, one that "
+                 "rose to cue_clear_ratio times the rise it needed to notice, teaches trust: a rise near its own "
+                 "threshold cannot be told from the liver's own bumps, and natural tip forces are 'insufficient to "
+                 "clearly perceive and identify deep-tissue structures such as tumors' (Selim et al. 2024, who "
+                 "gave BL's tumour only slightly more friction and cutting force for that reason). A scenario in "
+                 "which it has felt a clear cue is trusted as far as that cue is (the enhanced tumour of ES and of "
+                 "ESG feels the same: trust learnt in one carries to the other once it has felt it there); one "
+                 "where it has felt only a faint one, or none, is not (Lee & See 2004: trust follows the aid's "
+                 "observed reliability)"),
+    Param("cue_clear_ratio", 2.0, 1.0, 10.0, unit="ratio",
+          source="CHOSEN: a felt cue is clear when its peak rise over the liver's baseline reached this many times "
+                 "the rise the person needed to notice it (max(force_threshold_n, force_weber x baseline)); at twice "
+                 "the detection threshold a force step is noticed nearly every time, at the threshold only some of the "
+                 "time (a psychometric function rises from chance to near certainty over about a factor of two)"),
     Param("guide_trust_rate", 0.8, 0.0, 1.0, unit="fraction",
           source="CHOSEN: learning rate of trust in a felt guidance channel, per trial in which it was felt"),
     Param("preentry_mm", 8.0, 0.0, 40.0, unit="mm",
@@ -192,6 +208,8 @@ class OperatorParams:
     cue_trust_rate: float
     cue_learn_late: float
     cue_reach: float
+    cue_by_feel: float
+    cue_clear_ratio: float
     guide_trust_rate: float
     preentry_mm: float
     home_x_mm: float

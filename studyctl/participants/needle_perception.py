@@ -123,16 +123,23 @@ class AxialCueDetector:
 
     On the first half of the path it learns what liver resistance feels like (kept for the whole trial);
     deeper, a rise above ``max(threshold, weber·|baseline|)`` held for ``hold_s`` is a cue. The start of a
-    push feels stiffer (stiction), so in its first 0.3 s it expects ~30 % more.
+    push feels stiffer (stiction), so in its first 0.3 s it expects ~30 % more. Once a cue is felt it also keeps
+    how clearly: the largest rise since (``peak``) over the rise it needed (``need``), :meth:`clearness`.
     """
 
-    __slots__ = ("baseline", "run_s", "felt", "settle_s")
+    __slots__ = ("baseline", "run_s", "felt", "settle_s", "peak", "need")
 
     def __init__(self) -> None:
         self.baseline: float | None = None
         self.run_s = 0.0
         self.felt = False
         self.settle_s = 0.0
+        self.peak = 0.0
+        self.need = 0.0
+
+    def clearness(self) -> float:
+        """How far above its own detection need the felt cue rose (peak rise / need; 0 when none was felt)."""
+        return self.peak / self.need if self.felt and self.need > 0.0 else 0.0
 
     def expect_change(self, settle_s: float = 0.5) -> None:
         """It has just sped up on purpose: the resistance it now feels rise is its own doing (it knows its own
@@ -168,10 +175,13 @@ class AxialCueDetector:
         need = max(threshold_n, weber * abs(self.baseline))
         if moving_s < 0.3:
             need += 0.3 * abs(self.baseline)
+        if self.felt:
+            self.peak = max(self.peak, rise)
         if rise > need:
             self.run_s += dt
             if self.run_s >= hold_s and not self.felt:
                 self.felt = True
+                self.peak, self.need = rise, need
                 return True
             return False
         self.run_s = 0.0

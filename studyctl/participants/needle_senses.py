@@ -18,7 +18,10 @@ from studyctl.participants.needle_params import OperatorParams, Vec
 from studyctl.participants.needle_perception import Plan, feel_force
 from studyctl.participants.needle_trial import Line, MinJerk, Phase, TrialState, learn_trust, norm
 
-__all__ = ["OperatorSenses"]
+__all__ = ["CLEAR_CUE", "OperatorSenses"]
+
+# with ``cue_by_feel``, the key of trust_cue that holds trust in a clear axial cue (scenario labels key it otherwise)
+CLEAR_CUE = "felt:clear"
 
 
 class OperatorSenses:
@@ -28,13 +31,38 @@ class OperatorSenses:
     trust_cue: dict[str, float]
     trust_guide: dict[str, float]
     wall_k: dict[str, float]
+    clear_cue_in: set[str]
 
     @property
     def _st(self) -> TrialState:  # provided by the operator
         raise NotImplementedError
 
     def _trusts_cue(self) -> bool:
-        return self.trust_cue.get(self._st.info.condition, 0.0) >= 0.5
+        label = self._st.info.condition
+        if self.p.cue_by_feel >= 0.5:
+            # trust belongs to the clear cue as felt, and a scenario is trusted once it has felt that cue there
+            return label in self.clear_cue_in and self.trust_cue.get(CLEAR_CUE, 0.0) >= 0.5
+        return self.trust_cue.get(label, 0.0) >= 0.5
+
+    def _learn_from_cue(self, confirmed: bool) -> None:
+        """A felt cue judged against an image: was it the tumour? (``confirmed``: the tip was at it).
+
+        Off ``cue_by_feel``, trust is kept per scenario label, whatever the cue felt like. On, only a clear cue
+        (``cue_clear_ratio``) teaches, and what it teaches is trust in that cue wherever it is felt; a faint one
+        teaches nothing, as it could not be told from the liver's own bumps."""
+        st, p = self._st, self.p
+        if p.cue_by_feel < 0.5:
+            learn_trust(self.trust_cue, st.info.condition, p.cue_trust_rate, confirmed)
+        elif self._felt_clear_cue():
+            learn_trust(self.trust_cue, CLEAR_CUE, p.cue_trust_rate, confirmed)
+
+    def _felt_clear_cue(self) -> bool:
+        """Was the cue just felt a clear one (``cue_by_feel``)? If so it remembers that this scenario gives it."""
+        st, p = self._st, self.p
+        if p.cue_by_feel < 0.5 or st.cue.clearness() < p.cue_clear_ratio:
+            return False
+        self.clear_cue_in.add(st.info.condition)
+        return True
 
     def _trusts_guide(self) -> bool:
         return self.trust_guide.get(self._st.info.condition, 0.0) >= 0.5

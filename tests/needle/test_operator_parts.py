@@ -13,6 +13,7 @@ from studyctl.errors import ModelParameterError
 from studyctl.participants import needle_operator as op_mod
 from studyctl.participants.needle_operator import PARAMS, OperatorParams, Phase, VirtualNeedleOperator
 from studyctl.participants.needle_perception import AxialCueDetector, PositionSense, feel_force
+from studyctl.participants.needle_senses import CLEAR_CUE
 from studyctl.plugins.interfaces import TrialInfo
 
 
@@ -312,3 +313,52 @@ def test_with_cue_reach_a_trusted_cue_lets_it_advance_at_its_reach_pace_and_feel
     assert st.move.v == pytest.approx(st.v_app)
     op._on_insert(1.1, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": -20.0 + op.p.margin_mm - 0.5})
     assert st.move.v == pytest.approx(st.v_ins)
+
+
+def test_with_cue_by_feel_only_a_clear_cue_teaches_trust_and_the_trust_goes_with_the_cue():
+    """A rise at the edge of what a person notices (BL's tumour: slightly more friction and cutting force) cannot
+    be told from the liver's own bumps; the enhanced tumour of ES and ESG is felt far above it. With ``cue_by_feel``
+    only a cue that rose to ``cue_clear_ratio`` times the rise the person needed teaches trust, and the trust is in
+    that cue: a scenario is trusted once the clear cue was felt there (ES's trust carries to ESG, not to BL). Off
+    (the default), any confirmed cue stop teaches trust in the scenario's label, however faint (session 33: one BL
+    person learnt to trust BL's tumour and then advanced faster in BL too)."""
+
+    def judged(params, label, clearness, op=None):
+        op = op or VirtualNeedleOperator({"cue_trust_rate": 0.8, **params})
+        op.begin_trial(TrialInfo(label, 90.0, 1000.0, "on_request"), np.random.default_rng(1))
+        op._make_plan((0.0, 0.0, -20.0), (0.0, 0.0, 35.0))
+        cue = op.s.cue
+        cue.felt, cue.need, cue.peak = True, 0.1, 0.1 * clearness
+        op.s.stop_reason = "cue"
+        op._judge(30.0, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": -19.5})  # the scan shows the tip at the tumour
+        return op
+
+    faint, clear = 1.3, 5.0
+    assert judged({}, "BL", faint).trust_cue == {"BL": pytest.approx(0.8)}  # default: a faint cue teaches trust
+    on = {"cue_by_feel": 1.0}
+    bl = judged(on, "BL", faint)
+    assert bl.trust_cue == {} and bl.clear_cue_in == set()
+    bl.begin_trial(TrialInfo("BL", 90.0, 1000.0, "on_request"), np.random.default_rng(2))
+    assert not bl._trusts_cue()
+    es = judged(on, "ES", clear)
+    assert es.trust_cue == {CLEAR_CUE: pytest.approx(0.8)} and es.clear_cue_in == {"ES"}
+    assert es._trusts_cue()
+    es.begin_trial(TrialInfo("ESG", 90.0, 1000.0, "on_request"), np.random.default_rng(3))
+    assert not es._trusts_cue()  # no cue felt in ESG yet
+    es.s.cue.felt, es.s.cue.need, es.s.cue.peak = True, 0.1, 0.1 * clear
+    assert es._felt_clear_cue() and es._trusts_cue()  # felt there: the trusted cue
+    resumed = VirtualNeedleOperator(on)
+    resumed.recall(es.memory())
+    assert resumed.clear_cue_in == {"ES", "ESG"} and resumed.trust_cue == es.trust_cue
+    assert "clear_cue_in" not in judged({}, "ES", clear).memory()  # off: the stored memory is as before
+
+
+def test_the_cue_detector_keeps_how_clearly_the_cue_rose():
+    """What cue_by_feel judges a cue by: the peak rise since it was felt over the rise it needed (0 before)."""
+    cue = AxialCueDetector()
+    for _ in range(60):  # learn the liver's 0.3 N on the first half, sliding steadily
+        cue.update(0.3, 10.0, 20.0, 1.0, 0.01, 0.1, 0.1)
+    assert cue.clearness() == 0.0
+    felt = [cue.update(f, 25.0, 20.0, 1.0, 0.01, 0.1, 0.1) for f in (0.45, 0.45, 0.45, 0.45, 0.45, 0.45, 0.8, 0.6)]
+    assert felt.count(True) == 1
+    assert cue.need == pytest.approx(0.1) and cue.clearness() == pytest.approx(5.0)
