@@ -322,7 +322,7 @@ def _cells_table(result: AnalysisResult) -> tuple[list[str], list, str]:
     body = [
         [
             _label_unit(plan, r["metric"]),
-            r["condition"],
+            "" if _isnan(r["condition"]) else r["condition"],  # an end-of-study questionnaire has none
             "" if _isnan(r["group"]) else r["group"],
             "" if _isnan(r["level"]) else r["level"],
             str(int(r["n"])),

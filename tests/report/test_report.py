@@ -408,3 +408,17 @@ def test_agreement_table_names_the_unit_of_values_in_it():
     head, body = agreement_table(frame, {"time": "s", "found": ""})
     metric = {row[0]: row[head.index("metric")] for row in body}
     assert metric == {"t_mean": "time (s)", "t_pct": "time", "f_prop": "found"}  # a % change is not in seconds
+
+
+def test_a_cell_with_no_condition_shows_an_empty_condition_not_nan(result):
+    """An end-of-study questionnaire belongs to no condition: its row in the descriptives table had 'nan' there."""
+    import dataclasses
+
+    from studyctl.report.document import _cells_table
+
+    cells = result.tables["cells"].copy()
+    cells.loc[cells.index[0], "condition"] = np.nan
+    head, body, _ = _cells_table(dataclasses.replace(result, tables={**result.tables, "cells": cells}))
+    column = head.index("condition")
+    assert body[0][column] == ""
+    assert "nan" not in {str(cell) for row in body for cell in row}
