@@ -381,12 +381,13 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
     def _observe_air(self, cursor, handle, ctrl) -> None:
         """Out of contact, how far the cursor moves per hand millimetre (the participant's sense of R₀)."""
         if cursor is not None and handle is not None and self._last_cursor is not None and self._height is not None:
-            h = self._height(cursor[0], cursor[1])
-            if not math.isfinite(h) or cursor[2] > h + 0.5:
-                dc = math.dist(cursor, self._last_cursor)
-                dh = math.dist(handle, self._last_handle)
-                if dh > 1e-3:
-                    self._air_dc.append(dc)
+            # the hand's travel first: a still hand (most press and dwell ticks) records nothing, so the surface
+            # under the cursor need not be looked up (the height is a pure function: the same pairs are kept)
+            dh = math.dist(handle, self._last_handle)
+            if dh > 1e-3:
+                h = self._height(cursor[0], cursor[1])
+                if not math.isfinite(h) or cursor[2] > h + 0.5:
+                    self._air_dc.append(math.dist(cursor, self._last_cursor))
                     self._air_dh.append(dh)
         self._last_cursor = cursor
         self._last_handle = handle

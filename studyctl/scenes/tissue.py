@@ -345,7 +345,12 @@ class StiffnessTissueScene(Scene):
         """``view({**a, **b, **c})`` without merging the three mappings: the trial loop's real-time view asks
         this every tick with the participant's inputs, the device's observation and the controller's
         diagnostics (a channel in a later mapping wins, as in the merged dict)."""
-        # The avatar when a controller publishes one, else the handle.
+        # The tissue controllers publish the avatar and depth in c (the last mapping, which wins): read them
+        # straight, five dict lookups instead of four _pick calls a tick; the general path below otherwise.
+        if "cursor_x_mm" in c and "cursor_y_mm" in c and "cursor_z_mm" in c and "tissue_depth_mm" in c:
+            cx, cy, cz, depth = c["cursor_x_mm"], c["cursor_y_mm"], c["cursor_z_mm"], c["tissue_depth_mm"]
+            if cx is not None and cy is not None and cz is not None:
+                return self._frame(cx, cy, cz, float(depth), a, b, c)
         cx = _pick("cursor_x_mm", a, b, c)
         if cx is _MISSING:
             cx = _pick("x_mm", a, b, c)
@@ -358,7 +363,10 @@ class StiffnessTissueScene(Scene):
         if cx is None or cy is None or cz is None or cx is _MISSING or cy is _MISSING or cz is _MISSING:
             return {"surface": self._surface_world, "cursor_mm": None}
         depth = _pick("tissue_depth_mm", a, b, c)
-        depth = float(0.0 if depth is _MISSING else depth)
+        return self._frame(cx, cy, cz, float(0.0 if depth is _MISSING else depth), a, b, c)
+
+    def _frame(self, cx: Any, cy: Any, cz: Any, depth: float, a: Channels, b: Channels, c: Channels) -> dict[str, Any]:
+        """The view of an avatar at (cx, cy, cz), ``depth`` into the tissue (see :meth:`view`)."""
         frame: dict[str, Any] = {
             "surface": self._surface_world,
             "cursor_mm": (float(cx), float(cy), float(cz)),
