@@ -54,9 +54,7 @@ def simulation_rates(plan: SessionPlan, factory: PluginFactory, sim_rate_hz: flo
     """Loop rate per condition for a simulated session capped at ``sim_rate_hz``: the conditions whose
     controller is ``rate_adjustable`` and faster than the cap (manual conditions and fixed-rate controllers
     keep their rates)."""
-    check_sim_rate(sim_rate_hz)
-    return {cid: float(sim_rate_hz) for cid, loop in feedback_loops(plan, factory).items()
-            if loop.adjustable and loop.rate_hz > sim_rate_hz}
+    return _slowed(feedback_loops(plan, factory), check_sim_rate(sim_rate_hz))
 
 
 def sample_plan(protocol: Any) -> SessionPlan:
@@ -86,8 +84,8 @@ def slowing_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
     protocol's rates (no rate-adjustable loop faster than the cap, e.g. seed 000's 50 Hz controllers)."""
     if sim_rate_hz is None:
         return None
-    loops = protocol_loops(protocol)
-    return None if _capped(loops, sim_rate_hz) == _capped(loops, None) else float(sim_rate_hz)
+    cap = check_sim_rate(sim_rate_hz)
+    return cap if _slowed(protocol_loops(protocol), cap) else None
 
 
 def default_sim_rate(protocol: Any) -> float | None:
@@ -96,11 +94,13 @@ def default_sim_rate(protocol: Any) -> float | None:
     return slowing_cap(protocol, SIM_RATE_HZ)
 
 
+def _slowed(loops: dict[str, FeedbackLoop], cap: float) -> dict[str, float]:
+    """The rule of a cap, on loops already built: the rate-adjustable loops faster than ``cap`` run at it."""
+    return {cid: cap for cid, loop in loops.items() if loop.adjustable and loop.rate_hz > cap}
+
+
 def _capped(loops: dict[str, FeedbackLoop], sim_rate_hz: float | None) -> dict[str, float]:
-    # The same rule as simulation_rates, on loops already built: one plan and one plugin load per question.
     rates = {cid: loop.rate_hz for cid, loop in loops.items()}
     if sim_rate_hz is not None:
-        check_sim_rate(sim_rate_hz)
-        rates.update({cid: float(sim_rate_hz) for cid, loop in loops.items()
-                      if loop.adjustable and loop.rate_hz > sim_rate_hz})
+        rates.update(_slowed(loops, check_sim_rate(sim_rate_hz)))
     return rates

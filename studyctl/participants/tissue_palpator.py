@@ -159,10 +159,9 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         if self.params["slide_fusion"] == "pooled":
             out["slid_cues"] = self._cue_learning.to_json()
         if self.practises:
-            out["practice"] = {cond: {name: dict(c) for name, c in cues.items()} for cond, cues in self.learnt.items()}
+            out["practice"] = _learnt_copy(self.learnt)
         if self._learns_rim:
-            out["thickness_prior"] = {cond: {name: dict(c) for name, c in cues.items()}
-                                      for cond, cues in self.rim_learnt.items()}
+            out["thickness_prior"] = _learnt_copy(self.rim_learnt)
         return out
 
     def recall(self, memory: Mapping[str, Any]) -> None:
@@ -480,6 +479,12 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             if self._goal_reached() or timed_out:
                 self._goal, self._settle_at = None, math.inf
                 self._next_press()
+
+
+def _learnt_copy(learnt: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict[str, dict[str, dict[str, float]]]:
+    """A copy of what practice taught, per condition and cue, for the session's memory (:func:`_learnt_from` reads
+    it back)."""
+    return {cond: {name: dict(c) for name, c in cues.items()} for cond, cues in learnt.items()}
 
 
 def _learnt_from(stored: Mapping[str, Any]) -> dict[str, dict[str, dict[str, float]]]:
