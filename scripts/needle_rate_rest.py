@@ -17,8 +17,6 @@ README's loop-rate paragraph).
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from studyctl.controllers.needle import flat_params
@@ -90,4 +88,6 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    from script_usage import argv_or_usage
+
+    main(argv_or_usage(__doc__))

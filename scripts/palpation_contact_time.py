@@ -201,4 +201,6 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    from script_usage import argv_or_usage
+
+    main(argv_or_usage(__doc__))

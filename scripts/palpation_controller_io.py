@@ -165,4 +165,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from script_usage import argv_or_usage
+
+    argv_or_usage(__doc__)
     main()

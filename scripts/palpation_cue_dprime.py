@@ -107,4 +107,7 @@ def main(n: int, disc_height_mm: float | None = None) -> None:
 
 
 if __name__ == "__main__":
+    from script_usage import argv_or_usage
+
+    argv_or_usage(__doc__)
     main(int(sys.argv[1]) if len(sys.argv) > 1 else 120, float(sys.argv[2]) if len(sys.argv) > 2 else None)

@@ -79,6 +79,9 @@ def main(path: str, f_crit: float) -> None:
 
 
 if __name__ == "__main__":
+    from script_usage import argv_or_usage
+
+    argv_or_usage(__doc__)
     if len(sys.argv) < 2:
         sys.exit("usage: python scripts/palpation_press_forces.py WORKSPACE/study.db [F_CRIT_N]")
     main(sys.argv[1], float(sys.argv[2]) if len(sys.argv) > 2 else 2.115)

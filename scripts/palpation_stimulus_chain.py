@@ -186,4 +186,7 @@ def main(n: int, depth_mm: float = 5.3) -> None:
 
 
 if __name__ == "__main__":
+    from script_usage import argv_or_usage
+
+    argv_or_usage(__doc__)
     main(int(sys.argv[1]) if len(sys.argv) > 1 else 40, float(sys.argv[2]) if len(sys.argv) > 2 else 5.3)

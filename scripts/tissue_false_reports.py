@@ -114,4 +114,6 @@ def main(workspaces: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main([a for a in sys.argv[1:] if not a.startswith("--")])
+    from script_usage import argv_or_usage
+
+    main([a for a in argv_or_usage(__doc__) if not a.startswith("--")])

@@ -17,7 +17,6 @@ median learnt cue excesses and weights. Why: stop 30 left the practice unbuilt; 
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
@@ -94,4 +93,6 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    from script_usage import argv_or_usage
+
+    main(argv_or_usage(__doc__))

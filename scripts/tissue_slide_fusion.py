@@ -15,7 +15,6 @@ reliability or pooled). Why: stop 29's per-trial reliability weights were mostly
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -82,4 +81,6 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    from script_usage import argv_or_usage
+
+    main(argv_or_usage(__doc__))

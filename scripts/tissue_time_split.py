@@ -19,7 +19,6 @@ and PHF+FF the slowest, where the paper's people were fastest with it; this says
 from __future__ import annotations
 
 import math
-import sys
 import time
 from collections import defaultdict
 
@@ -156,4 +155,6 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    from script_usage import argv_or_usage
+
+    main(argv_or_usage(__doc__))

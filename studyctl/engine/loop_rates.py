@@ -82,10 +82,18 @@ def loop_rates(protocol: Any, sim_rate_hz: float | None) -> dict[str, float]:
 def slowing_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
     """``sim_rate_hz`` when it slows one of ``protocol``'s feedback loops, else None: the sessions then run at the
     protocol's rates (no rate-adjustable loop faster than the cap, e.g. seed 000's 50 Hz controllers)."""
+    return capped_rates(protocol, sim_rate_hz)[1]
+
+
+def capped_rates(protocol: Any, sim_rate_hz: float | None) -> tuple[dict[str, float], float | None]:
+    """:func:`loop_rates` and :func:`slowing_cap` of ``protocol`` under ``sim_rate_hz`` together, from one build
+    of its loops (building them plans a session and loads every controller)."""
+    loops = protocol_loops(protocol)
     if sim_rate_hz is None:
-        return None
+        return _capped(loops, None), None
     cap = check_sim_rate(sim_rate_hz)
-    return cap if _slowed(protocol_loops(protocol), cap) else None
+    slowing = cap if _slowed(loops, cap) else None
+    return _capped(loops, slowing), slowing
 
 
 def default_sim_rate(protocol: Any) -> float | None:

@@ -16,7 +16,7 @@ from typing import Any
 import pandas as pd
 
 from studyctl.engine.api import run_session
-from studyctl.engine.loop_rates import check_sim_rate, loop_rates, slowing_cap
+from studyctl.engine.loop_rates import capped_rates, check_sim_rate
 from studyctl.errors import UsageError
 from studyctl.populations import SHIPPED, describe_choice
 from studyctl.populations import population_for as cohort_population  # re-exported for callers
@@ -100,8 +100,8 @@ def loop_rates_note(protocol: Any, sim_rate_hz: float) -> str:
     simulation of the loaded ``protocol`` capped at ``sim_rate_hz``: the protocol's rates when the cap slows none of
     its loops (a study with no rate-adjustable loop faster than it), so such a run is not silently taken for a
     capped one."""
-    cap = slowing_cap(protocol, sim_rate_hz)
-    return loop_rates_line(loop_rates(protocol, cap), cap, undo="leave --sim-rate-hz out")
+    rates, cap = capped_rates(protocol, sim_rate_hz)
+    return loop_rates_line(rates, cap, undo="leave --sim-rate-hz out")
 
 
 @dataclass(frozen=True)

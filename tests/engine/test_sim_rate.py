@@ -105,3 +105,22 @@ def test_the_unrolled_substeps_are_the_device_integration():
     for _ in range(7):
         devices[1]._integrate(devices[1]._dt)
     assert devices[0]._pos == devices[1]._pos and devices[0]._vel == devices[1]._vel
+
+
+def test_the_simulate_loop_rate_note_builds_the_protocols_loops_once(monkeypatch):
+    # building the loops plans a session and loads every controller; the note needs both the capped rates and
+    # whether the cap slows anything, which used to build them twice
+    from studyctl.engine import loop_rates as module
+    from studyctl.protocol import load_protocol, resolve_protocol
+    from studyctl.workflows.simulate import loop_rates_note
+
+    protocol = load_protocol(resolve_protocol("needle_insertion"))
+    built = []
+    real = module.protocol_loops
+    monkeypatch.setattr(module, "protocol_loops", lambda p: built.append(p) or real(p))
+    note = loop_rates_note(protocol, 250.0)
+    assert len(built) == 1
+    assert "250 Hz" in note and "leave --sim-rate-hz out" in note
+    built.clear()
+    assert "(the protocol's rates)" in loop_rates_note(load_protocol(resolve_protocol("bio_inspired_palpation")), 250.0)
+    assert len(built) == 1
