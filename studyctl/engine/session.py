@@ -299,10 +299,16 @@ class SessionRunner(TrialSteps):
 
     def _can_practise(self, step: Step) -> bool:
         """A person practises with the condition's feedback running (device and controller live): a person at the
-        terminal, or a virtual participant that practises (it learns what the feedback tells it on the example)."""
+        terminal, or a virtual participant that practises (it learns what the feedback tells it on the example).
+        In a manual condition a person practises on the real phantom while the familiarisation timer runs; a
+        virtual participant that asks for it (``practises_manual``; seed 002's transparent practice phantom)
+        palpates the example with the simulated bare finger, as it palpates the condition's trials."""
         cond = self.plan.conditions.get(step.condition) if step.condition else None
-        return ((self.virtual or self.ui.interactive) and cond is not None and not cond.manual
-                and bool(getattr(self.participant, "practises", False)) and bool(step.duration_s))
+        if cond is None or not step.duration_s:
+            return False
+        if cond.manual:
+            return self.virtual and bool(getattr(self.participant, "practises_manual", False))
+        return (self.virtual or self.ui.interactive) and bool(getattr(self.participant, "practises", False))
 
     def _practice_placement(self, step: Step) -> dict[str, Any]:
         """The example phantom: the items of the condition's trials at sites 1, 2, … (shown to the

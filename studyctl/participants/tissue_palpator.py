@@ -53,6 +53,9 @@ Practice (``practice``: weights or learn; off by default): the engine runs seed 
 feedback condition's test (``info.public["practice"]``, its nodules shown as ``marks``); the person presses near each
 mark and on plain tissue, learns per cue what a press near a nodule shows, and weights its press cues by that in the
 condition's test (:mod:`.tissue_practice`). What it learnt is its memory, so a resumed session goes on with it.
+With ``manual_practice: transparent`` (off by default) the engine also runs a manual condition's practice block
+(seed 002's transparent phantom: the nodules are seen), palpated with the bare finger; what the person learns there
+applies to that manual condition's test.
 
 Direct touch (manual conditions: the device's feedback says ``direct_touch``, the bare finger on the phantom):
 the finger also feels the surface deformation over the pad, the cue that carries most of the information in
@@ -146,6 +149,9 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         # thickness_prior: learn: the practice block also teaches how firm the tissue feels where it looks thin
         self._learns_rim = self.params["thickness_prior"] == "learn"
         self.practises = self.params["practice"] != "none" or self._learns_rim
+        # manual_practice: transparent: the engine also runs a manual condition's practice block (seed 002's
+        # transparent phantom, nodules seen) for this person, who palpates it with the bare finger
+        self.practises_manual = self.params["manual_practice"] == "transparent"
         # press_steer: felt: once a push is felt, a press is steered by the hand's travel, not the cursor's
         self._steer_felt = self.params["press_steer"] == "felt"
         self.learnt: dict[str, dict[str, dict[str, float]]] = {}
@@ -180,7 +186,8 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         self.info = info
         self.rng = rng
         # a practice block (its nodules shown as marks) for a person who learns from it; else a test trial
-        self._marks = list(info.public.get("marks") or ()) if self.practises and info.public.get("practice") else None
+        learns = self.practises or self.practises_manual
+        self._marks = list(info.public.get("marks") or ()) if learns and info.public.get("practice") else None
         self._ticks = 0
         self._t_prev = 0.0
         self._dt = 0.0

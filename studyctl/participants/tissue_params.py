@@ -138,6 +138,14 @@ PARAMS = (
           "does (mean excess over variance, Green & Swets 1966; learnt with feedback, Atkins, Fiser & Jacobs 2001); "
           "learn: also a re-palpated spot is tested against the faintest nodule's learnt excess (CHOSEN); none: the "
           "practice is skipped"),
+    Param("manual_practice", "none", kind=str, choices=("none", "transparent"), source=(
+        "CITED: the behaviour (seed 002 §V: 'Before the manual palpation experiment, participants were asked to do a "
+        "practice trial run palpating a transparent silicone phantom tissue with and without nodules inside') "
+        "transparent: the engine runs a manual condition's familiarisation as a practice block for this person, "
+        "who palpates the example phantom with the bare finger, its nodules seen (the scene's marks), and learns "
+        "there what practice and thickness_prior say, as in a feedback condition's practice; the practice phantom "
+        "is the trial's phantom (CHOSEN: the paper's transparent one is not described further); none: the "
+        "familiarisation is skipped")),
     Param("practice_presses", 4, low=1, high=20, kind=int,
           source="CHOSEN: practice presses within half a press spacing of each visible nodule (and twice as many "
           "on plain tissue)"),
