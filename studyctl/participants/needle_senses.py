@@ -65,6 +65,11 @@ class OperatorSenses:
         return True
 
     def _trusts_guide(self) -> bool:
+        # Kept per scenario label on purpose, unlike cue_by_feel: EG's and ESG's channels are not the same stimulus
+        # (Table 1: spring k_p 1000 N/m in both, damper k_d 70 vs 50 N·s/m), and a 40 % step in viscosity is above
+        # the Weber fractions people show for it (19-34 %, Jones, Hunter & Lafontaine 1997, Perception 26:1571),
+        # so trust in one channel need not carry to the other. It costs little: the probe of each scenario's
+        # first trial teaches the trust within that trial (session 35).
         return self.trust_guide.get(self._st.info.condition, 0.0) >= 0.5
 
     def _probing_channel(self) -> bool:
