@@ -1,6 +1,7 @@
 """How well what practice teaches tells each tumour class from sponge, by learner and by how many practice presses.
 
-Usage: ``python scripts/palpation_learnt_dprime.py [TRIALS]`` (default 24 per controller; ~25 s CPU).
+Usage: ``python scripts/palpation_learnt_dprime.py [TRIALS] [name=value ...]`` (default 24 per controller; ~25 s
+CPU); ``name=value`` overrides a palpator parameter of the typical person, e.g. ``practice_rule=until_learnt``.
 
 The shipped population's typical person (``palpation_practice_decision.py``'s) practises on the example phantom and then
 palpates, TRIALS times per controller (the broken-controller test's sites and seeds). Kept: every practice press's
@@ -81,8 +82,8 @@ def dprime(rows: list[dict], learnt) -> dict[str, float]:
 
 
 def main(argv: list[str]) -> None:
-    trials = int(argv[0]) if argv else 24
-    params = typical_person([])
+    trials = int(argv[0]) if argv and "=" not in argv[0] else 24
+    params = typical_person([a for a in argv if "=" in a])
     t0 = time.process_time()
     for controller_cls in (BioInspiredController, NoFeedback, LinearController, PiecewiseController):
         rows = capture(controller_cls, trials, params)

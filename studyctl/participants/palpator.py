@@ -190,10 +190,13 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
             return Action(requests=(Request("finish"),))
         self._note(percept)
         # Leave time to report before a time limit ends the trial.
-        if t >= self._report_by_s:
-            return self._decide_and_finish()
+        if t >= self._report_by_s:  # (a practice that reaches its limit still learns from what it pressed)
+            return self._learn_and_finish() if self._practice else self._decide_and_finish()
         while True:
             if self._seg_index >= len(self._plan) and self._practice:
+                if self._practise_more(t):
+                    self._seg_t0 = t
+                    continue
                 return self._learn_and_finish()
             if self._seg_index >= len(self._plan):
                 more = self._phase == "confirm" and self._rounds < self.params["confirm_rounds"]

@@ -118,6 +118,12 @@ PARAMS = (
           "against its move"),
     Param("practice_presses", 4, 1, 20, kind=int, source="CHOSEN: presses on each marked site in practice (and as "
           "many on plain sponge, at different cells); 3 sites x 4 + 12 plain presses take ~20 s of the 5 min"),
+    Param("practice_rule", "fixed", kind=str, choices=("fixed", "until_learnt"), source="CITED budget, CHOSEN rule: "
+          "how long each mark is practised. fixed: practice_presses presses on each mark. until_learnt: after those, "
+          "the person keeps pressing one mark at a time (each press followed by one on a plain cell) until on some cue "
+          "the mark differs from plain sponge by t >= 2 (the bar a cue must pass to be learnt at all) or its equal "
+          "share of the practice time left is used; the budget is the practice's time limit, the paper's up to 5 "
+          "min on the example phantom (Methods II.D.3)"),
     Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "
           "trials had 3 tumours; subjects were told to report)"),
     Param("cell_mm", 20.0, 1.0, 100.0, unit="mm", source="used when the trial's public info has no grid size"),

@@ -17,6 +17,9 @@ combined evidence is taken from the plain practice presses themselves, not from 
 noisy whichever form they take (README, "What practice learns"). ``cue_learning: by_mark`` (off by default) takes
 the tumour presses' variance within each marked site: the marks show which tumour is which (Methods II.D.3), so the
 spread between a hard and a soft mark is not press-to-press noise; measured, it barely moves what is learnt (README).
+``practice_rule: until_learnt`` (off by default) spends the paper's time as a person would: after the fixed presses it
+keeps pressing a mark that does not yet feel different from sponge (no cue at t ≥ 2) until it does or its share of
+the 5 min is used, a plain cell after each press; 4 presses a mark (~20 s) taught little about soft tumours (README).
 
 :class:`Familiarisation` is the palpator's side of it (a mixin of
 :class:`~studyctl.participants.palpator.VirtualPalpator`): which sites the practice presses, and the learning once
@@ -239,14 +242,52 @@ class Familiarisation:
         count = min(n * len(sites), len(plain))
         for i in sorted(self._rng.choice(len(plain), size=count, replace=False)):
             self._queue_probe(plain[i])
+        self._plain_cells = plain
+        self._to_learn = list(sites) if self.params["practice_rule"] == "until_learnt" else []
+        self._share_end: float | None = None
+
+    def _practise_more(self, t: float) -> bool:
+        """``practice_rule: until_learnt``, when the queued presses are done at practice time ``t``: press the mark
+        being learnt once more, and a plain cell after it, unless that mark is learnt (:meth:`_mark_learnt`) or its
+        share of the time left is used; then go on to the next mark. True when presses were queued.
+
+        The budget is the practice's own time limit (the protocol's 5 min, Methods II.D.3), less the margin the
+        palpator keeps before any time limit; each mark gets an equal share of what is left when its turn comes
+        (CHOSEN: time a mark learnt quickly goes to the marks after it). A pair is only started when it fits in the
+        share, its length taken as the practice's mean time per press so far."""
+        while self._to_learn:
+            cell, at = self._to_learn[0]
+            if self._share_end is None:
+                self._share_end = t + max(self._report_by_s - t, 0.0) / len(self._to_learn)
+            pair_s = 2.0 * t / max(len(self._press_logs), 1)
+            if t + pair_s <= self._share_end and not self._mark_learnt(cell):
+                self._queue_probe(cell, at)
+                self._queue_probe(self._plain_cells[int(self._rng.integers(len(self._plain_cells)))])
+                return True
+            self._to_learn.pop(0)
+            self._share_end = None
+        return False
+
+    def _mark_learnt(self, cell: tuple[int, int]) -> bool:
+        """What this mark feels like is learnt: on some cue its presses so far differ from the plain presses so far
+        by t ≥ MIN_T (the learner's own test, its variance within the mark: the person keeps pressing a mark until
+        it clearly feels different from sponge, the same bar a cue must pass to be used at all)."""
+        tumour = [logs for c, logs in self._press_logs if c == cell]
+        plain = [logs for c, logs in self._press_logs if c not in self._marked]
+        return bool(_diagonal_weights(tumour, plain, self._floor())[0])
+
+    def _floor(self) -> dict[str, float]:
+        """Per channel, the variance no cue can go below: the sense's own Weber noise squared."""
+        floor = {ch: sense.sigma**2 for ch, sense in self.senses.items()}
+        floor[VISUAL[0]] = self.senses["view"].sigma ** 2
+        return floor
 
     def _learn_and_finish(self) -> Action:
         """End of practice: learn the cue weights from the presses on the marks and on plain sponge, then finish."""
         tumour = [logs for cell, logs in self._press_logs if cell in self._marked]
         marks = [cell for cell, _ in self._press_logs if cell in self._marked]
         plain = [logs for cell, logs in self._press_logs if cell not in self._marked]
-        floor = {ch: sense.sigma**2 for ch, sense in self.senses.items()}
-        floor[VISUAL[0]] = self.senses["view"].sigma ** 2
+        floor = self._floor()
         # what the example phantom showed: this many marked tumours among its cells (the prior of the report rule)
         prior = len(self._marked) / max(self.columns * self.rows, 1)
         self.cues = learn_cue_weights(tumour, plain, floor, prior, self.params["cue_learning"], marks)

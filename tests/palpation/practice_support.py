@@ -24,8 +24,9 @@ def found(out, scene):
             for t in truth}
 
 
-def practise(person, controller_cls, seed, marks=True):
-    """One practice run as the engine gives it: the example phantom, its marks in the public info, finish allowed."""
+def practise(person, controller_cls, seed, marks=True, time_limit_s=300.0):
+    """One practice run as the engine gives it: the example phantom, its marks in the public info, finish allowed,
+    ``time_limit_s`` long at most (the protocol's 5 min)."""
     scene = SpongePhantomScene.build({}, {"sites": EXAMPLE}, frozenset({"view"}), np.random.default_rng(seed))
     device = SimulatedPalpationDevice({}, scene, np.random.default_rng(seed + 1))
     device.open()
@@ -37,7 +38,7 @@ def practise(person, controller_cls, seed, marks=True):
     def spy(t, sample):
         positions.append((sample["probe_x_mm"], sample["probe_y_mm"], sample["depth_mm"]))
 
-    out = run_trial(info=TrialInfo(controller_cls.name, 300.0, 50.0, public=public, visual="realtime"),
+    out = run_trial(info=TrialInfo(controller_cls.name, time_limit_s, 50.0, public=public, visual="realtime"),
                     controller=controller_cls({}, scene), device=device, participant=person, clock=SimulatedClock(),
                     rng=np.random.default_rng(seed + 2), view=scene.view, on_sample=spy)
     device.close()

@@ -117,6 +117,47 @@ def test_practice_presses_the_marks_and_plain_sponge_then_finishes():
     assert fresh.cues == person.cues
 
 
+def _presses_per_site(person):
+    """Practice presses on each marked cell, and on plain sponge."""
+    per = {cell: sum(c == cell for c, _ in person._press_logs) for cell in person._marked}
+    return per, sum(c not in person._marked for c, _ in person._press_logs)
+
+
+def test_until_learnt_keeps_pressing_a_mark_that_has_not_felt_different_yet():
+    """practice_rule until_learnt: after practice_presses on each mark, a mark that does not yet differ from sponge by
+    t >= 2 on any cue is pressed again (each time with a plain cell) until it does or its share of the 5 min is used;
+    a mark that already differs is left. Without feedback only the camera can tell, so a person presses far longer
+    than the fixed 4 a mark, and still within the practice's time and learning from it."""
+    fixed = VirtualPalpator({"familiarise": True})
+    practise(fixed, NoFeedback, seed=100)
+    assert _presses_per_site(fixed) == ({cell: 4 for cell in fixed._marked}, 12)
+    person = VirtualPalpator({"familiarise": True, "practice_rule": "until_learnt"})
+    out, _, _ = practise(person, NoFeedback, seed=100)
+    per, plain = _presses_per_site(person)
+    extra = sum(n - 4 for n in per.values())
+    assert min(per.values()) >= 4 and extra >= 20, per  # measured: 66 and 45 presses on two marks, 4 on one
+    assert plain == 12 + extra  # every extra press on a mark was followed by one on plain sponge
+    assert out.reports == [] and out.duration_s < 300.0 and person._finished
+    for cell, n in per.items():
+        if n > 4:  # pressed beyond the fixed round: stopped when learnt or out of its share of the time
+            learnt = person._mark_learnt(cell)
+            assert learnt or out.duration_s > 250.0, (cell, n)
+    # with linear feedback every mark feels different after the fixed round: nothing more to press
+    linear = VirtualPalpator({"familiarise": True, "practice_rule": "until_learnt"})
+    practise(linear, LinearController, seed=101)
+    assert _presses_per_site(linear) == ({cell: 4 for cell in linear._marked}, 12)
+    with pytest.raises(ModelParameterError, match="practice_rule"):
+        VirtualPalpator({"practice_rule": "forever"})
+
+
+def test_a_practice_that_reaches_its_time_limit_still_learns():
+    """A practice cut by its time limit ends in learning from the presses made, not in a trial's reports."""
+    person = VirtualPalpator({"familiarise": True})
+    out, _, _ = practise(person, LinearController, seed=3, time_limit_s=40.0)
+    assert out.reports == [] and person._finished
+    assert person.cues is not None and len(person._press_logs) < 24  # cut before its 12 + 12 presses were done
+
+
 def test_without_feedback_only_the_camera_can_be_learnt():
     person = VirtualPalpator({"familiarise": True})
     practise(person, NoFeedback, seed=4)
