@@ -380,6 +380,30 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             return False
         return force >= stop * float(np.median(self._bottom_pushes))
 
+    def _cursor_stalled(self, press: dict[str, Any], cursor) -> bool:
+        """``press_stall_stop``: with a cursor on screen, the press ends once the cursor, in the tissue, has gone down
+        less than that fraction of the hand's commanded descent over the last ``press_stall_s`` (a visible stall:
+        the pseudo-haptic slowing read as resistance) instead of being servoed through its last millimetre. The
+        hand's command is the person's own (efference copy), so a hand held back by rendered force stalls the cursor
+        too. Off (0) by default: no state is kept and no random number drawn."""
+        frac = self.params["press_stall_stop"]
+        if frac <= 0 or cursor is None:
+            return False
+        window = press.setdefault("stall", [])
+        now = self._phase_t
+        if cursor[2] > press["h"]:  # above the visible surface: descending in the air, nothing to read yet
+            window.clear()
+            return False
+        window.append((now, cursor[2], self._hand[2]))
+        span = self.params["press_stall_s"]
+        while len(window) > 1 and window[1][0] <= now - span:
+            window.pop(0)
+        t0, c0, h0 = window[0]
+        if now - t0 < span - 1e-9:
+            return False
+        told = h0 - self._hand[2]
+        return told > 0 and c0 - cursor[2] < frac * told
+
     def _inputs(self) -> dict[str, float]:
         h = self._hand
         return {"x_mm": h[0], "y_mm": h[1], "z_mm": h[2]}
@@ -437,7 +461,8 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             near = steer[2] <= self._target[2] + p["tolerance_mm"]
             if p["press_adaptation"] > 0 and "in_at" not in press and steer[2] <= press["h"]:
                 press["in_at"] = (steer[2], self._hand[2])  # the steered point enters the tissue (adaptation only)
-            if near or timed_out or force >= p["max_press_force_n"] or self._push_reached(cursor, force):
+            if (near or timed_out or force >= p["max_press_force_n"] or self._push_reached(cursor, force)
+                    or self._cursor_stalled(press, cursor)):
                 self._adapt_press_gain(press, steer)
                 if self._slide_start(press, ctrl):
                     return

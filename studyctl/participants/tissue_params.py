@@ -155,6 +155,19 @@ PARAMS = (
           "when the push reaches this fraction of the median push felt at the bottom of this trial's earlier "
           "presses, whichever of the two signals comes first (redundant signals: a race of two cues, Miller 1982); "
           "without it the press waits for the slowed cursor to reach the wanted depth"),
+    Param("press_stall_stop", 0.0, low=0.0, high=1.0, source=(
+        "CHOSEN: (0 = off, the default; 0.2 as the candidate, set before any run) with a cursor on screen, the "
+        "press also ends once the cursor, "
+        "in the tissue, has moved down less than this fraction of what the hand was commanded to move over the last "
+        "press_stall_s: it visibly stalls (pseudo-haptic slowing read as resistance, Lecuyer et al. 2000; seed 003 "
+        "2.4: resistance is felt when the cursor becomes slower than the user expects). 0.2 lies well below the "
+        "cursor's slowing at plain tissue, R_n/R_o = 1/(f_n + 1) ~ 0.55 for the ~0.8 N bottom push tissue_time_split "
+        "measured, "
+        "and far above the 5-10 % speed-discrimination Weber fraction (McKee 1981; De Bruyn & Orban 1988), so such a "
+        "stall is plainly seen; without it the press waits for the slowed cursor to reach the wanted depth")),
+    Param("press_stall_s", 0.1, low=0.02, high=1.0, unit="s",
+          source="CHOSEN: how long the cursor must stay stalled (press_stall_stop) before the press ends: about the "
+          "100 ms a change of a moving target's speed takes to be seen"),
     # ---- decision
     Param("baseline_radius_mm", 25.0, low=2.0, high=200.0, unit="mm",
           source="CHOSEN: a spot is compared with the tissue around it"),

@@ -345,3 +345,55 @@ def test_with_both_feedbacks_a_press_may_end_on_the_felt_push_before_the_slowed_
     broken = _trial_003({**PERSON_003, "press_force_stop": 1.0}, seed=11, controller="FF",
                         cparams={"max_force_n": 0.01})
     assert broken[0].nodules_found == 0
+
+
+def _stall_ticks(person, cursor_z, hand_z, dt=0.004):
+    """Feeds _cursor_stalled one press tick at a time (cursor depth seen, hand command given); returns each verdict."""
+    out = []
+    for c, h in zip(cursor_z, hand_z, strict=True):
+        person._phase_t += dt
+        person._hand = [0.0, 0.0, h]
+        out.append(person._cursor_stalled(person._press, (0.0, 0.0, c)))
+    return out
+
+
+def test_a_press_ends_when_the_cursor_in_the_tissue_visibly_stalls():
+    """press_stall_stop 0.2: the press ends once the cursor, below the visible surface, has gone down less than a fifth
+    of the hand's commanded descent over the last press_stall_s (0.1 s); a cursor slowed to half the hand (plain
+    tissue under pseudo-haptics) or still in the air does not end it, nor does a still hand."""
+    person = VirtualTissuePalpator({"press_stall_stop": 0.2})
+    person.begin_trial(TrialInfo(condition="PHF_FF", time_limit_s=10.0, rate_hz=250.0, visual="realtime", public={}),
+                       np.random.default_rng(0))
+    person._press, person._phase_t = {"h": 20.0}, 0.0
+    hand = [10.0 - 0.04 * k for k in range(60)]  # commanded down at 10 mm/s
+    # in the air (above the surface at 20 mm) the cursor stops: nothing to read yet
+    assert not any(_stall_ticks(person, [21.0] * 60, hand))
+    # in the tissue at half the hand's speed (plain tissue's pseudo-haptic slowing): no stall
+    assert not any(_stall_ticks(person, [19.0 - 0.02 * k for k in range(60)], hand))
+    # the cursor creeps at a tenth of the hand's command: a stall once 0.1 s of it is seen (25 ticks at 250 Hz)
+    person._press = {"h": 20.0}
+    seen = _stall_ticks(person, [19.0 - 0.004 * k for k in range(60)], hand)
+    assert seen.index(True) == 25 and all(seen[25:])
+    # a still hand (nothing commanded) never reads as a stall
+    person._press = {"h": 20.0}
+    assert not any(_stall_ticks(person, [19.0] * 60, [5.0] * 60))
+    off = VirtualTissuePalpator({})
+    assert off.params["press_stall_stop"] == 0.0  # off by default
+    off._press, off._phase_t = {"h": 20.0}, 0.0
+    assert not off._cursor_stalled(off._press, (0.0, 0.0, 19.0)) and "stall" not in off._press
+
+
+@pytest.mark.slow
+def test_with_a_cursor_a_press_that_ends_on_its_stall_is_quicker_and_broken_controllers_are_still_noticed():
+    """PHF+FF, press_stall_stop 0.2 (off by default): the press no longer servoes the slowed, pushed-back cursor
+    through its last millimetre, so presses and the trial are shorter; a broken FF (no force) and a PHF that never
+    slows the cursor give no stall to read beyond a hand without feedback and are still noticed."""
+    stall = {**PERSON_003, "press_stall_stop": 0.2}
+    seen, seen_p = _trial_003(PERSON_003, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    ended, ended_p = _trial_003(stall, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    per_press = [p.spent_s / len(p._presses) for p in (seen_p, ended_p)]
+    # measured at this seed: 0.82 -> 0.24 s per press, detection 236.7 -> 147.6 s (nodules found 3 -> 1)
+    assert per_press[1] < 0.5 * per_press[0], per_press
+    assert ended.detection_time_s < seen.detection_time_s
+    assert _trial_003(stall, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0].nodules_found == 0
+    assert _trial_003(stall, seed=11, controller="PHF", cparams={"delta_threshold_n": 10.0})[0].nodules_found == 0
