@@ -143,8 +143,17 @@ class AnalysisResult:
         return bool(self.problems) or any(r.status != "ok" for r in self.rows)
 
     def to_frame(self) -> pd.DataFrame:
-        """The tests table, columns :data:`ROW_COLUMNS`, in plan order."""
-        return rows_frame(self.rows)
+        """The tests table, columns :data:`ROW_COLUMNS`, in plan order (a fresh copy the caller may change).
+
+        Built once per result and copied after: a report asks for it about sixty times (headlines, methods,
+        intervals, tables), and each build deep-copies every row through ``asdict``. ``rows`` is a tuple of
+        frozen rows, so the table cannot go stale; ``dataclasses.replace`` makes a new result without it.
+        """
+        frame = self.__dict__.get("_frame")
+        if frame is None:
+            frame = rows_frame(self.rows)
+            object.__setattr__(self, "_frame", frame)
+        return frame.copy()
 
     def rows_for(self, test_id: str) -> list[TestRow]:
         return [r for r in self.rows if r.test_id == test_id]
