@@ -73,9 +73,13 @@ def figure_bytes(fig: Figure, fmt: str = "png") -> bytes:
     _wrap_title(fig)
     _panel_letters(fig)
     buf = io.BytesIO()
-    # Fixed metadata: the same figure gives the same bytes (no creation date in SVG/PDF).
+    # Fixed metadata: the same figure gives the same bytes (no creation date in SVG/PDF), and a fixed salt for the
+    # SVG element ids, which matplotlib otherwise salts with a random uuid per save.
     meta = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}[fmt]
-    fig.savefig(buf, format=fmt, dpi=DPI, metadata=meta)
+    import matplotlib
+
+    with matplotlib.rc_context({"svg.hashsalt": "studyctl"}):
+        fig.savefig(buf, format=fmt, dpi=DPI, metadata=meta)
     return buf.getvalue()
 
 

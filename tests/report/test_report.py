@@ -422,3 +422,20 @@ def test_a_cell_with_no_condition_shows_an_empty_condition_not_nan(result):
     column = head.index("condition")
     assert body[0][column] == ""
     assert "nan" not in {str(cell) for row in body for cell in row}
+
+
+@pytest.mark.parametrize("fmt", ["png", "svg", "pdf"])
+def test_the_same_figure_saves_to_the_same_bytes_in_every_format(fmt):
+    # matplotlib salts SVG element ids with a random uuid per save unless svg.hashsalt is set: two reports of the
+    # same study differed in every SVG
+    import matplotlib.pyplot as plt
+
+    from studyctl.report.figures import figure_bytes
+
+    fig, ax = plt.subplots()
+    ax.plot([1, 2, 3], [3, 1, 2])
+    ax.set_title("same figure")
+    try:
+        assert figure_bytes(fig, fmt) == figure_bytes(fig, fmt)
+    finally:
+        plt.close(fig)
