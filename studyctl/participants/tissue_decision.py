@@ -135,8 +135,9 @@ class SpotDecision:
             # what practice taught: plain tissue feels firmer where it looks thinner; each press is judged against
             # what it expected at the thickness it sees there (thickness_prior, tissue_rim)
             h = self._heights(pts)
-            cues = [(values / expected_firmness(rim[name], h), name) if name in rim else (values, name)
-                    for values, name in cues]
+            # (a flat line, rim_slope: physics_sign, expects the same firmness everywhere: nothing to correct)
+            cues = [(values / expected_firmness(rim[name], h), name) if name in rim and rim[name]["b_per_mm"] != 0.0
+                    else (values, name) for values, name in cues]
         d2 = ((pts[:, None, :] - pts[None, survey, :]) ** 2).sum(axis=2)
         near = d2 <= p["baseline_radius_mm"] ** 2
         if p["baseline_height_mm"] > 0:
@@ -297,7 +298,8 @@ class SpotDecision:
                 self.learnt[self.info.condition] = learn(scaled, mark) if scaled else {}
             if self.params["thickness_prior"] == "learn":
                 cues = self._cue_values(plain) if len(pts) >= 5 and plain.sum() >= 5 else []
-                self.rim_learnt[self.info.condition] = learn_rim(cues, plain, self._heights(pts))
+                self.rim_learnt[self.info.condition] = learn_rim(
+                    cues, plain, self._heights(pts), physics_sign=self.params["rim_slope"] == "physics_sign")
             return []
         ev = self._evidence()
         self.perceived.update(self._follow_up)

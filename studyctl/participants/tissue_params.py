@@ -179,6 +179,12 @@ PARAMS = (
         "presses the person learns how much firmer the tissue feels where it looks thinner (contrast on visible "
         "thickness, a line) and judges each test press against what that line expects there; the practice block "
         "runs even with practice: none, whose cue weights then stay untaught; none: off")),
+    Param("rim_slope", "as_learnt", kind=str, choices=("as_learnt", "physics_sign"), source=(
+        "CITED: the sign (a bonded thin layer over a rigid base indents less as it thins: Hayes et al. 1972, in "
+        "studyctl.participants.tissue_rim) physics_sign: the thickness_prior line is fitted with its slope held to "
+        "<= 0, so a person whose few practice presses show thinner tissue as softer or flat expects no thickness "
+        "effect (no correction) instead of the opposite of the physics; as_learnt: the slope as the presses give "
+        "it")),
     Param("cluster_radius_mm", 10.0, low=1.0, high=100.0, unit="mm", source="CHOSEN: a nodule's reach"),
     Param("z_threshold", 3.0, low=0.5, high=50.0,
           source="FITTED: confidence to report: a spot's averaged contrast in SDs of the press noise"),
