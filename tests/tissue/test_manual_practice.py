@@ -67,11 +67,18 @@ def test_after_the_transparent_practice_the_bare_finger_leaves_the_thin_corner_u
     assert (new.nodules_found, new.false_reports) == (2, 0)
 
 
+V4_SWITCHES = ("  thickness_prior: learn\n", "  rim_slope: physics_sign\n", "  manual_practice: transparent\n")
+
+
 def _population(tmp_path, name: str, fixed: str):
     from studyctl.populations import load_population_file, shipped_population_path
 
     text = shipped_population_path("data_driven_palpation").read_text()
     assert "fixed:\n" in text
+    # v4 ships the manual practice and the rim prior; take them out to get v3's people, then add ``fixed``
+    for line in V4_SWITCHES:
+        assert line in text
+        text = text.replace(line, "")
     path = tmp_path / f"{name}.yaml"
     path.write_text(text.replace("fixed:\n", "fixed:\n" + fixed))
     return load_population_file(path)
