@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
+from functools import cached_property
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
@@ -143,17 +144,15 @@ class AnalysisResult:
         return bool(self.problems) or any(r.status != "ok" for r in self.rows)
 
     def to_frame(self) -> pd.DataFrame:
-        """The tests table, columns :data:`ROW_COLUMNS`, in plan order (a fresh copy the caller may change).
+        """The tests table, columns :data:`ROW_COLUMNS`, in plan order (a fresh copy the caller may change)."""
+        return self._rows_frame.copy()
 
-        Built once per result and copied after: a report asks for it about sixty times (headlines, methods,
-        intervals, tables), and each build deep-copies every row through ``asdict``. ``rows`` is a tuple of
-        frozen rows, so the table cannot go stale; ``dataclasses.replace`` makes a new result without it.
-        """
-        frame = self.__dict__.get("_frame")
-        if frame is None:
-            frame = rows_frame(self.rows)
-            object.__setattr__(self, "_frame", frame)
-        return frame.copy()
+    @cached_property
+    def _rows_frame(self) -> pd.DataFrame:
+        # Built once per result: a report asks for the table about sixty times (headlines, methods, intervals,
+        # tables), and each build deep-copies every row through ``asdict``. ``rows`` is a tuple of frozen rows, so
+        # the table cannot go stale; ``dataclasses.replace`` makes a new result, which builds its own.
+        return rows_frame(self.rows)
 
     def rows_for(self, test_id: str) -> list[TestRow]:
         return [r for r in self.rows if r.test_id == test_id]

@@ -76,7 +76,7 @@ def protocol_loops(protocol: Any) -> dict[str, FeedbackLoop]:
 def loop_rates(protocol: Any, sim_rate_hz: float | None) -> dict[str, float]:
     """Per condition with a controller, the loop rate its simulated sessions run at under the cap ``sim_rate_hz``
     (None: the protocol's rates)."""
-    return _capped(protocol_loops(protocol), sim_rate_hz)
+    return capped_rates(protocol, sim_rate_hz)[0]
 
 
 def slowing_cap(protocol: Any, sim_rate_hz: float | None) -> float | None:
@@ -89,11 +89,9 @@ def capped_rates(protocol: Any, sim_rate_hz: float | None) -> tuple[dict[str, fl
     """:func:`loop_rates` and :func:`slowing_cap` of ``protocol`` under ``sim_rate_hz`` together, from one build
     of its loops (building them plans a session and loads every controller)."""
     loops = protocol_loops(protocol)
-    if sim_rate_hz is None:
-        return _capped(loops, None), None
-    cap = check_sim_rate(sim_rate_hz)
-    slowing = cap if _slowed(loops, cap) else None
-    return _capped(loops, slowing), slowing
+    slowed = {} if sim_rate_hz is None else _slowed(loops, check_sim_rate(sim_rate_hz))
+    rates = {cid: loop.rate_hz for cid, loop in loops.items()} | slowed
+    return rates, (float(sim_rate_hz) if slowed else None)
 
 
 def default_sim_rate(protocol: Any) -> float | None:
@@ -106,9 +104,3 @@ def _slowed(loops: dict[str, FeedbackLoop], cap: float) -> dict[str, float]:
     """The rule of a cap, on loops already built: the rate-adjustable loops faster than ``cap`` run at it."""
     return {cid: cap for cid, loop in loops.items() if loop.adjustable and loop.rate_hz > cap}
 
-
-def _capped(loops: dict[str, FeedbackLoop], sim_rate_hz: float | None) -> dict[str, float]:
-    rates = {cid: loop.rate_hz for cid, loop in loops.items()}
-    if sim_rate_hz is not None:
-        rates.update(_slowed(loops, check_sim_rate(sim_rate_hz)))
-    return rates
