@@ -83,7 +83,9 @@ def test_a_rehearsal_streams_markers_and_samples_to_lsl(study):
     # zero used to be taken before run_trial (before the participant's begin_trial, the controller's reset and the
     # watchdog thread's start), which put every stamp early by that setup: 191-357 us in 3 runs of this test on the
     # old code (load 3); 10-14 us after the fix (3 runs, same load: the sample's t is read just after the tick began).
-    # 100 us lies between the two.
+    # So the check is on the sign, not on a time: the old zero makes the stamp precede the tick that read the sample;
+    # how long after the tick began the read happens depends on the machine's load (150 us once under CI), and is
+    # bounded only by the board's 20 ms period (a later read would be the next tick's).
     with opened.store.reading() as db:
         last = db.scalars(select(Trial).where(Trial.session_id == result.session_id)
                           .order_by(Trial.id.desc())).first()
@@ -94,7 +96,8 @@ def test_a_rehearsal_streams_markers_and_samples_to_lsl(study):
     zeros = streamed - recorded
     assert np.ptp(zeros) < 1e-6, np.ptp(zeros)  # one time 0 for the whole trial, every sample at its own t
     first_tick = float(rt["first_tick_monotonic"])
-    assert abs(zeros[0] + recorded[1] - first_tick) < 1e-4, (zeros[0] + recorded[1] - first_tick) * 1e3
+    read_after_tick_s = zeros[0] + recorded[1] - first_tick
+    assert 0.0 <= read_after_tick_s < 1.0 / 50.0, read_after_tick_s * 1e6
 
 
 def test_the_device_stream_keeps_its_source_id_across_processes(tmp_path):
