@@ -57,6 +57,10 @@ With ``manual_practice: transparent`` (off by default) the engine also runs a ma
 (seed 002's transparent phantom: the nodules are seen), palpated with the bare finger; what the person learns there
 applies to that manual condition's test.
 
+Tool tempo (``tool_tempo``, off by default at 1): in a trial whose device feedback does not say ``direct_touch`` the
+hand holds a tool (seed 002's stylus), and the trial's tempo is multiplied by this person's factor, so how much a
+stylus slows a person varies between people instead of being the same ratio for everyone.
+
 Direct touch (manual conditions: the device's feedback says ``direct_touch``, the bare finger on the phantom):
 the finger also feels the surface deformation over the pad, the cue that carries most of the information in
 judging softness; it is fused with the force/displacement cue by inverse-variance weighting
@@ -230,6 +234,8 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         self.perceived: dict[str, Any] = {}
         self._slide_weights: dict[str, float] | None = None  # each slid cue's weight at the last look (diagnostics)
         self._motor = self._trial_motor(info, rng)
+        # tool_tempo: whether the hand holds a tool is known from the device's first feedback (direct_touch or not)
+        self._tool_checked = self.params["tool_tempo"] == 1.0
 
     def _trial_motor(self, info: TrialInfo, rng: np.random.Generator) -> dict[str, float]:
         """This trial's movement speeds: the person's tempo, grown with practice over the session's trials and
@@ -340,6 +346,10 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         ctrl = cursor if cursor is not None else (handle if handle is not None else tuple(self._hand))
         if percept.get("direct_touch"):
             self._direct = True
+        if not self._tool_checked and handle is not None:
+            self._tool_checked = True
+            if not self._direct:
+                self._motor = _with_tempo(self._motor, self.params["tool_tempo"])
         force = 0.0
         if "fx_n" in percept:
             force = math.sqrt(percept["fx_n"] ** 2 + percept["fy_n"] ** 2 + percept["fz_n"] ** 2)
@@ -511,6 +521,13 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             if self._goal_reached() or timed_out:
                 self._goal, self._settle_at = None, math.inf
                 self._next_press()
+
+
+def _with_tempo(motor: Mapping[str, float], factor: float) -> dict[str, float]:
+    """The trial's motor speeds at ``factor`` times its tempo (tool_tempo: a stylus in the hand); the hand-eye gain
+    is not a matter of tempo, as in ``_trial_motor``."""
+    return {**motor, "tempo": motor["tempo"] * factor, "move": motor["move"] * factor,
+            "press": motor["press"] * factor, "settle": motor["settle"] / factor, "dwell": motor["dwell"] / factor}
 
 
 def _learnt_copy(learnt: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict[str, dict[str, dict[str, float]]]:

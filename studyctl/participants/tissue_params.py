@@ -26,6 +26,11 @@ PARAMS = (
     Param("tempo", 1.0, low=0.1, high=10.0,
           source="FITTED: a person's motor tempo (between-subject trait): multiplies the move and press speeds and "
           "divides the settle time and the shortest dwell"),
+    Param("tool_tempo", 1.0, low=0.2, high=5.0, source=(
+        "CHOSEN: a person's tempo with a tool in the hand (a stylus: the device's feedback does not say direct_touch) "
+        "relative to its bare-finger tempo; multiplies the tempo in such trials (a between-subject trait: people "
+        "differ in how much a stylus slows them, so haptic and manual times per person are not one fixed ratio); "
+        "1: the same tempo with and without a tool")),
     Param("tempo_trial_cv", 0.0, low=0.0, high=1.0,
           source="CHOSEN: trial-to-trial (within-person) variation of the tempo, log-normal with this CV, drawn "
           "from the trial's stream"),

@@ -78,8 +78,10 @@ def _practised_trial_002(params, *, seed, ff=None):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("extra", [{}, {"baseline_height_mm": 3.0}, {"thickness_prior": "learn"},
-                                   {"thickness_prior": "learn", "rim_slope": "physics_sign"}],
-                         ids=["v3", "like-thickness", "thickness-prior", "thickness-prior-physics-sign"])
+                                   {"thickness_prior": "learn", "rim_slope": "physics_sign"},
+                                   {"tool_tempo": 0.7}],
+                         ids=["v3", "like-thickness", "thickness-prior", "thickness-prior-physics-sign",
+                              "slower-with-stylus"])
 def test_force_feedback_without_force_loses_its_advantage(extra):
     person = {**PERSON_002, **extra}
     working = [_practised_trial_002(person, seed=s)[0] for s in (11, 12)]
