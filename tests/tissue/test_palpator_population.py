@@ -417,3 +417,17 @@ def test_with_a_cursor_a_press_that_ends_on_its_stall_is_quicker_and_broken_cont
     assert ended.detection_time_s < seen.detection_time_s
     assert _trial_003(stall, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0].nodules_found == 0
     assert _trial_003(stall, seed=11, controller="PHF", cparams={"delta_threshold_n": 10.0})[0].nodules_found == 0
+
+
+@pytest.mark.slow
+def test_with_a_cursor_a_press_ended_by_the_hands_travel_is_quicker_and_broken_controllers_are_still_noticed():
+    """PHF+FF, press_hand_stop 1.0 (off by default): the press ends once the hand has gone the wanted depth in the
+    tissue instead of servoing the slowed, pushed-back cursor there, so presses are shorter; a broken FF (no force)
+    and a PHF that never slows the cursor are still noticed (nothing found)."""
+    hand = {**PERSON_003, "press_hand_stop": 1.0}
+    seen, seen_p = _trial_003(PERSON_003, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    ended, ended_p = _trial_003(hand, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    per_press = [p.spent_s / len(p._presses) for p in (seen_p, ended_p)]
+    assert per_press[1] < per_press[0], per_press
+    assert _trial_003(hand, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0].nodules_found == 0
+    assert _trial_003(hand, seed=11, controller="PHF", cparams={"delta_threshold_n": 10.0})[0].nodules_found == 0
