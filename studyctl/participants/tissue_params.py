@@ -170,6 +170,15 @@ PARAMS = (
         "measured, "
         "and far above the 5-10 % speed-discrimination Weber fraction (McKee 1981; De Bruyn & Orban 1988), so such a "
         "stall is plainly seen; without it the press waits for the slowed cursor to reach the wanted depth")),
+    Param("press_hand_stop", 0.0, low=0.0, high=5.0, source=(
+        "CHOSEN: (0 = off, the default; 1.0 as the landing-rule candidate) with a cursor on screen, the press "
+        "also ends once the hand itself (its position sense; pseudo-haptic slowing changes the cursor, not the hand) "
+        "has gone down this multiple of the wanted depth since the cursor entered the visible tissue, instead of "
+        "servoing the slowed cursor through its last millimetre (visual vs proprioceptive control, Lecuyer et al. "
+        "2000). 1.0: the hand goes the depth it wants. First chosen was 1.8 = 1/0.55 (the cursor's slowing at plain "
+        "tissue, 1/(f_n + 1) at the ~0.8 N bottom push, s34) to keep the cursor's depth, but the typical person's "
+        "split showed that 1.8 and 1.4 never fire (the slowed cursor reaches depth first), so 1.0 was taken before "
+        "any landing-rule run")),
     Param("press_stall_s", 0.1, low=0.02, high=1.0, unit="s",
           source="CHOSEN: how long the cursor must stay stalled (press_stall_stop) before the press ends: about the "
           "100 ms a change of a moving target's speed takes to be seen"),

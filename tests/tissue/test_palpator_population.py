@@ -386,6 +386,25 @@ def test_a_press_ends_when_the_cursor_in_the_tissue_visibly_stalls():
     assert not off._cursor_stalled(off._press, (0.0, 0.0, 19.0)) and "stall" not in off._press
 
 
+def test_a_press_ends_when_the_hand_has_travelled_its_multiple_of_the_wanted_depth():
+    """press_hand_stop 1.8: with a cursor on screen, the press ends once the hand (not the slowed cursor) has gone
+    down 1.8 times the wanted depth since the cursor entered the visible tissue; the hand's travel in the air does
+    not count, and without a cursor (manual, FF: no slowing to make up for) nothing changes."""
+    person = VirtualTissuePalpator({"press_hand_stop": 1.8})
+    person._target = (0.0, 0.0, 16.0)  # wanted depth 4 mm under the surface at 20 mm: the hand goes 7.2 mm
+    press = {"h": 20.0}
+    assert not person._hand_travelled(press, (0.0, 0.0, 20.5), (0.0, 0.0, 30.0))  # cursor in the air
+    assert not person._hand_travelled(press, (0.0, 0.0, 19.9), (0.0, 0.0, 25.0))  # entry: hand at 25 mm
+    assert not person._hand_travelled(press, (0.0, 0.0, 17.0), (0.0, 0.0, 17.9))  # 7.1 mm of hand travel
+    assert person._hand_travelled(press, (0.0, 0.0, 16.8), (0.0, 0.0, 17.7))  # 7.3 mm: the press has ended
+    assert not person._hand_travelled({"h": 20.0}, None, (0.0, 0.0, 0.0))  # no cursor: never
+    off = VirtualTissuePalpator({})
+    off._target = (0.0, 0.0, 16.0)
+    assert off.params["press_hand_stop"] == 0.0  # off by default
+    press = {"h": 20.0}
+    assert not off._hand_travelled(press, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0)) and "hand_in" not in press
+
+
 @pytest.mark.slow
 def test_with_a_cursor_a_press_that_ends_on_its_stall_is_quicker_and_broken_controllers_are_still_noticed():
     """PHF+FF, press_stall_stop 0.2 (off by default): the press no longer servoes the slowed, pushed-back cursor
@@ -400,3 +419,17 @@ def test_with_a_cursor_a_press_that_ends_on_its_stall_is_quicker_and_broken_cont
     assert ended.detection_time_s < seen.detection_time_s
     assert _trial_003(stall, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0].nodules_found == 0
     assert _trial_003(stall, seed=11, controller="PHF", cparams={"delta_threshold_n": 10.0})[0].nodules_found == 0
+
+
+@pytest.mark.slow
+def test_with_a_cursor_a_press_ended_by_the_hands_travel_is_quicker_and_broken_controllers_are_still_noticed():
+    """PHF+FF, press_hand_stop 1.0 (off by default): the press ends once the hand has gone the wanted depth in the
+    tissue instead of servoing the slowed, pushed-back cursor there, so presses are shorter; a broken FF (no force)
+    and a PHF that never slows the cursor are still noticed (nothing found)."""
+    hand = {**PERSON_003, "press_hand_stop": 1.0}
+    seen, seen_p = _trial_003(PERSON_003, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    ended, ended_p = _trial_003(hand, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    per_press = [p.spent_s / len(p._presses) for p in (seen_p, ended_p)]
+    assert per_press[1] < per_press[0], per_press
+    assert _trial_003(hand, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0].nodules_found == 0
+    assert _trial_003(hand, seed=11, controller="PHF", cparams={"delta_threshold_n": 10.0})[0].nodules_found == 0
