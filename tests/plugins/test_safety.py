@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+from polling import wait_for
 
 from studyctl.engine.clock import SimulatedClock
 from studyctl.engine.trial_loop import FAULT_ABORT_S, run_trial
@@ -137,16 +138,20 @@ def test_sensor_problems_hold_the_safe_state(obs, cause):
 
 
 def test_watchdog_thread_trips_once_until_kicked():
+    # The trips are waited for, not slept for: on a loaded machine a 0.02 s sleep after kick() can outlast the
+    # 0.2 s timeout (then a second trip is right) and a 0.6 s sleep can end before the thread has run. Load only
+    # delays a trip, so "not twice without a kick" and "not sooner than a timeout after the kick" stay exact.
     calls = []
-    dog = Watchdog(0.2, calls.append).start()
+    dog = Watchdog(0.2, lambda late: calls.append((late, time.monotonic()))).start()
     try:
-        time.sleep(0.6)
-        assert len(calls) == 1 and calls[0] > 0.2
-        dog.kick()
-        time.sleep(0.02)
+        wait_for(lambda: calls, timeout=10.0, what="the first trip")
+        assert calls[0][0] > 0.2
+        time.sleep(0.6)  # three more timeouts without a kick: still one trip
         assert len(calls) == 1
-        time.sleep(0.6)
-        assert len(calls) == 2
+        kicked = time.monotonic()
+        dog.kick()
+        wait_for(lambda: len(calls) == 2, timeout=10.0, what="a trip after the kick re-armed it")
+        assert calls[1][0] > 0.2 and calls[1][1] - kicked > 0.2  # a full timeout after the kick, not at once
     finally:
         dog.stop()
     with pytest.raises(ValueError):
