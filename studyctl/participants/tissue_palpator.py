@@ -414,17 +414,21 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         told = h0 - self._hand[2]
         return told > 0 and c0 - cursor[2] < frac * told
 
-    def _hand_travelled(self, press: dict[str, Any], cursor, handle) -> bool:
+    def _hand_travelled(self, press: dict[str, Any], cursor, handle, force: float) -> bool:
         """``press_hand_stop``: with a cursor on screen, the press ends once the hand, by its own position sense, has
         gone down that multiple of the wanted depth since the cursor entered the visible tissue: the person presses
         by the hand's travel (which pseudo-haptic slowing leaves alone) rather than servoing the slowed cursor to
-        depth. Off (0) by default: no state is kept and no random number drawn."""
+        depth. With ``press_hand_stop_push_n`` it ends so only while a push of that much is felt: a hand held back
+        by a rendered force leaves the cursor near depth, while with pseudo-haptics alone nothing holds the hand and
+        the slowed cursor would be left short. Off (0) by default: no state is kept and no random number drawn."""
         gain = self.params["press_hand_stop"]
         if gain <= 0 or cursor is None or handle is None:
             return False
         if cursor[2] > press["h"]:  # the cursor is still above the visible surface: the press has not begun
             return False
         entry = press.setdefault("hand_in", handle[2])
+        if force < self.params["press_hand_stop_push_n"]:  # no push felt: the cursor alone shows the depth
+            return False
         return entry - handle[2] >= gain * (press["h"] - self._target[2])
 
     def _inputs(self) -> dict[str, float]:
@@ -485,7 +489,7 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             if p["press_adaptation"] > 0 and "in_at" not in press and steer[2] <= press["h"]:
                 press["in_at"] = (steer[2], self._hand[2])  # the steered point enters the tissue (adaptation only)
             if (near or timed_out or force >= p["max_press_force_n"] or self._push_reached(cursor, force)
-                    or self._cursor_stalled(press, cursor) or self._hand_travelled(press, cursor, handle)):
+                    or self._cursor_stalled(press, cursor) or self._hand_travelled(press, cursor, handle, force)):
                 self._adapt_press_gain(press, steer)
                 if self._slide_start(press, ctrl):
                     return

@@ -179,6 +179,13 @@ PARAMS = (
         "tissue, 1/(f_n + 1) at the ~0.8 N bottom push, s34) to keep the cursor's depth, but the typical person's "
         "split showed that 1.8 and 1.4 never fire (the slowed cursor reaches depth first), so 1.0 was taken before "
         "any landing-rule run")),
+    Param("press_hand_stop_push_n", 0.0, low=0.0, high=5.0, unit="N", source=(
+        "CHOSEN: (0 = no gate, the default; 0.02 as the landing-rule candidate, set before any run) press_hand_stop "
+        "ends a press only on a tick where the person feels a push of at least this through the device: where a "
+        "rendered force holds the hand back (FF, PHF+FF) the cursor is still near depth when the hand has gone it, "
+        "while with pseudo-haptics alone nothing holds the hand and the stop left the slowed cursor short (PHF "
+        "sensitivity 27 -> 15 % at seed 2024 without the gate). 0.02 N is the bar at which this participant already "
+        "counts a push as felt (bottom-push record); no cited stylus force detection threshold was found")),
     Param("press_stall_s", 0.1, low=0.02, high=1.0, unit="s",
           source="CHOSEN: how long the cursor must stay stalled (press_stall_stop) before the press ends: about the "
           "100 ms a change of a moving target's speed takes to be seen"),

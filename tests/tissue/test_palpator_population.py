@@ -393,16 +393,31 @@ def test_a_press_ends_when_the_hand_has_travelled_its_multiple_of_the_wanted_dep
     person = VirtualTissuePalpator({"press_hand_stop": 1.8})
     person._target = (0.0, 0.0, 16.0)  # wanted depth 4 mm under the surface at 20 mm: the hand goes 7.2 mm
     press = {"h": 20.0}
-    assert not person._hand_travelled(press, (0.0, 0.0, 20.5), (0.0, 0.0, 30.0))  # cursor in the air
-    assert not person._hand_travelled(press, (0.0, 0.0, 19.9), (0.0, 0.0, 25.0))  # entry: hand at 25 mm
-    assert not person._hand_travelled(press, (0.0, 0.0, 17.0), (0.0, 0.0, 17.9))  # 7.1 mm of hand travel
-    assert person._hand_travelled(press, (0.0, 0.0, 16.8), (0.0, 0.0, 17.7))  # 7.3 mm: the press has ended
-    assert not person._hand_travelled({"h": 20.0}, None, (0.0, 0.0, 0.0))  # no cursor: never
+    assert not person._hand_travelled(press, (0.0, 0.0, 20.5), (0.0, 0.0, 30.0), 0.0)  # cursor in the air
+    assert not person._hand_travelled(press, (0.0, 0.0, 19.9), (0.0, 0.0, 25.0), 0.0)  # entry: hand at 25 mm
+    assert not person._hand_travelled(press, (0.0, 0.0, 17.0), (0.0, 0.0, 17.9), 0.0)  # 7.1 mm of hand travel
+    assert person._hand_travelled(press, (0.0, 0.0, 16.8), (0.0, 0.0, 17.7), 0.0)  # 7.3 mm: the press has ended
+    assert not person._hand_travelled({"h": 20.0}, None, (0.0, 0.0, 0.0), 1.0)  # no cursor: never
     off = VirtualTissuePalpator({})
     off._target = (0.0, 0.0, 16.0)
     assert off.params["press_hand_stop"] == 0.0  # off by default
     press = {"h": 20.0}
-    assert not off._hand_travelled(press, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0)) and "hand_in" not in press
+    assert not off._hand_travelled(press, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0), 1.0) and "hand_in" not in press
+
+
+def test_with_the_push_gate_the_hands_travel_ends_a_press_only_where_a_push_is_felt():
+    """press_hand_stop_push_n 0.02: the hand-travel stop fires only on a tick where the person feels at least
+    0.02 N through the device (a rendered force holds the hand back); with pseudo-haptics alone (nothing felt) the
+    press goes on until the slowed cursor shows the depth. The hand's entry is still taken where the cursor enters."""
+    person = VirtualTissuePalpator({"press_hand_stop": 1.0, "press_hand_stop_push_n": 0.02})
+    person._target = (0.0, 0.0, 16.0)  # wanted depth 4 mm under the surface at 20 mm
+    press = {"h": 20.0}
+    assert not person._hand_travelled(press, (0.0, 0.0, 19.9), (0.0, 0.0, 25.0), 0.0)  # entry: hand at 25 mm
+    assert press["hand_in"] == 25.0
+    assert not person._hand_travelled(press, (0.0, 0.0, 18.0), (0.0, 0.0, 20.5), 0.0)  # 4.5 mm, nothing felt
+    assert not person._hand_travelled(press, (0.0, 0.0, 18.0), (0.0, 0.0, 20.5), 0.019)  # below the bar
+    assert person._hand_travelled(press, (0.0, 0.0, 18.0), (0.0, 0.0, 20.5), 0.3)  # a push felt: ended
+    assert VirtualTissuePalpator({}).params["press_hand_stop_push_n"] == 0.0  # no gate by default
 
 
 @pytest.mark.slow
@@ -433,3 +448,9 @@ def test_with_a_cursor_a_press_ended_by_the_hands_travel_is_quicker_and_broken_c
     assert per_press[1] < per_press[0], per_press
     assert _trial_003(hand, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0].nodules_found == 0
     assert _trial_003(hand, seed=11, controller="PHF", cparams={"delta_threshold_n": 10.0})[0].nodules_found == 0
+    # the push gate (0.02 N): still shorter where a push is felt, and broken controllers still noticed
+    gated = {**hand, "press_hand_stop_push_n": 0.02}
+    g_ended, g_p = _trial_003(gated, seed=11, controller="PHF_FF", person_cls=_PressClock)
+    assert g_p.spent_s / len(g_p._presses) < per_press[0]
+    assert _trial_003(gated, seed=11, controller="FF", cparams={"max_force_n": 0.01})[0].nodules_found == 0
+    assert _trial_003(gated, seed=11, controller="PHF", cparams={"delta_threshold_n": 10.0})[0].nodules_found == 0
