@@ -95,6 +95,12 @@ PARAMS = (
           source="CHOSEN: a lateral push this strong is felt as guidance (spread as force_threshold_n)"),
     Param("follow_gain_mm_per_ns", 3.0, 0.0, 20.0, unit="mm/(N·s)",
           source="CHOSEN: how readily it yields to a felt guidance force"),
+    Param("realtime_follow_weight", 1.0, 0.0, 1.0, unit="fraction",
+          source="CHOSEN (1: off, the push is followed as without the view): with the live view, the share of a felt "
+                 "lateral guidance push the hand still yields to. Seeing the tip, it takes its lateral position from "
+                 "the image, the more reliable cue, and discounts the felt push: cues combine weighted by their "
+                 "reliability and vision dominates when it is the more precise (Ernst & Banks 2002, Nature "
+                 "415:429-433)"),
     Param("wall_n", 0.3, 0.01, 5.0, unit="N",
           source="CHOSEN: a lateral force this strong feels like a firm channel wall"),
     Param("probe_mm", 0.0, 0.0, 5.0, unit="mm",
@@ -196,6 +202,7 @@ class OperatorParams:
     force_noise_n: float
     radial_threshold_n: float
     follow_gain_mm_per_ns: float
+    realtime_follow_weight: float
     wall_n: float
     probe_mm: float
     wall_travel_mm: float

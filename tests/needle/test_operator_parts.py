@@ -362,3 +362,26 @@ def test_the_cue_detector_keeps_how_clearly_the_cue_rose():
     felt = [cue.update(f, 25.0, 20.0, 1.0, 0.01, 0.1, 0.1) for f in (0.45, 0.45, 0.45, 0.45, 0.45, 0.45, 0.8, 0.6)]
     assert felt.count(True) == 1
     assert cue.need == pytest.approx(0.1) and cue.clearness() == pytest.approx(5.0)
+
+
+def _yield_to_a_push(params, visual):
+    """How far (mm) one decision moves the operator's reference sideways under a felt 0.3 N lateral push."""
+    op = VirtualNeedleOperator({"force_noise_n": 0.0, **params})
+    op.begin_trial(TrialInfo("BL", 90.0, 1000.0, visual), np.random.default_rng(1))
+    op.s.button = 1.0
+    op.s.axis = (0.0, 0.0, -1.0)
+    before = op.s.ref
+    op._perceive(0.0, {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0, "fx_n": 0.3, "fy_n": 0.0, "fz_n": 0.0})
+    return math.dist(before, op.s.ref)
+
+
+def test_with_the_live_view_a_felt_push_is_followed_by_its_weight():
+    """realtime_follow_weight 0 (1 = off, the default): seeing the tip live, the hand does not yield to a felt lateral
+    guidance push (vision dominant, Ernst & Banks 2002); between requested scans it still does, and by default the
+    live view changes nothing."""
+    followed = _yield_to_a_push({}, "on_request")
+    assert followed > 0.0
+    assert _yield_to_a_push({}, "realtime") == followed  # off by default
+    assert _yield_to_a_push({"realtime_follow_weight": 0.0}, "on_request") == followed  # no live view: as before
+    assert _yield_to_a_push({"realtime_follow_weight": 0.0}, "realtime") == 0.0
+    assert _yield_to_a_push({"realtime_follow_weight": 0.5}, "realtime") == pytest.approx(0.5 * followed)
