@@ -20,6 +20,8 @@ spread between a hard and a soft mark is not press-to-press noise; measured, it 
 ``practice_rule: until_learnt`` (off by default) spends the paper's time as a person would: after the fixed presses it
 keeps pressing a mark that does not yet feel different from sponge (no cue at t ≥ 2) until it does or its share of
 the 5 min is used, a plain cell after each press; 4 presses a mark (~20 s) taught little about soft tumours (README).
+With ``learnt_bar: combined`` (off by default) a mark is learnt only when the combined evidence the trial uses tells it
+from sponge at t ≥ 2, not when any one of ~11 cues does (README).
 
 :class:`Familiarisation` is the palpator's side of it (a mixin of
 :class:`~studyctl.participants.palpator.VirtualPalpator`): which sites the practice presses, and the learning once
@@ -214,6 +216,25 @@ def learn_cue_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Map
     return CueWeights(draft.keys, draft.weights, draft.centres, spread, separation, prior)
 
 
+def _combined_separates(logs: Sequence[tuple[Hashable, Mapping[Key, float]]], marked: Any, cell: Hashable,
+                        floor: Mapping[str, float], rule: str) -> bool:
+    """``learnt_bar: combined``: the evidence the trial will judge cells by — the cue weights learnt (by ``rule``)
+    from every practice press so far — is higher on ``cell``'s presses than on the plain presses by t ≥ MIN_T, in
+    the plain presses' spread. Stricter than one cue at t ≥ 2: the weights are set mostly by the marks that differ
+    most (hard, medium), so a soft mark counts as learnt only when what the person will go by tells it from sponge."""
+    tumour = [p for c, p in logs if c in marked and c != cell]
+    plain = [p for c, p in logs if c not in marked]
+    cues = learn_cue_weights(tumour, plain, floor, 0.0, rule, [c for c, _ in logs if c in marked and c != cell])
+    if cues is None:
+        return False
+    here = [v for v in (cues.combine(p) for c, p in logs if c == cell) if v is not None]
+    there = [v for v in (cues.combine(p) for p in plain) if v is not None]
+    if not here or len(there) < MIN_PRESSES:
+        return False
+    diff = sum(here) / len(here) - sum(there) / len(there)
+    return diff >= MIN_T * cues.spread * math.sqrt(1 / len(here) + 1 / len(there))
+
+
 class Familiarisation:
     """Mixin of :class:`~studyctl.participants.palpator.VirtualPalpator`: the practice run on the example phantom
     (``familiarise``): which sites it presses, and what it learns from them when the presses are done."""
@@ -274,6 +295,9 @@ class Familiarisation:
         it clearly feels different from sponge, the same bar a cue must pass to be used at all)."""
         tumour = [logs for c, logs in self._press_logs if c == cell]
         plain = [logs for c, logs in self._press_logs if c not in self._marked]
+        if self.params["learnt_bar"] == "combined":
+            return _combined_separates(self._press_logs, self._marked, cell, self._floor(),
+                                       self.params["cue_learning"])
         return bool(_diagonal_weights(tumour, plain, self._floor())[0])
 
     def _floor(self) -> dict[str, float]:

@@ -150,6 +150,30 @@ def test_until_learnt_keeps_pressing_a_mark_that_has_not_felt_different_yet():
         VirtualPalpator({"practice_rule": "forever"})
 
 
+def test_combined_bar_does_not_count_a_mark_learnt_on_a_cue_the_trial_will_not_use():
+    """learnt_bar combined: a mark is learnt only when the weights learnt from the other marks and plain sponge tell
+    its presses from plain by t >= 2. A soft mark that differs only on a cue the hard mark does not move passes the
+    any-cue bar (t ~ 5 on cue b) but not the combined one (the held-out weights are on cue a alone)."""
+    rng = np.random.default_rng(7)
+    a, b = ("vibration_ms2", "peak"), ("balloon_psi", "1")
+    hard, soft = (2, 2), (5, 5)
+    logs = [((1, 7), {a: rng.normal(0.0, 0.2), b: rng.normal(0.0, 0.2)}) for _ in range(12)]
+    logs += [(hard, {a: rng.normal(1.0, 0.2), b: rng.normal(0.0, 0.2)}) for _ in range(4)]
+    logs += [(soft, {a: rng.normal(0.0, 0.2), b: rng.normal(0.6, 0.2)}) for _ in range(4)]
+    learnt = {}
+    for bar in ("any_cue", "combined"):
+        person = VirtualPalpator({"familiarise": True, "practice_rule": "until_learnt", "learnt_bar": bar})
+        person._press_logs, person._marked = logs, {hard, soft}
+        learnt[bar] = (person._mark_learnt(hard), person._mark_learnt(soft))
+    assert learnt == {"any_cue": (True, True), "combined": (False, False)}
+    # a third mark that moves cue a like the hard one is learnt under the combined bar too
+    logs += [((6, 2), {a: rng.normal(0.8, 0.2), b: rng.normal(0.0, 0.2)}) for _ in range(4)]
+    person._press_logs, person._marked = logs, {hard, soft, (6, 2)}
+    assert person._mark_learnt((6, 2)) and person._mark_learnt(hard) and not person._mark_learnt(soft)
+    with pytest.raises(ModelParameterError, match="learnt_bar"):
+        VirtualPalpator({"learnt_bar": "sometimes"})
+
+
 def test_a_practice_that_reaches_its_time_limit_still_learns():
     """A practice cut by its time limit ends in learning from the presses made, not in a trial's reports."""
     person = VirtualPalpator({"familiarise": True})
