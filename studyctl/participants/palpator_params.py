@@ -126,9 +126,10 @@ PARAMS = (
           "min on the example phantom (Methods II.D.3)"),
     Param("learnt_bar", "any_cue", kind=str, choices=("any_cue", "combined"), source="CHOSEN: with practice_rule "
           "until_learnt, when a mark counts as learnt. any_cue: some single cue differs from plain sponge by t >= 2. "
-          "combined: the evidence the trial decision uses (the cue weights learnt from all practice presses so far, "
-          "by cue_learning) is higher on this mark's presses than on the plain presses by t >= 2 (the plain "
-          "presses' spread); one noisy cue out of ~11 no longer ends a mark's practice (optional stopping)"),
+          "combined: the evidence the trial decision uses (cue weights learnt by cue_learning, here from the other "
+          "marks' and the plain presses so far: held out, so the mark's own noise cannot pass it) is higher on this "
+          "mark's presses than on the plain presses by t >= 2 (the plain presses' spread); one noisy cue out of ~11 "
+          "no longer ends a mark's practice (optional stopping)"),
     Param("guesses", 3, 0, 20, kind=int, source="CHOSEN: cells reported when nothing stood out (the paper's "
           "trials had 3 tumours; subjects were told to report)"),
     Param("cell_mm", 20.0, 1.0, 100.0, unit="mm", source="used when the trial's public info has no grid size"),

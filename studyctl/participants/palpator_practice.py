@@ -218,10 +218,11 @@ def learn_cue_weights(tumour: Sequence[Mapping[Key, float]], plain: Sequence[Map
 
 def _combined_separates(logs: Sequence[tuple[Hashable, Mapping[Key, float]]], marked: Any, cell: Hashable,
                         floor: Mapping[str, float], rule: str) -> bool:
-    """``learnt_bar: combined``: the evidence the trial will judge cells by — the cue weights learnt (by ``rule``)
-    from every practice press so far — is higher on ``cell``'s presses than on the plain presses by t ≥ MIN_T, in
-    the plain presses' spread. Stricter than one cue at t ≥ 2: the weights are set mostly by the marks that differ
-    most (hard, medium), so a soft mark counts as learnt only when what the person will go by tells it from sponge."""
+    """``learnt_bar: combined``: the evidence the trial will judge cells by — cue weights learnt (by ``rule``), here
+    from the other marks' and the plain presses so far, held out so that ``cell``'s own noise cannot pass it — is
+    higher on ``cell``'s presses than on the plain presses by t ≥ MIN_T, in the plain presses' spread. Stricter than
+    one cue at t ≥ 2: the weights are set mostly by the marks that differ most (hard, medium), so a soft mark counts
+    as learnt only when what the person will go by tells it from sponge."""
     tumour = [p for c, p in logs if c in marked and c != cell]
     plain = [p for c, p in logs if c not in marked]
     cues = learn_cue_weights(tumour, plain, floor, 0.0, rule, [c for c, _ in logs if c in marked and c != cell])
@@ -293,11 +294,11 @@ class Familiarisation:
         """What this mark feels like is learnt: on some cue its presses so far differ from the plain presses so far
         by t ≥ MIN_T (the learner's own test, its variance within the mark: the person keeps pressing a mark until
         it clearly feels different from sponge, the same bar a cue must pass to be used at all)."""
-        tumour = [logs for c, logs in self._press_logs if c == cell]
-        plain = [logs for c, logs in self._press_logs if c not in self._marked]
         if self.params["learnt_bar"] == "combined":
             return _combined_separates(self._press_logs, self._marked, cell, self._floor(),
                                        self.params["cue_learning"])
+        tumour = [logs for c, logs in self._press_logs if c == cell]
+        plain = [logs for c, logs in self._press_logs if c not in self._marked]
         return bool(_diagonal_weights(tumour, plain, self._floor())[0])
 
     def _floor(self) -> dict[str, float]:
