@@ -49,11 +49,13 @@ def test_device_list_names_hardware_and_emulators():
 ])
 def test_device_check_emulated_exercises_the_safety_layer(device, model, rate):
     data = _check_json(device)
-    if any(f.startswith("stale_sensor:") for f in data["faults"]):
+    for _retry in range(2):
+        if not any(f.startswith("stale_sensor:") for f in data["faults"]):
+            break
         # The emulator is another process: a host that stops a virtual CPU for 10+ ms ages its sample past the
         # device's sensor_stale_s, and the safety layer rightly faults (seen once in CI, Touch, 2026-11-28, on a VM
-        # whose speed varied 30 % within a minute). One more run must then be clean; a device that is always stale
-        # fails both.
+        # whose speed varied 30 % within a minute; twice in a row in a session-37 pre-check at load 8, age 13.7 ms
+        # against 10). A later run must then be clean; a device that is always stale fails all three.
         data = _check_json(device)
     assert data["ok"] and data["emulated"] and data["rate_hz"] == rate
     assert str(data["identity"]["model"]).startswith(model)
