@@ -19,6 +19,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
+from studyctl.engine.trial_loop import TIMING_FAULTS
 from studyctl.errors import UsageError
 from studyctl.plugins.interfaces import Controller, Observation, TrialInfo
 
@@ -199,12 +200,12 @@ def check_device(
     finite = all(math.isfinite(v) for vals in written.values() for v in vals)
     checks.append(SafetyCheck("nan", ("safety", "non_finite_command") in kinds and finite,
                               "NaN commands became the safe value" if finite else "a non-finite value was written"))
-    tripped = sorted(r for k, r in kinds if k == "device_fault" and r in ("missed_deadline", "loop_stalled"))
+    tripped = sorted(r for k, r in kinds if k == "device_fault" and r in TIMING_FAULTS)
     checks.append(SafetyCheck("watchdog", bool(tripped),
                               f"a {ctrl_params['stall_s'] * 1000:.0f} ms stall put the device in its safe state "
                               f"({', '.join(tripped)})" if tripped else "the stall was not noticed"))
     other_faults = tuple(sorted({f"{p.get('rule')}: {_fault_detail(p)}" for _t, k, p in events
-                                 if k == "device_fault" and p.get("rule") not in ("missed_deadline", "loop_stalled")}))
+                                 if k == "device_fault" and p.get("rule") not in TIMING_FAULTS}))
     # pacing before the deliberate stall (tick times as the loop stamped them)
     ts = np.asarray([t for t in times if t < PHASES["stall_at"] * seconds])
     jitter = np.abs(np.diff(ts) - 1.0 / rate) * 1e6 if len(ts) > 2 else np.array([math.nan])

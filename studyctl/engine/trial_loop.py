@@ -20,6 +20,10 @@ from studyctl.plugins.safety import SafetyLayer, Watchdog
 # A device held in its safe state by a fault (stale sensor, disconnected board) this long ends the trial.
 FAULT_ABORT_S = 1.0
 
+# device_fault rules that come from the loop's own timing (a tick past its deadline, a stalled loop: the safety layer
+# and the watchdog), not from the device: a loaded machine produces them, so checks of the device set them apart
+TIMING_FAULTS = ("missed_deadline", "loop_stalled")
+
 
 @dataclass
 class TrialOutcome:

@@ -53,6 +53,7 @@ def test_a_virtual_participant_rehearses_the_needle_study_on_the_emulated_omega6
     from sqlalchemy import select
 
     from studyctl.engine.api import run_session, session_is_rehearsal
+    from studyctl.engine.trial_loop import TIMING_FAULTS
     from studyctl.populations import SHIPPED, population_for
     from studyctl.protocol.loader import resolve_protocol
     from studyctl.store.enrollment import enroll, study_protocol
@@ -85,7 +86,7 @@ def test_a_virtual_participant_rehearses_the_needle_study_on_the_emulated_omega6
                 assert [(p["model"], p["world"]) for p in ident] == [("omega.6", "force3d")]
                 pids |= {p["rt"]["pid"] for k, p in rows if k == "servo_timing"}
                 faults = [p for k, p in rows if k == "device_fault"
-                          and p.get("rule") not in ("missed_deadline", "loop_stalled")]
+                          and p.get("rule") not in TIMING_FAULTS]
                 assert faults == []
                 frame = read_samples(store.db, trial.id)
                 # the hand moved the handle (down towards the liver), read back through the SDK's encoders

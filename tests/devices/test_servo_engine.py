@@ -16,6 +16,7 @@ from polling import wait_for
 from sqlalchemy import select
 
 from studyctl.engine.api import resume_session, run_session
+from studyctl.engine.trial_loop import TIMING_FAULTS
 from studyctl.engine.ui import Script
 from studyctl.store import StudyStore
 from studyctl.store.models import Event, Trial
@@ -29,16 +30,14 @@ SCRIPT = {
 }
 
 
-PACING = ("missed_deadline", "loop_stalled")
-
-
 def _kinds(rows):
     """Event kinds without the servo's own events and a loaded machine's pacing faults with what follows them (the
     recovery and the safety layer's second ramp-up)."""
     out, paced = [], False
     for k, p in rows:
         rule = (p or {}).get("rule")
-        if k in ("servo_timing", "servo_clock") or (k in ("device_fault", "device_recovered") and rule in PACING):
+        if k in ("servo_timing", "servo_clock") or (
+                k in ("device_fault", "device_recovered") and rule in TIMING_FAULTS):
             paced = paced or k == "device_recovered"
             continue
         if k == "safety" and rule == "ramp_done" and paced:

@@ -16,7 +16,7 @@ from studyctl.controllers.palpation import LinearController
 from studyctl.devices import board_protocol as bp
 from studyctl.devices.udp_board import UdpDriverBoard
 from studyctl.engine.clock import RealClock
-from studyctl.engine.trial_loop import run_trial
+from studyctl.engine.trial_loop import TIMING_FAULTS, run_trial
 from studyctl.errors import DatagramError, DeviceError
 from studyctl.plugins.interfaces import IdleParticipant, TrialInfo
 
@@ -65,10 +65,6 @@ def emulator(tmp_path):
         emu.stop()
 
 
-# a loaded machine's timing faults (as test_rehearsal and device_check count them): not the sensor's
-TIMING = ("missed_deadline", "loop_stalled")
-
-
 def _trial(device, seconds, controller=None, opened=None):
     """``opened``, when given, gets the seconds from before open() (the HELLO) to the trial's time 0."""
     events = []
@@ -104,7 +100,7 @@ def test_trial_over_udp_commands_the_board(emulator):
     assert out.ended_by == "time_limit" and out.ticks >= 60
     # a loaded CI machine may miss a loop deadline or stall the loop (the watchdog's loop_stalled: a 67 ms stall of
     # this in-process 50 Hz loop failed a clean-clone CI run); the sensor itself must never look faulty
-    assert not [e for e in events if e[1] == "device_fault" and e[2]["rule"] not in TIMING]
+    assert not [e for e in events if e[1] == "device_fault" and e[2]["rule"] not in TIMING_FAULTS]
     emu.wait_logged("bye")
     log = emu.entries()
     commands = [e for e in log if e["event"] == "command"]
@@ -167,7 +163,7 @@ def test_adc_glitch_is_reported_and_held_safe(emulator):
     emu = emulator("--force", "0.8", "--adc-glitch", "0.4:0.4")
     out, events = _trial(UdpDriverBoard({"port": emu.port}), 1.4)
     assert out.ended_by == "time_limit"
-    faults = [(t, p["rule"]) for t, k, p in events if k == "device_fault" and p["rule"] not in TIMING]
+    faults = [(t, p["rule"]) for t, k, p in events if k == "device_fault" and p["rule"] not in TIMING_FAULTS]
     assert ("sensor_fault" in {r for _, r in faults}) and all(0.35 <= t <= 0.9 for t, _ in faults), faults
     assert [k for _, k, p in events if k == "device_recovered"]
 
