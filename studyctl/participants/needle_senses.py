@@ -170,7 +170,7 @@ class OperatorSenses:
         if st.button >= 0.5 and felt.radial_n > p.radial_threshold_n:
             # a felt lateral push: yield to it, and trust that it keeps the tip near the path
             g = p.follow_gain_mm_per_ns * st.dt
-            if st.realtime and p.realtime_follow_weight != 1.0:  # the live view shows the tip: the push counts less
+            if st.realtime:  # the live view shows the tip: the push counts by its weight (1, the default: in full)
                 g *= p.realtime_follow_weight
             r, (rx, ry, rz) = st.ref, felt.radial
             st.ref = (r[0] + g * rx, r[1] + g * ry, r[2] + g * rz)

@@ -223,9 +223,9 @@ def _combined_separates(logs: Sequence[tuple[Hashable, Mapping[Key, float]]], ma
     higher on ``cell``'s presses than on the plain presses by t ≥ MIN_T, in the plain presses' spread. Stricter than
     one cue at t ≥ 2: the weights are set mostly by the marks that differ most (hard, medium), so a soft mark counts
     as learnt only when what the person will go by tells it from sponge."""
-    tumour = [p for c, p in logs if c in marked and c != cell]
+    held_out = [(c, p) for c, p in logs if c in marked and c != cell]
     plain = [p for c, p in logs if c not in marked]
-    cues = learn_cue_weights(tumour, plain, floor, 0.0, rule, [c for c, _ in logs if c in marked and c != cell])
+    cues = learn_cue_weights([p for _, p in held_out], plain, floor, 0.0, rule, [c for c, _ in held_out])
     if cues is None:
         return False
     here = [v for v in (cues.combine(p) for c, p in logs if c == cell) if v is not None]
