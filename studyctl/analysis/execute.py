@@ -27,10 +27,10 @@ from studyctl.analysis.procedures import EACH_LEVEL, EACH_PAIR, Cell, Finding, T
 from studyctl.analysis.result_tables import cells_table, proportions_table, units_table
 from studyctl.analysis.results import AnalysisResult, TestRow
 from studyctl.analysis.shape import (
+    Blocks,
     Prepared,
     factor_column,
     ordered_levels,
-    paired_matrix,
     pooled_counts,
     prepare,
     unit_values,
@@ -76,6 +76,8 @@ class _EntryRunner:
         self.alpha = entry.alpha if entry.alpha is not None else plan.alpha
         self.tables = tables
         self.pooled_source = prep.frame["participant"].isna().all()
+        # the last cell's Blocks (an omnibus, then its post-hoc pairs, read the same cell's blocks)
+        self._blocks: tuple[pd.DataFrame, str, Blocks] | None = None
 
     # -- rows ------------------------------------------------------------------------------------
     def row(self, metric: str, split: str, **kw: Any) -> TestRow:
@@ -243,7 +245,9 @@ class _EntryRunner:
 
     def paired(self, sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.ndarray, list[str]]:
         """A participants × levels matrix of complete blocks, and a note on who was left out."""
-        matrix, dropped = paired_matrix(sub, col, levels)
+        if self._blocks is None or self._blocks[0] is not sub or self._blocks[1] != col:
+            self._blocks = (sub, col, Blocks(sub, col))
+        matrix, dropped = self._blocks[2].matrix(levels)
         warnings = []
         if dropped:
             warnings.append(
@@ -283,7 +287,8 @@ class _EntryRunner:
             samples = (x, y)
         assert spec.run is not None
         try:
-            (finding,) = spec.run(self.cell([a, b], sub[sub[col].isin([a, b])], options, samples=samples))
+            # the cell's units as they are: a test that reads them keeps its two levels' rows (models' _long)
+            (finding,) = spec.run(self.cell([a, b], sub, options, samples=samples))
         except StudyctlError as exc:
             return [self.row(metric, split, status="not_computed", warnings=str(exc), **common)]
         common.pop("test")

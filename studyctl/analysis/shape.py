@@ -189,30 +189,49 @@ def paired_pivot(sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.nda
     return complete.to_numpy(dtype=float), [str(p) for p in wide.index.difference(complete.index)]
 
 
+class Blocks:
+    """A cell's participants × levels table, built once, from which the complete blocks of any set of its
+    levels are read (:meth:`matrix`): a post-hoc over k levels asks for k(k−1)/2 pairs of one cell.
+
+    Where every participant × level has at most one unit (the usual case; a mean of one value is that value)
+    the table is a plain array, without pandas' pivot machinery; otherwise each request goes to
+    :func:`paired_pivot`. Either way a request gives what :func:`paired_pivot` gives."""
+
+    def __init__(self, sub: pd.DataFrame, col: str) -> None:
+        self.sub, self.col, self.wide = sub, col, None
+        person = sub["participant"].to_numpy(dtype=object)
+        level = sub[col].to_numpy(dtype=object)
+        value = sub["value"].to_numpy(dtype=float)
+        named = pd.notna(level)
+        # strings only: pivot_table sorts numbers as numbers, np.unique of their text would not
+        if not all(isinstance(v, str) for v in person) or not all(isinstance(v, str) for v in level[named]):
+            return
+        person, level, value = person[named], level[named], value[named]
+        people, p_idx = np.unique(person, return_inverse=True)
+        present, l_idx = np.unique(level, return_inverse=True)
+        cell = p_idx * len(present) + l_idx
+        if len(np.unique(cell)) != len(cell):  # repeated units: leave the means to pivot_table
+            return
+        wide = np.full((len(people), len(present)), np.nan)
+        wide[p_idx, l_idx] = value
+        self.people, self.wide = people, wide
+        self.seen = ~np.isnan(wide).all(axis=1)  # pivot_table drops people with no value at all
+        self.pos = {lv: j for j, lv in enumerate(present)}
+
+    def matrix(self, levels: list[str]) -> tuple[np.ndarray, list[str]]:
+        """The complete blocks of ``levels`` (participants sorted) and the participants left out."""
+        if self.wide is None:
+            return paired_pivot(self.sub, self.col, levels)
+        missing = np.full(len(self.people), np.nan)
+        cols = np.column_stack([self.wide[:, self.pos[lv]] if lv in self.pos else missing for lv in levels])
+        complete = self.seen & ~np.isnan(cols).any(axis=1)
+        return cols[complete], [str(p) for p in self.people[self.seen & ~complete]]
+
+
 def paired_matrix(sub: pd.DataFrame, col: str, levels: list[str]) -> tuple[np.ndarray, list[str]]:
-    """:func:`paired_pivot` without pandas' pivot machinery where every participant × level has at most one
-    unit (the usual case; a mean of one value is that value): the same matrix, rows and list, in a fraction
-    of the time (a power analysis shapes thousands of these)."""
-    person = sub["participant"].to_numpy(dtype=object)
-    level = sub[col].to_numpy(dtype=object)
-    value = sub["value"].to_numpy(dtype=float)
-    named = pd.notna(level)
-    # strings only: pivot_table sorts numbers as numbers, np.unique of their text would not
-    if not all(isinstance(v, str) for v in person) or not all(isinstance(v, str) for v in level[named]):
-        return paired_pivot(sub, col, levels)
-    person, level, value = person[named], level[named], value[named]
-    people, p_idx = np.unique(person, return_inverse=True)
-    present, l_idx = np.unique(level, return_inverse=True)
-    cell = p_idx * len(present) + l_idx
-    if len(np.unique(cell)) != len(cell):  # repeated units: leave the means to pivot_table
-        return paired_pivot(sub, col, levels)
-    wide = np.full((len(people), len(present)), np.nan)
-    wide[p_idx, l_idx] = value
-    seen = ~np.isnan(wide).all(axis=1)  # pivot_table drops people with no value at all
-    pos = {lv: j for j, lv in enumerate(present)}
-    cols = np.column_stack([wide[:, pos[lv]] if lv in pos else np.full(len(people), np.nan) for lv in levels])
-    complete = seen & ~np.isnan(cols).any(axis=1)
-    return cols[complete], [str(p) for p in people[seen & ~complete]]
+    """:func:`paired_pivot`'s matrix and list in a fraction of the time (a power analysis shapes thousands of
+    these): :class:`Blocks` of the cell, read once."""
+    return Blocks(sub, col).matrix(levels)
 
 
 def pooled_counts(data: pd.DataFrame, keep: list[str]) -> pd.DataFrame:

@@ -24,6 +24,7 @@ import pandas as pd
 
 from studyctl.errors import StatsInputError
 
+from .cumulative_logit import count_table, fit_cumulative_logit
 from .model_design import design_problem, factor_levels, factorial_terms, has_repeats, long_frame, no_variation
 
 NAN = math.nan
@@ -151,10 +152,8 @@ def ordinal_coefficients(y: Sequence[float], factor: Sequence, *, levels: Sequen
                          confidence: float = 0.95) -> CoefficientTable:
     """The factor's log odds ratios (treatment coding, first level the reference) in the cumulative logit model,
     with Wald intervals from the Hessian."""
-    from statsmodels.miscmodels.ordinal_model import OrderedModel
-
     level = _check_confidence(confidence)
-    method = f"Wald {level:.0%} intervals of the log odds ratios (cumulative logit, statsmodels OrderedModel)"
+    method = f"Wald {level:.0%} intervals of the log odds ratios (cumulative logit, Newton-Raphson ML as R's clm)"
     frame = long_frame(y, {"factor": factor}, None)
     lv = factor_levels(frame, ["factor"], {"factor": list(levels or [])})["factor"]
     values = frame["y"].to_numpy()
@@ -165,22 +164,14 @@ def ordinal_coefficients(y: Sequence[float], factor: Sequence, *, levels: Sequen
         why = "every answer is the same: no thresholds to estimate"
     if why:
         return CoefficientTable("ordinal", (), level, method, "not_computed", why)
-    cats = np.unique(values)
-    yc = pd.Series(pd.Categorical(values, categories=cats, ordered=True))
-    x = pd.DataFrame({f"factor[{v}]": (frame["factor"].to_numpy() == v).astype(float) for v in lv[1:]})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = OrderedModel(yc, x, distr="logit").fit(method="bfgs", disp=False, maxiter=5000, gtol=1e-10)
-    k = x.shape[1]
-    try:
-        cov = np.asarray(res.cov_params())[:k, :k]
-    except (ValueError, np.linalg.LinAlgError):  # statsmodels: no covariance when the Hessian cannot be inverted
-        cov = np.full((k, k), NAN)
-    if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) < 0):
+    fit = fit_cumulative_logit(count_table(values, frame["factor"].to_numpy(), lv)[0])
+    if fit.coef_cov is None:
         return CoefficientTable("ordinal", (), level, method, "not_computed",
-                                "the Hessian is singular (a level where every answer is at one end of the scale?)")
-    return CoefficientTable("ordinal", _wald(list(x.columns), np.asarray(res.params)[:k], cov, level), level,
-                            method)
+                                "a level's answers are separated from another's (every answer at one end of the "
+                                "scale?): its log odds ratio is infinite" if fit.separated else
+                                "the Hessian is singular: the log odds ratios are not identified")
+    return CoefficientTable("ordinal", _wald([f"factor[{v}]" for v in lv[1:]], fit.coef, fit.coef_cov, level),
+                            level, method)
 
 
 def partial_eta_squared_ci(f: float, df1: float, df2: float, confidence: float = 0.95) -> tuple[float, float]:

@@ -18,14 +18,14 @@ How each term is tested (stated in every term's ``method``):
 * **ART** (Wobbrock et al. 2011): for each term the response is aligned (residual from the full-factorial
   cell means plus the term's estimated effect from marginal means of the observations), ranked with
   average ties, and only that term is read from the model fitted to those ranks (OLS or mixed, as above).
-* **Ordinal**: proportional-odds cumulative logit model (statsmodels OrderedModel), likelihood-ratio χ²
-  against the thresholds-only model. Without a participant random effect (a cumulative link mixed model is
-  not available in statsmodels); repeated answers of one person are treated as independent (stated).
+* **Ordinal**: proportional-odds cumulative logit model (our Newton-Raphson fit with analytic derivatives,
+  :mod:`studyctl.stats.cumulative_logit`; checked against R's clm and statsmodels), likelihood-ratio χ²
+  against the thresholds-only model. Without a participant random effect (R's clmm is not
+  implemented); repeated answers of one person are treated as independent (stated).
 """
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 import warnings
@@ -37,6 +37,7 @@ import pandas as pd
 
 from studyctl.errors import StatsInputError
 
+from .cumulative_logit import count_table, fit_cumulative_logit, null_llf
 from .model_design import (
     design,
     design_problem,
@@ -369,48 +370,23 @@ def ordinal_model(y: Sequence[float], factor: Sequence, *, levels: Sequence[str]
     # Nagelkerke's pseudo-R² as the effect size (Cox-Snell scaled to a maximum of 1).
     cs = 1 - math.exp(-chi2 / n_obs)
     nag = cs / (1 - math.exp(2 * llf0 / n_obs))
-    warn = ("repeated answers of one participant treated as independent (no participant random effect)"
-            if has_repeats(frame) else "")
+    warn = "; ".join(
+        ([("repeated answers of one participant treated as independent (no participant random effect)")]
+         if has_repeats(frame) else [])
+        + (["a level's answers are separated from another's (its coefficient is infinite); the χ² uses the "
+            "likelihood's supremum"] if fit["separated"] else []))
     term = ModelTerm("factor", "chi2 (LR)", chi2, df, NAN, float(_st.chi2.sf(chi2, df)), "nagelkerke_r2", nag,
-                     method="cumulative logit (proportional odds) model, statsmodels OrderedModel; likelihood-"
-                     "ratio χ² against the thresholds-only model", reason=warn)
+                     method="cumulative logit (proportional odds) model, maximum likelihood by Newton-Raphson (as "
+                     "R's ordinal::clm); likelihood-ratio χ² against the thresholds-only model", reason=warn)
     return ModelResult("ordinal", (term,), len(frame), int(frame["_subject"].nunique()))
-
-
-@functools.cache
-def _logit_model() -> type:
-    """statsmodels' OrderedModel with the logistic cdf evaluated as ``scipy.special.expit``: the value
-    ``scipy.stats.logistic.cdf`` returns, bit for bit (its generic wrapper subtracts loc 0, divides by scale 1,
-    gives 0/1 at ∓inf and NaN for NaN, as expit does, then calls expit), without the wrapper's argument checks,
-    which took ~85 % of an ordinal fit's time (the optimiser evaluates the likelihood hundreds of times). The
-    fit, its optimiser path and its result are unchanged (tests/stats compare both)."""
-    from scipy.special import expit
-    from statsmodels.miscmodels.ordinal_model import OrderedModel
-
-    class LogitOrderedModel(OrderedModel):
-        def cdf(self, x):  # noqa: ANN001, ANN202 - statsmodels' signature
-            return expit(np.asarray(x, dtype=float))
-
-    return LogitOrderedModel
 
 
 def ordinal_fit(values: np.ndarray, factor: np.ndarray, levels: list[str]) -> tuple[dict, float]:
     """The fitted cumulative logit model (treatment coding, first level as reference): coefficients,
-    thresholds (R's clm parameterisation: logit P(Y ≤ j) = θ_j − xβ), log-likelihood; and the null llf."""
-    # outside the block below: importing statsmodels installs its own "always" filter for ConvergenceWarning,
-    # which inside the block would be put before the "ignore"
-    model = _logit_model()
-    cats = np.unique(values)
-    yc = pd.Series(pd.Categorical(values, categories=cats, ordered=True))
-    x = pd.DataFrame({f"factor{lv}": (factor == lv).astype(float) for lv in levels[1:]})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = model(yc, x, distr="logit").fit(method="bfgs", disp=False, maxiter=5000, gtol=1e-10)
-    k = x.shape[1]
-    params = np.asarray(res.params)
-    cut = params[k:]
-    thresholds = np.cumsum(np.r_[cut[0], np.exp(cut[1:])])
-    # Thresholds only: the cumulative proportions, in closed form.
-    counts = np.array([(values == c).sum() for c in cats], dtype=float)
-    llf0 = float((counts * np.log(counts / counts.sum())).sum())
-    return {"coef": params[:k], "thresholds": thresholds, "llf": float(res.llf)}, llf0
+    thresholds (R's clm parameterisation: logit P(Y ≤ j) = θ_j − xβ), log-likelihood, whether a level is
+    separated (its coefficient infinite; the log-likelihood is then the supremum); and the null llf.
+    Newton-Raphson on the levels × answers table (:mod:`studyctl.stats.cumulative_logit`)."""
+    counts, _ = count_table(values, factor, levels)
+    fit = fit_cumulative_logit(counts)
+    return ({"coef": fit.coef, "thresholds": fit.thresholds, "llf": fit.llf, "separated": fit.separated},
+            null_llf(counts.sum(axis=0)))

@@ -46,7 +46,8 @@ class Cell:
     reference level of a comparison against one level. ``units`` are the cell's rows of the units table
     (``participant``, ``group``, ``condition``, ``level``, ``value``; for proportions ``successes`` and
     ``chances``), for tests that need more than one array per level (models with participants as a
-    random factor, aligned-rank transforms over a second factor).
+    random factor, aligned-rank transforms over a second factor); a test of a pair of levels gets the whole
+    cell's rows and keeps those of its ``levels``.
     """
 
     levels: tuple[str, ...]
