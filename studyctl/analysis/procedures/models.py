@@ -113,7 +113,7 @@ SPECS = (
         None,
         frozenset(),
         ("nagelkerke_r2",),
-        "cumulative logit (proportional odds) model of Likert answers (statsmodels OrderedModel): "
-        "likelihood-ratio χ² of the compared factor",
+        "cumulative logit (proportional odds) model of Likert answers (Newton-Raphson maximum likelihood, as R's "
+        "clm): likelihood-ratio χ² of the compared factor",
     ),
 )
