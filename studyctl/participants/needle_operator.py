@@ -186,7 +186,9 @@ class VirtualNeedleOperator(OperatorSenses, Participant):
         self._perceive(t, percept)
         if st.realtime and "view" in percept and t - st.last_view_t >= p.visual_period_s:
             st.last_view_t = t
-            self._take_image(percept["view"], percept)
+            self._look_live(t, percept["view"], percept)
+        if st.pending_views:
+            self._act_on_looks(t, percept)
         if t > st.info.time_limit_s - 3.0 and st.phase not in (Phase.FINISH, Phase.DONE):
             return self._begin_finish(percept, t, "time")
         return self._step(t, percept)

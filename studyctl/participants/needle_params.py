@@ -59,6 +59,12 @@ PARAMS = (
     Param("read_trial_cv", 0.15, 0.0, 0.8, unit="log-SD",
           source="CHOSEN: within-person trial-to-trial variation of reading time"),
     Param("visual_period_s", 0.25, 0.02, 2.0, unit="s", source="CHOSEN: real-time view: how often it is read"),
+    Param("realtime_view_delay_s", 0.0, 0.0, 1.0, unit="s",
+          source="CHOSEN (0: off, a look at the live view is acted on at once): with the live view it acts on what "
+                 "a look showed this long after the look, against where it feels its hand by then, so a tip seen "
+                 "while moving is taken to be where it was. Visual feedback of the moving hand corrects a reach only "
+                 "after 117 ms across the movement and 130-200 ms along it (Saunders & Knill 2005, Exp Brain Res "
+                 "162:458-473). A requested scan is read holding still, where the delay costs nothing"),
     Param("rt_tolerance_mm", 0.0, 0.0, 5.0, unit="mm",
           source="CHOSEN (0: off, every look re-aims the tip): with a live view it corrects its tip sideways only "
                  "once the image shows it this far off where it feels it is; below that it keeps steering by feel. "
@@ -193,6 +199,7 @@ class OperatorParams:
     confirm_read_ratio: float
     read_trial_cv: float
     visual_period_s: float
+    realtime_view_delay_s: float
     rt_tolerance_mm: float
     rt_tolerance_reach: float
     proprio_drift: float

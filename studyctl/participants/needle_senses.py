@@ -106,8 +106,29 @@ class OperatorSenses:
         return st.sense.belief(percept, st.last_cmd)
 
     def _take_image(self, frame: Mapping[str, Any], percept: Mapping[str, Any]) -> CTReading:
+        reading = read_ct(frame, self._st.axis)
+        self._use_reading(reading, percept)
+        return reading
+
+    def _look_live(self, t: float, frame: Mapping[str, Any], percept: Mapping[str, Any]) -> None:
+        """A look at the live view. With ``realtime_view_delay_s`` it is acted on only that long after the look,
+        against where it feels its hand by then (visual feedback of a moving hand steers it only after 117-200 ms:
+        Saunders & Knill 2005), so a tip seen while moving is taken to be where it was; 0 acts on it at once."""
+        st, delay = self._st, self.p.realtime_view_delay_s
+        if delay <= 0.0:
+            self._take_image(frame, percept)
+            return
+        st.pending_views.append((t + delay, read_ct(frame, st.axis)))
+
+    def _act_on_looks(self, t: float, percept: Mapping[str, Any]) -> None:
+        """Act on the delayed looks whose time has come (``realtime_view_delay_s``), oldest first."""
+        pending = self._st.pending_views
+        while pending and pending[0][0] <= t:
+            self._use_reading(pending.popleft()[1], percept)
+
+    def _use_reading(self, reading: CTReading, percept: Mapping[str, Any]) -> None:
+        """What an image showed, taken into its position sense (the tip) and its plan (tumour and marker)."""
         st = self._st
-        reading = read_ct(frame, st.axis)
         if reading.tip_mm is not None:
             keep = self._sideways_tolerance(percept)
             old = st.sense.see_tip(reading.tip_mm, st.sense.felt(percept, st.last_cmd), 0.3, axis=st.axis,
@@ -121,7 +142,6 @@ class OperatorSenses:
             st.blind_at = st.sense.felt(percept, st.last_cmd)
         if st.plan is None and reading.tumour_mm is not None and reading.marker_mm is not None:
             self._make_plan(reading.tumour_mm, reading.marker_mm)
-        return reading
 
     def _sideways_tolerance(self, percept: Mapping[str, Any]) -> float:
         """How far off sideways a look at the live view may show the tip before it re-aims (``rt_tolerance_mm``).

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import Enum, auto
@@ -15,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from studyctl.participants.ct_reader import CTReading
 from studyctl.participants.needle_params import Vec
 from studyctl.participants.needle_perception import AxialCueDetector, Plan, PositionSense
 from studyctl.plugins.interfaces import Action, TrialInfo
@@ -100,6 +102,8 @@ class TrialState:
     busy_until: float = 0.0
     frame: Mapping[str, Any] | None = None
     last_view_t: float = -1e9
+    # live-view readings not yet acted on (``realtime_view_delay_s``), oldest first: (time to act on it, reading)
+    pending_views: deque[tuple[float, CTReading]] = field(default_factory=deque)
     plan: Plan | None = None
     move: MinJerk | Line | None = None
     react_until: float = 0.0

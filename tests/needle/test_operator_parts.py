@@ -385,3 +385,45 @@ def test_with_the_live_view_a_felt_push_is_followed_by_its_weight():
     assert _yield_to_a_push({"realtime_follow_weight": 0.0}, "on_request") == followed  # no live view: as before
     assert _yield_to_a_push({"realtime_follow_weight": 0.0}, "realtime") == 0.0
     assert _yield_to_a_push({"realtime_follow_weight": 0.5}, "realtime") == pytest.approx(0.5 * followed)
+
+
+def test_with_a_view_delay_a_look_at_the_live_view_is_acted_on_later_against_where_the_hand_is_by_then(monkeypatch):
+    """realtime_view_delay_s (0 = off, the default): visual feedback of a moving hand steers it only after 117-200 ms
+    (Saunders & Knill 2005), so a look at the live view is acted on that long after it, against where the hand is felt
+    by then: a tip seen while advancing is believed to be where it was. A requested scan is read holding still."""
+    from studyctl.participants import needle_senses
+    from studyctl.participants.ct_reader import CTReading
+
+    seen = (0.0, 0.0, 10.0)  # what the look shows: the tip where the hand was at the look
+    monkeypatch.setattr(needle_senses, "read_ct", lambda frame, axis: CTReading((0.0, 0.0, -20.0), (0.0, 0.0, 35.0),
+                                                                                seen))
+
+    def hand(z):
+        return {"x_mm": 0.0, "y_mm": 0.0, "z_mm": z}
+
+    def looking(params, visual="realtime"):
+        op = VirtualNeedleOperator(params)
+        op.begin_trial(TrialInfo("RT", 90.0, 1000.0, visual), np.random.default_rng(1))
+        op.s.axis, op.s.phase, op.s.stop_reason = (0.0, 0.0, -1.0), Phase.INSERT, "depth"
+        return op
+
+    now = looking({})
+    now._look_live(1.0, {}, hand(10.0))  # default: acted on at once
+    assert now._belief(hand(10.0)) == pytest.approx(seen) and not now.s.pending_views
+    late = looking({"realtime_view_delay_s": 0.15})
+    late._look_live(1.0, {}, hand(10.0))
+    late._act_on_looks(1.1, hand(9.0))
+    assert late.s.sense.corr == (0.0, 0.0, 0.0)  # not yet acted on
+    late._act_on_looks(1.15, hand(8.5))  # advancing at 10 mm/s: the hand is 1.5 mm deeper by now
+    assert late._belief(hand(8.5)) == pytest.approx(seen)  # so it believes the tip 1.5 mm short of where it is
+    assert not late.s.pending_views
+    # wired into the tick: with the live view in the percept, its plan (read from the first look) comes 0.15 s late
+    for params, planned_at in (({}, 0.0), ({"realtime_view_delay_s": 0.15}, 0.15)):
+        op = VirtualNeedleOperator(params)
+        op.begin_trial(TrialInfo("RT", 90.0, 1000.0, "realtime"), np.random.default_rng(1))
+        first = None
+        for k in range(300):
+            op.act(k / 1000.0, {**hand(40.0), "view": {}})
+            if first is None and op.s.plan is not None:
+                first = k / 1000.0
+        assert first == pytest.approx(planned_at, abs=0.011)
