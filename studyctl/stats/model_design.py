@@ -119,3 +119,16 @@ def has_repeats(frame: pd.DataFrame) -> bool:
 
 __all__ = ["design", "design_problem", "factor_levels", "factorial_terms", "has_repeats", "long_frame", "no_variation",
            "term_name"]
+
+
+def ordinal_problem(frame: pd.DataFrame, levels: dict[str, list]) -> str:
+    """Why a cumulative logit model of the answers ``frame["y"]`` on ``frame["factor"]`` cannot be fitted
+    ('' when it can): the design's problems, answers that are not whole numbers, or no second answer."""
+    why = design_problem(frame, ["factor"], levels)
+    values = frame["y"].to_numpy()
+    if not why and np.any(values != np.round(values)):
+        why = ("answers are not whole numbers (repetitions averaged?): an ordinal model needs the answers "
+               "themselves (aggregate: none)")
+    if not why and len(np.unique(values)) < 2:
+        why = "every answer is the same: no thresholds to estimate"
+    return why

@@ -25,7 +25,15 @@ import pandas as pd
 from studyctl.errors import StatsInputError
 
 from .cumulative_logit import count_table, fit_cumulative_logit
-from .model_design import design_problem, factor_levels, factorial_terms, has_repeats, long_frame, no_variation
+from .model_design import (
+    design_problem,
+    factor_levels,
+    factorial_terms,
+    has_repeats,
+    long_frame,
+    no_variation,
+    ordinal_problem,
+)
 
 NAN = math.nan
 
@@ -157,11 +165,7 @@ def ordinal_coefficients(y: Sequence[float], factor: Sequence, *, levels: Sequen
     frame = long_frame(y, {"factor": factor}, None)
     lv = factor_levels(frame, ["factor"], {"factor": list(levels or [])})["factor"]
     values = frame["y"].to_numpy()
-    why = design_problem(frame, ["factor"], {"factor": lv})
-    if not why and np.any(values != np.round(values)):
-        why = "answers are not whole numbers: an ordinal model needs the answers themselves"
-    if not why and len(np.unique(values)) < 2:
-        why = "every answer is the same: no thresholds to estimate"
+    why = ordinal_problem(frame, {"factor": lv})
     if why:
         return CoefficientTable("ordinal", (), level, method, "not_computed", why)
     fit = fit_cumulative_logit(count_table(values, frame["factor"].to_numpy(), lv)[0])

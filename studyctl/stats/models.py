@@ -46,6 +46,7 @@ from .model_design import (
     has_repeats,
     long_frame,
     no_variation,
+    ordinal_problem,
     term_name,
 )
 from .model_intervals import partial_eta_squared_ci
@@ -353,13 +354,8 @@ def ordinal_model(y: Sequence[float], factor: Sequence, *, levels: Sequence[str]
     from scipy import stats as _st  # lazy: importing scipy.stats costs about a second
     frame = long_frame(y, {"factor": factor}, subject)
     lv = factor_levels(frame, ["factor"], {"factor": levels or []})
-    why = design_problem(frame, ["factor"], lv)
+    why = ordinal_problem(frame, lv)
     values = frame["y"].to_numpy()
-    if not why and np.any(values != np.round(values)):
-        why = ("answers are not whole numbers (repetitions averaged?): an ordinal model needs the answers "
-               "themselves (aggregate: none)")
-    if not why and len(np.unique(values)) < 2:
-        why = "every answer is the same: no thresholds to estimate"
     if why:
         return ModelResult("ordinal", (ModelTerm("factor", "", NAN, NAN, NAN, NAN, status="not_computed",
                                                  reason=why),), len(frame), int(frame["_subject"].nunique()))
