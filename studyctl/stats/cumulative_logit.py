@@ -79,8 +79,8 @@ class _Cells:
 
     def __init__(self, counts: np.ndarray) -> None:
         levels, cats = counts.shape
-        self.n_theta, self.n_beta = cats - 1, levels - 1
-        size = self.n_theta + self.n_beta
+        self.n_theta = cats - 1
+        size = self.n_theta + levels - 1
         ll, cc = np.nonzero(counts)
         self.n = counts[ll, cc].astype(float)
         rows = np.arange(ll.size)

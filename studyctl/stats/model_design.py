@@ -117,10 +117,6 @@ def has_repeats(frame: pd.DataFrame) -> bool:
     return bool(frame["_subject"].duplicated().any())
 
 
-__all__ = ["design", "design_problem", "factor_levels", "factorial_terms", "has_repeats", "long_frame", "no_variation",
-           "term_name"]
-
-
 def ordinal_problem(frame: pd.DataFrame, levels: dict[str, list]) -> str:
     """Why a cumulative logit model of the answers ``frame["y"]`` on ``frame["factor"]`` cannot be fitted
     ('' when it can): the design's problems, answers that are not whole numbers, or no second answer."""
@@ -132,3 +128,7 @@ def ordinal_problem(frame: pd.DataFrame, levels: dict[str, list]) -> str:
     if not why and len(np.unique(values)) < 2:
         why = "every answer is the same: no thresholds to estimate"
     return why
+
+
+__all__ = ["design", "design_problem", "factor_levels", "factorial_terms", "has_repeats", "long_frame", "no_variation",
+           "ordinal_problem", "term_name"]

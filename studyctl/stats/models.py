@@ -366,11 +366,13 @@ def ordinal_model(y: Sequence[float], factor: Sequence, *, levels: Sequence[str]
     # Nagelkerke's pseudo-R² as the effect size (Cox-Snell scaled to a maximum of 1).
     cs = 1 - math.exp(-chi2 / n_obs)
     nag = cs / (1 - math.exp(2 * llf0 / n_obs))
-    warn = "; ".join(
-        ([("repeated answers of one participant treated as independent (no participant random effect)")]
-         if has_repeats(frame) else [])
-        + (["a level's answers are separated from another's (its coefficient is infinite); the χ² uses the "
-            "likelihood's supremum"] if fit["separated"] else []))
+    notes = []
+    if has_repeats(frame):
+        notes.append("repeated answers of one participant treated as independent (no participant random effect)")
+    if fit["separated"]:
+        notes.append("a level's answers are separated from another's (its coefficient is infinite); the χ² uses the "
+                     "likelihood's supremum")
+    warn = "; ".join(notes)
     term = ModelTerm("factor", "chi2 (LR)", chi2, df, NAN, float(_st.chi2.sf(chi2, df)), "nagelkerke_r2", nag,
                      method="cumulative logit (proportional odds) model, maximum likelihood by Newton-Raphson (as "
                      "R's ordinal::clm); likelihood-ratio χ² against the thresholds-only model", reason=warn)
