@@ -12,7 +12,7 @@ holds for 3 s. The needle model runs at the loop rate (its force held between lo
 their difference, the tip's RMS velocity over the last second (ringing) and the end state (layer, punctures,
 stuck). Why: at 250 Hz the ES/ESG tumour contact damper (1 N·s/m) is below the K·T/2 rule (2.0 N·s/m) and the
 stick anchor's (2 N·s/m) is at it; this shows whether that moves where the needle stops (it does not: issue 22,
-README's loop-rate paragraph).
+docs/performance.md, loop rate).
 """
 
 from __future__ import annotations
