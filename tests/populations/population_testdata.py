@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
+from types import ModuleType
 
 DATA = Path(__file__).parent / "data"
 POPULATION = DATA / "palpator_small.yaml"
@@ -17,3 +19,12 @@ def write_variant(tmp_path: Path, old: str, new: str, source: Path = POPULATION)
     out = tmp_path / f"variant{source.suffix}"
     out.write_text(text.replace(old, new, 1), encoding="utf-8")
     return out
+
+
+def load_script(name: str) -> ModuleType:
+    """The developers' script ``scripts/<name>.py`` as a module (the scripts folder is not a package)."""
+    path = Path(__file__).resolve().parents[2] / "scripts" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

@@ -1,19 +1,15 @@
 """The per-seed / pooled agreement index script counts each check over the seeds' targets, as the report's index."""
 
-import importlib.util
 from pathlib import Path
 
 import pytest
+from population_testdata import load_script
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "agreement_over_seeds.py"
 HEADER = "target,role,statistic,same_direction,within,sd_ratio,same_verdict,agrees\n"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("agreement_over_seeds", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("agreement_over_seeds")
 
 
 def _report(tmp_path: Path, name: str, rows: list[str]) -> Path:

@@ -1,19 +1,15 @@
 """The landing rule script: summed squared z over seeds decides, not one seed's agreeing-target count."""
 
-import importlib.util
 from pathlib import Path
 
 import pytest
+from population_testdata import load_script
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "compare_populations.py"
 HEADER = "target,role,z,agrees\n"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("compare_populations", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("compare_populations")
 
 
 def _report(tmp_path: Path, name: str, rows: list[tuple[str, str, str, str]]) -> Path:
