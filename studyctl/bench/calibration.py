@@ -10,6 +10,11 @@ study and role (``….goal_direction_met`` etc., 1 or 0; the ``goals`` table giv
 targets has no figures (a note says so). The calibration wall/CPU seconds are the ones the calibration that wrote
 each shipped population measured and recorded in it (``calibration.seconds`` / ``cpu_seconds``), where present.
 ``--quick``: 2 participants per study (a smoke run: the fractions then mean little).
+
+``STUDYCTL_BENCH_SEEDS=2024,99,7`` runs the demo once per seed (default: the demo's seed alone). One seed's
+fractions move by several targets with nothing changed (12-25 people per study: seed 002's U-test verdict is missed
+at 2024 and reproduced at 7, 11, 12 and 99), so the figures and goals are then over every seed's targets together,
+and each seed's own ``seed<S>.<study>.all.<rate>`` figures are printed beside them.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import time
 from pathlib import Path
 
 from studyctl.bench import BenchResult
+from studyctl.errors import ConfigError
 
 FIGURES = (("direction", "direction_fraction"), ("verdict", "verdict_fraction"), ("within", "within_fraction"),
            ("sd_within", "sd_ratio_within_fraction"), ("sd_ratio_median", "sd_ratio_median"),
@@ -55,44 +61,84 @@ def _summarise(scope: str, summary: dict, figures: dict[str, float], rows: list,
             goals.append({"study": scope, "role": role, "goal": goal, "value": v, "bar": bar, "met": met})
 
 
+def bench_seeds(default: int) -> list[int]:
+    """The demo seeds to run: ``$STUDYCTL_BENCH_SEEDS`` (comma-separated integers, each once) or ``default``."""
+    raw = os.environ.get("STUDYCTL_BENCH_SEEDS", "").strip()
+    if not raw:
+        return [default]
+    try:
+        seeds = [int(s) for s in raw.split(",") if s.strip()]
+    except ValueError:
+        seeds = []
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise ConfigError(f"STUDYCTL_BENCH_SEEDS={raw!r}: give distinct non-negative integer seeds separated by "
+                          "commas, e.g. STUDYCTL_BENCH_SEEDS=2024,99,7 (unset: the demo's seed alone)")
+    return seeds
+
+
+def _agreement_frame(path: Path):
+    import pandas as pd
+
+    frame = pd.read_csv(path, keep_default_na=True)
+    for col in ("same_direction", "within", "same_verdict", "agrees"):
+        frame[col] = frame[col].map(lambda v: None if pd.isna(v) else str(v) == "True")
+    return frame
+
+
 def run(quick: bool = False) -> BenchResult:
     import pandas as pd
 
     from studyctl.calibration.agreement import summary_from_frame
     from studyctl.populations import load_population_file, shipped_population_path
-    from studyctl.workflows.demo import REFERENCE_STUDIES, run_demo
+    from studyctl.workflows.demo import DEFAULT_SEED, REFERENCE_STUDIES, run_demo
 
+    seeds = bench_seeds(DEFAULT_SEED)
     studies = [(name, 2) for name, _ in REFERENCE_STUDIES] if quick else list(REFERENCE_STUDIES)
     figures: dict[str, float] = {}
-    rows, notes, frames, goals = [], [], [], []
+    rows, notes, goals = [], [], []
+    by_study: dict[str, list] = {}
+    workers = None
     c0 = time.process_time()
-    with tempfile.TemporaryDirectory(prefix="studyctl-bench-calibration-") as tmp:
-        t0 = time.perf_counter()
-        result = run_demo(os.path.join(tmp, "reports"), studies=studies)
-        figures["demo_s"] = time.perf_counter() - t0
-        for s in result.studies:
-            path = Path(s.report).parent / "agreement.csv" if s.report else None
-            pop_path = shipped_population_path(s.study)
-            if pop_path is not None:
-                cal = load_population_file(pop_path).calibration
-                for key in ("seconds", "cpu_seconds"):
-                    if cal.get(key) is not None:
-                        figures[f"{s.study}.calibration_{key.replace('seconds', 's')}"] = float(cal[key])
-            if s.error or path is None or not path.is_file():
-                why = f"FAILED: {s.error.splitlines()[0]}" if s.error else "no shipped targets"
-                notes.append(f"{s.study}: no agreement table ({why}; {s.population or 'population unknown'})")
-                continue
-            frame = pd.read_csv(path, keep_default_na=True)
-            for col in ("same_direction", "within", "same_verdict", "agrees"):
-                frame[col] = frame[col].map(lambda v: None if pd.isna(v) else str(v) == "True")
-            frames.append(frame.assign(study=s.study))
-            _summarise(s.study, summary_from_frame(frame), figures, rows, goals)
-            notes.append(f"{s.study}: {s.population}")
-    if frames:
-        _summarise("overall", summary_from_frame(pd.concat(frames, ignore_index=True)), figures, rows, goals)
+    t_all = time.perf_counter()
+    for seed in seeds:
+        with tempfile.TemporaryDirectory(prefix="studyctl-bench-calibration-") as tmp:
+            t0 = time.perf_counter()
+            result = run_demo(os.path.join(tmp, "reports"), seed=seed, studies=studies)
+            if len(seeds) > 1:
+                figures[f"demo_s_seed{seed}"] = time.perf_counter() - t0
+            workers = result.workers
+            for s in result.studies:
+                path = Path(s.report).parent / "agreement.csv" if s.report else None
+                pop_path = shipped_population_path(s.study)
+                if pop_path is not None:
+                    cal = load_population_file(pop_path).calibration
+                    for key in ("seconds", "cpu_seconds"):
+                        if cal.get(key) is not None:
+                            figures[f"{s.study}.calibration_{key.replace('seconds', 's')}"] = float(cal[key])
+                if s.error or path is None or not path.is_file():
+                    why = f"FAILED: {s.error.splitlines()[0]}" if s.error else "no shipped targets"
+                    notes.append(f"seed {seed}: {s.study}: no agreement table ({why}; "
+                                 f"{s.population or 'population unknown'})")
+                    continue
+                frame = _agreement_frame(path).assign(study=s.study, seed=seed)
+                by_study.setdefault(s.study, []).append(frame)
+                if len(seeds) > 1:
+                    one = summary_from_frame(frame)["all"]
+                    for name, key in FIGURES:
+                        if one[key] is not None:
+                            figures[f"seed{seed}.{s.study}.all.{name}"] = float(one[key])
+                if seed == seeds[0]:
+                    notes.append(f"{s.study}: {s.population}")
+    figures["demo_s"] = time.perf_counter() - t_all
+    for study, frames in by_study.items():
+        _summarise(study, summary_from_frame(pd.concat(frames, ignore_index=True)), figures, rows, goals)
+    if by_study:
+        every = pd.concat([f for frames in by_study.values() for f in frames], ignore_index=True)
+        _summarise("overall", summary_from_frame(every), figures, rows, goals)
     figures["bench_cpu_s_main_process"] = time.process_time() - c0
+    seeds_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {', '.join(map(str, seeds))} pooled"
     notes.insert(0, f"{'quick: 2 participants per study' if quick else 'paper-sized cohorts'} from each protocol's "
-                 f"shipped population, {result.workers} worker processes on {os.cpu_count()} cores; fractions over "
-                 "the targets where the check applies; goals (issue 17): directions all right, ≥ 80 % verdicts and "
-                 "≥ 80 % within band, SD ratios within 1.5×, for fit and validation targets alike")
+                 f"shipped population, {seeds_text}, {workers} worker processes on {os.cpu_count()} cores; "
+                 "fractions over the targets where the check applies; goals (issue 17): directions all right, "
+                 "≥ 80 % verdicts and ≥ 80 % within band, SD ratios within 1.5×, for fit and validation targets alike")
     return BenchResult(name="calibration", figures=figures, tables={"agreement": rows, "goals": goals}, notes=notes)

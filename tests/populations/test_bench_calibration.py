@@ -38,7 +38,8 @@ def test_figures_from_agreement_tables(tmp_path, monkeypatch):
         studies = [_Study("bio_inspired_palpation", str(folder / "report.html")),
                    _Study("needle_insertion", "", error="boom")]
 
-    monkeypatch.setattr(demo, "run_demo", lambda out, studies: _Result())
+    monkeypatch.delenv("STUDYCTL_BENCH_SEEDS", raising=False)
+    monkeypatch.setattr(demo, "run_demo", lambda out, seed, studies: _Result())
     res = run(quick=True)
     f = res.figures
     assert f["bio_inspired_palpation.fit.within"] == 1.0  # the SD is judged by its ratio, not the band
@@ -58,3 +59,46 @@ def test_figures_from_agreement_tables(tmp_path, monkeypatch):
     assert not goals[("overall", "all", "within")]["met"]
     assert any("needle_insertion: no agreement table (FAILED: boom" in n for n in res.notes)
     assert Path(folder / "agreement.csv").is_file()
+
+
+def test_several_seeds_pool_their_targets_and_keep_each_seeds_figures(tmp_path, monkeypatch):
+    import studyctl.workflows.demo as demo
+    from studyctl.bench.calibration import run
+
+    def _result(seed: int):
+        folder = tmp_path / str(seed) / "data_driven_palpation"
+        folder.mkdir(parents=True)
+        verdict = seed != 2024  # the demo seed misses the verdict, the other seed reproduces it
+        pd.DataFrame([
+            {"target": "v", "role": "validation", "statistic": "verdict", "same_direction": None, "within": None,
+             "sd_ratio": float("nan"), "same_verdict": verdict, "agrees": verdict},
+        ]).to_csv(folder / "agreement.csv", index=False)
+
+        class _Result:
+            workers = 1
+            studies = [_Study("data_driven_palpation", str(folder / "report.html"))]
+        return _Result()
+
+    monkeypatch.setenv("STUDYCTL_BENCH_SEEDS", "2024,99")
+    monkeypatch.setattr(demo, "run_demo", lambda out, seed, studies: _result(seed))
+    f = run(quick=True).figures
+    assert f["seed2024.data_driven_palpation.all.verdict"] == 0.0
+    assert f["seed99.data_driven_palpation.all.verdict"] == 1.0
+    assert f["data_driven_palpation.validation.verdict"] == 0.5 and f["data_driven_palpation.validation.verdict_n"] == 2
+    assert f["overall.all.verdict_n"] == 2 and "demo_s_seed99" in f
+
+
+def test_seeds_that_are_not_distinct_integers_are_refused(monkeypatch):
+    import pytest
+
+    from studyctl.bench.calibration import bench_seeds
+    from studyctl.errors import ConfigError
+
+    monkeypatch.setenv("STUDYCTL_BENCH_SEEDS", "2024,x")
+    with pytest.raises(ConfigError, match="STUDYCTL_BENCH_SEEDS='2024,x'.*e.g. STUDYCTL_BENCH_SEEDS=2024,99,7"):
+        bench_seeds(2024)
+    monkeypatch.setenv("STUDYCTL_BENCH_SEEDS", "7,7")
+    with pytest.raises(ConfigError):
+        bench_seeds(2024)
+    monkeypatch.delenv("STUDYCTL_BENCH_SEEDS")
+    assert bench_seeds(2024) == [2024]
