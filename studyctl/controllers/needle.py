@@ -33,6 +33,9 @@ class NeedleHybridController(Controller):
     radial_kp, radial_kd : float
         Radial guidance and maintain-mode gains (N/m, N·s/m), eqs. (1) and (8). Table 1: BL/RT/ES 100/30,
         EG 1000/70, ESG 1000/50.
+    radial_entry_line : float
+        0 (default): the radial guidance pulls towards the planned line (incision point → tumour centroid). 1: in
+        tissue, towards the line the needle entered along (eq. 1 as §2.3.1 words it; see NeedleParams).
     tolerance_mm, radial_max_n, capsule_puncture_n, tumour_puncture_n, friction_ref_length_mm, …
         Choices the paper does not state (defaults 1 mm, 2 N, 1 N, 1.5 N, 150 mm); see
         :class:`studyctl.models.needle.NeedleParams` for all of them and why.

@@ -125,6 +125,7 @@ class NeedleTissueModel:
         self._kp_mm = p.radial_kp * 1e-3
         self._kd_mm = p.radial_kd * 1e-3
         self._radial_max = p.radial_max_n
+        self._entry_line = p.radial_entry_line == 1.0
         self.set_loop_rate(p.rate_hz)  # the maintain cross-fade's step; a reduced simulated rate rescales it
         self._match_cos = math.cos(math.radians(p.track_match_deg))
         self.events: list[tuple[str, float]] = []
@@ -248,10 +249,15 @@ class NeedleTissueModel:
                 f_ax, layer, stuck = self._axial(tr, s, px, py, pz, vx * ux + vy * uy + vz * uz)
                 if s > tr.max_s:
                     tr.max_s = s
-        # radial guidance towards the planned line, in the body frame
+        # radial guidance towards the planned line (or, with radial_entry_line, in tissue towards the line the
+        # needle entered along: through its entry point along its frozen axis), in the body frame
         yx, yy, yz, zx, zy, zz = self._frame
-        a0, a1, a2 = self._a
-        d0, d1, d2 = self._d
+        if tr is not None and self._entry_line:
+            a0, a1, a2 = tr.ex, tr.ey, tr.ez
+            d0, d1, d2 = ux, uy, uz
+        else:
+            a0, a1, a2 = self._a
+            d0, d1, d2 = self._d
         wx, wy, wz = px - a0, py - a1, pz - a2
         lam = wx * d0 + wy * d1 + wz * d2
         ex, ey, ez = lam * d0 - wx, lam * d1 - wy, lam * d2 - wz  # from the tip to its closest point on the line

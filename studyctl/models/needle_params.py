@@ -41,6 +41,7 @@ UNITS: dict[str, str] = {
     "maintain_blend_s": "s",
     "track_match_mm": "mm",
     "track_match_deg": "deg",
+    "radial_entry_line": "0/1",
     "rate_hz": "Hz",
 }
 
@@ -61,7 +62,18 @@ class NeedleParams:
     ``stick_k``/``stick_d`` (stick anchor),
     ``contact_d`` (damping while a surface is pushed: the K·T/2 rule), ``maintain_blend_s``,
     ``track_match_mm``/``track_match_deg`` (a re-insertion this close to an earlier track reuses it),
+    ``radial_entry_line`` (0/1, which line the radial guidance pulls towards once the needle is in tissue, below),
     ``rate_hz`` (servo rate; the K·T/2 damping rule depends on it).
+
+    ``radial_entry_line``: 0 (the default, as every shipped protocol has run) pulls the needle towards the planned
+    line, from the planned incision point to the tumour centroid, in tissue as outside it. 1 is eq. (1) as the paper
+    words it (§2.3.1): ``d`` is "the orthogonal vector from the incision point to the virtual needle", and "the
+    incision point is the location where the needle penetrates the tissue", while "once the needle penetrates the
+    virtual tissue fixture, the needle angle is maintained". In tissue the guidance then holds the needle on the
+    line it entered along (through its entry point, along its frozen axis), so it damps tremor but resists a
+    correction of a misaligned entry beyond the tolerance ("compliant force feedback gave more freedom to the user
+    to correct for misalignment"); outside the tissue, where there is no entry point yet, it pulls towards the
+    planned line as before.
     """
 
     capsule_k_stiff: float = 100.0
@@ -89,6 +101,7 @@ class NeedleParams:
     maintain_blend_s: float = 0.1
     track_match_mm: float = 1.0
     track_match_deg: float = 3.0
+    radial_entry_line: float = 0.0
     rate_hz: float = 1000.0
 
     @classmethod
@@ -146,6 +159,11 @@ class NeedleParams:
             v = getattr(self, name)
             if v <= 0:
                 raise ModelParameterError(f"{where}: {name} = {v:g} {UNITS[name]} must be > 0")
+        if self.radial_entry_line not in (0.0, 1.0):
+            raise ModelParameterError(
+                f"{where}: radial_entry_line = {self.radial_entry_line:g} must be 0 (guidance towards the planned "
+                "line) or 1 (towards the line the needle entered the tissue along)"
+            )
         if self.maintain_blend_s < 1.0 / self.rate_hz:
             raise ModelParameterError(
                 f"{where}: maintain_blend_s = {self.maintain_blend_s:g} s is shorter than one tick "

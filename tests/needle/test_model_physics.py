@@ -248,6 +248,44 @@ def test_needle_angle_is_frozen_inside_tissue(vertical_geometry):
     assert np.allclose(m.axis, np.array([0.3, 0.2, -0.9]) / np.linalg.norm([0.3, 0.2, -0.9]))
 
 
+def _tilted_insertion(model, geometry, tilt_deg: float, depth_mm: float) -> list[float]:
+    """Insert along an axis tilted ``tilt_deg`` from the planned path, starting 3 mm above the incision point, and
+    return the radial force (N) at each millimetre of depth in tissue."""
+    a, u = np.array(geometry.incision_mm), np.array(geometry.planned_direction)
+    side = np.array(body_frame(*u)[:3])
+    w = math.cos(math.radians(tilt_deg)) * u + math.sin(math.radians(tilt_deg)) * side
+    radial = []
+    for s in np.arange(-3.0, depth_mm + 1e-9, 0.015):  # 15 mm/s at 1 kHz
+        model.step(*(a + s * w), *(15.0 * w), *w, True)
+        if s >= 1.0 and abs(s - round(s)) < 0.008:
+            radial.append(model.f_radial)
+    return radial
+
+
+def test_with_the_entry_line_the_guidance_holds_the_needle_on_the_line_it_entered_along(vertical_geometry):
+    """radial_entry_line 1 (eq. 1 as the paper words it): in tissue the guidance pulls towards the line through the
+    entry point along the frozen axis, so a needle entered 4 deg off the plan and pushed straight on feels nothing,
+    where the planned-line guidance (0, the default) pulls its tip back towards the plan once it is off by more
+    than the tolerance; pushed sideways off its own line, it is pulled back to that line."""
+    planned = _tilted_insertion(_model("EG", vertical_geometry), vertical_geometry, 4.0, 40.0)
+    assert max(planned) > 1.0  # 40 mm at 4 deg is 2.8 mm off the plan: 1000 N/m beyond the 1 mm tolerance
+    m = _model("EG", vertical_geometry, radial_entry_line=1)
+    entry = _tilted_insertion(m, vertical_geometry, 4.0, 40.0)
+    assert m.in_tissue and max(entry) == 0.0
+    # 2 mm sideways from its own line (past the 1 mm tolerance): pulled back towards that line, not the plan
+    u = np.array(m.axis)
+    side = np.array(body_frame(*u)[:3])
+    tip = np.array(vertical_geometry.incision_mm) + 40.0 * u
+    f = np.array(m.step(*(tip + 2.0 * side), 0.0, 0.0, 0.0, *u, True))
+    assert m.f_radial == pytest.approx(1000 * 1e-3 * 1.0, rel=0.05)
+    assert float(f @ side) < 0 and abs(float(f @ side)) == pytest.approx(m.f_radial, rel=0.05)
+
+
+def test_the_entry_line_switch_takes_only_zero_or_one():
+    with pytest.raises(ModelParameterError, match="radial_entry_line = 0.5 must be 0"):
+        NeedleParams.from_mapping({"radial_entry_line": 0.5})
+
+
 def test_maintain_mode_transition_is_smooth_and_holds(vertical_geometry):
     m = _model("EG", vertical_geometry)
     a, u = np.array(vertical_geometry.incision_mm), np.array(vertical_geometry.planned_direction)
