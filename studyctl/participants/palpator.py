@@ -32,7 +32,9 @@ as quickly as possible):
    log-percept exceeds it by ``screen_z`` noise SDs of the mean (or, where normal tissue is mostly not felt,
    that is felt — or stopped on — more often than the base rate allows, as a z-score) is re-probed
    ``confirm_presses`` times; cells still undecided are probed again, up to ``confirm_rounds`` rounds. With
-   ``sure_odds`` (after practice, odds rule) a cell already that sure after the sweep is not re-probed.
+   ``sure_odds`` (after practice, odds rule) a cell already that sure after the sweep is not re-probed; with
+   ``dismiss_odds`` a cell is dropped only once a tumour there is that unlikely (the two bounds of Wald's sequential
+   test), not below the fixed ``screen_z``.
 3. **Report**: cells whose evidence stays above ``report_z``, keeping only the strongest of neighbouring
    cells; then ``finish``. When nothing stood out, it reports ``guesses`` cells: distinct random ones, or with
    ``guess: best`` those whose evidence was strongest (a forced choice by the max rule).

@@ -101,10 +101,23 @@ class CellDecision:
                 return self._level(ev, sure) if sure > 0 else math.inf
             return self._level(ev)
 
-        candidates = [cell for cell, ev in self.evidence.items() if p["screen_z"] < self._score(ev, ref) <= bound(ev)]
+        candidates = [cell for cell, ev in self.evidence.items()
+                      if self._screen(ev) < self._score(ev, ref) <= bound(ev)]
         for cell in candidates:
             for _ in range(self.params["confirm_presses"]):
                 self._queue_probe(cell)
+
+    def _screen(self, ev: _CellEvidence) -> float:
+        """The evidence above which a cell is probed again. ``screen_z`` noise SDs; with ``dismiss_odds`` (after
+        practice, odds rule) the lower bound of Wald's sequential test instead: a cell is dropped only once a tumour
+        there is that unlikely (odds below ``dismiss_odds``), so a feedback whose practice showed a weak separation
+        leaves more cells undecided, to be probed again, and one that told tumours apart clearly leaves fewer."""
+        odds = self.params["dismiss_odds"]
+        cues = self.cues
+        if odds > 0 and self.params["report_rule"] == "odds" and cues is not None and cues.separation > 0 \
+                and 0 < cues.prior < 1:
+            return self._level(ev, odds)
+        return self.params["screen_z"]
 
     def _decide_and_finish(self) -> Action:
         if self._finished:

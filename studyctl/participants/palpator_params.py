@@ -96,6 +96,12 @@ PARAMS = (
           "(its evidence is past the bound; the report still takes the cell). 0 = every cell past screen_z is "
           "re-probed once, as before (measured: scripts/palpation_contact_time.py, re-probes of cells already past "
           "the report level are most of the presses that set tumour contact time apart between controllers)"),
+    Param("dismiss_odds", 0.0, 0.0, 1.0, source="CHOSEN: the lower bound of Wald's sequential probability ratio "
+          "test (Wald 1947; Gold & Shadlen 2007, Annu Rev Neurosci 30:535), the partner of sure_odds: after practice "
+          "(report_rule: odds), a cell is probed again while a tumour there is neither this unlikely (odds below "
+          "dismiss_odds) nor past the report level (or sure_odds); with equal error rates of 5 % the bounds are 19 "
+          "and 1/19. How many cells stay undecided then follows from the separation the practice showed for this "
+          "feedback, not from a fixed screen_z. 0 = screen_z, as before"),
     Param("max_reports", 0, 0, 49, kind=int, source="CHOSEN: at most this many cells are reported, the strongest "
           "first (0 = no limit); the example phantom shows 3 tumours, so people expect about that many"),
     Param("guess", "random", kind=str, source="CHOSEN: which cells a person reports when nothing stood out: "

@@ -24,12 +24,13 @@ from studyctl.scenes.sponge import SpongePhantomScene
 CUES = CueWeights((("balloon_psi", "peak"),), (1.0,), (0.0,), 1.0, 2.0, 3 / 49)
 
 
-def _queued_after_sweep(sure_odds: float, first_presses: list[float]) -> set[tuple[int, int]]:
+def _queued_after_sweep(sure_odds: float, first_presses: list[float], cues: CueWeights = CUES,
+                        **extra: float) -> set[tuple[int, int]]:
     """The cells a practised person re-probes after a sweep whose first presses gave this combined evidence."""
-    person = VirtualPalpator({"report_rule": "odds", "sure_odds": sure_odds, "confirm_presses": 1})
+    person = VirtualPalpator({"report_rule": "odds", "sure_odds": sure_odds, "confirm_presses": 1, **extra})
     grid = {"columns": len(first_presses), "rows": 1, "cell_mm": 20.0}
     person.begin_trial(TrialInfo("linear", 600.0, 50.0, public={"grid": grid}), np.random.default_rng(0))
-    person.cues = CUES
+    person.cues = cues
     person.evidence = {(c, 1): _CellEvidence(combined=[v], presses=1) for c, v in enumerate(first_presses, 1)}
     swept = len(person._plan)  # the sweep queued at the start of the trial
     person._queue_confirmations(first=True)
@@ -50,6 +51,22 @@ def test_a_cell_already_past_the_bound_is_not_reprobed():
     assert person._level(ev, 19.0) == pytest.approx(1 + math.log(19 * 46 / 3) / 2)
     # without the odds rule there is no such bound: nothing is skipped
     assert VirtualPalpator({"report_rule": "z"})._level(ev, 19.0) == math.inf
+
+
+def test_with_dismiss_odds_a_cell_is_dropped_only_below_the_lower_bound_of_the_sequential_test():
+    """Wald's lower bound at odds 1/19 for one press at separation 2: 1 + ln(46 / 3 / 19) / 2 = 0.89 spreads (the
+    fixed screen_z is 2); at separation 1 (a feedback whose practice told tumours apart less well) 0.5 + ln(0.81) =
+    0.29, so more cells stay undecided. The upper bound (sure_odds 19: 3.84 at separation 2) still skips 5.0."""
+    first = [0.0] * 6 + [0.5, 1.2, 2.2, 3.0, 5.0]  # plain sponge's level (the median) is 0
+    assert _queued_after_sweep(19.0, first) == {(9, 1), (10, 1)}  # as before: screen_z 2
+    assert _queued_after_sweep(19.0, first, dismiss_odds=1 / 19) == {(8, 1), (9, 1), (10, 1)}
+    weak = CueWeights(CUES.keys, CUES.weights, CUES.centres, 1.0, 1.0, 3 / 49)  # sure bound 0.5 + ln(19 x 46/3)
+    assert _queued_after_sweep(19.0, first, weak, dismiss_odds=1 / 19) == {(7, 1), (8, 1), (9, 1), (10, 1), (11, 1)}
+    person = VirtualPalpator({"report_rule": "odds", "dismiss_odds": 1 / 19})
+    person.cues = CUES
+    assert person._screen(_CellEvidence(combined=[0.0])) == pytest.approx(1 + math.log(46 / 3 / 19) / 2)
+    # without the odds rule (or before practice) screen_z stays the bar
+    assert VirtualPalpator({"report_rule": "z", "dismiss_odds": 1 / 19})._screen(_CellEvidence()) == 2.0
 
 
 def test_sure_odds_below_one_is_refused():
@@ -95,7 +112,8 @@ def test_a_press_is_held_while_the_balloon_still_fills():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("extra", [{"sure_odds": 19.0}, {"lift_rule": "settled"}])
+@pytest.mark.parametrize("extra", [{"sure_odds": 19.0}, {"lift_rule": "settled"},
+                                   {"sure_odds": 19.0, "dismiss_odds": 1 / 19}])
 def test_with_either_stopping_rule_a_broken_controller_is_still_noticed(extra):
     """`none` in place of the bio-inspired controller, the shipped population's typical person with the rule on,
     24 trials each on the broken-controller test's tumours and seeds: fewer tumours found (measured with
