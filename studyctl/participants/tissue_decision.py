@@ -276,15 +276,32 @@ class SpotDecision:
         bound = math.log((1.0 - a) / a)  # Wald's bounds with α = β
         while self._spots:
             spot = self._spots[0]
-            llr = self._spot_llr(spot)
-            undecided = -bound < llr < bound or (llr <= -bound and spot["presses"] < self.params["follow_up_min"])
-            if spot["todo"] and undecided:
-                spot["presses"] += 1
-                return [spot["todo"].pop(0)]
-            verdict = "nodule" if llr >= bound else ("none" if llr <= -bound else "undecided")
+            if "verdict" not in spot:  # still being tested (a decided spot may be pinpointed, not retested)
+                llr = self._spot_llr(spot)
+                undecided = -bound < llr < bound or (llr <= -bound and spot["presses"] < self.params["follow_up_min"])
+                if spot["todo"] and undecided:
+                    spot["presses"] += 1
+                    return [spot["todo"].pop(0)]
+                spot["verdict"] = "nodule" if llr >= bound else ("none" if llr <= -bound else "undecided")
+            verdict = spot["verdict"]
+            pin = self._pinpoint_press(spot) if verdict == "nodule" else None
+            if pin is not None:
+                return [pin]
             self._follow_up["follow_up_decisions"].append((spot["x"], spot["y"], verdict, spot["presses"]))
             self._spots.pop(0)
         return []
+
+    def _pinpoint_press(self, spot: dict[str, Any]) -> tuple[float, float] | None:
+        """``pinpoint_presses``: the next of the grid's side points around a spot judged a nodule, not yet pressed
+        there (the verdict is kept: these presses place the spot, they do not retest it); None when done."""
+        if "pin" not in spot:
+            s = self.params["follow_up_spacing_mm"]
+            sides = [(spot["x"] + ox, spot["y"] + oy) for ox, oy in ((0.0, -s), (0.0, s), (-s, 0.0), (s, 0.0))]
+            spot["pin"] = [g for g in sides if g in spot["todo"]][: self.params["pinpoint_presses"]]
+            spot["todo"] = [g for g in spot["todo"] if g not in spot["pin"]]
+        if not spot["pin"]:
+            return None
+        return spot["pin"].pop(0)
 
     def _decide(self) -> list[tuple[float, float]]:
         p = self.params

@@ -239,6 +239,10 @@ PARAMS = (
           source="CHOSEN: presses a person makes at a suspicious spot before dismissing it"),
     Param("follow_up_count", 5, low=0, high=50, kind=int, source="CHOSEN: spots re-palpated at most"),
     Param("follow_up_spacing_mm", 4.0, low=0.5, high=20.0, unit="mm", source="CHOSEN: a 3 × 3 local grid"),
+    Param("pinpoint_presses", 0, low=0, high=4, kind=int,
+          source="CHOSEN: presses at the neighbours of a re-palpated spot once it is judged a nodule (its 3 x 3 "
+          "grid's four side points), feeling around it to pinpoint it before it is reported, as seed 002's task "
+          "asked (§IV.A: 'pinpoint the found nodule positions'); 0 = none: the spot is left once its test decides"),
     Param("max_reports", 6, low=1, high=100, kind=int, source="CHOSEN: nobody marks more spots"),
     Param("follow_up_error", 0.05, low=1e-4, high=0.5,
           source="CHOSEN: confidence to settle a re-palpated spot: Wald's SPRT error rates (α = β)"),
