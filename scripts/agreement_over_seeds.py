@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from studyctl.calibration.agreement import summary_from_frame
+from studyctl.calibration.agreement import checks_as_booleans, summary_from_frame
 
 CHECKS = (("agree", "agree_fraction", "agree_n"), ("directions", "direction_fraction", "direction_n"),
           ("verdicts", "verdict_fraction", "verdict_n"), ("within band", "within_fraction", "within_n"))
@@ -29,10 +29,7 @@ def agreement_frame(report_dir: Path) -> pd.DataFrame:
     path = report_dir / "agreement.csv"
     if not path.is_file():
         raise SystemExit(f"Error: {path} not found; pass report folders written by `studyctl report -o DIR`.")
-    frame = pd.read_csv(path, keep_default_na=True)
-    for col in ("same_direction", "within", "same_verdict", "agrees"):
-        frame[col] = frame[col].map(lambda v: None if pd.isna(v) else str(v) == "True")
-    return frame
+    return checks_as_booleans(pd.read_csv(path, keep_default_na=True))
 
 
 def index_line(label: str, frame: pd.DataFrame) -> str:

@@ -76,19 +76,10 @@ def bench_seeds(default: int) -> list[int]:
     return seeds
 
 
-def _agreement_frame(path: Path):
-    import pandas as pd
-
-    frame = pd.read_csv(path, keep_default_na=True)
-    for col in ("same_direction", "within", "same_verdict", "agrees"):
-        frame[col] = frame[col].map(lambda v: None if pd.isna(v) else str(v) == "True")
-    return frame
-
-
 def run(quick: bool = False) -> BenchResult:
     import pandas as pd
 
-    from studyctl.calibration.agreement import summary_from_frame
+    from studyctl.calibration.agreement import checks_as_booleans, summary_from_frame
     from studyctl.populations import load_population_file, shipped_population_path
     from studyctl.workflows.demo import DEFAULT_SEED, REFERENCE_STUDIES, run_demo
 
@@ -120,7 +111,7 @@ def run(quick: bool = False) -> BenchResult:
                     notes.append(f"seed {seed}: {s.study}: no agreement table ({why}; "
                                  f"{s.population or 'population unknown'})")
                     continue
-                frame = _agreement_frame(path).assign(study=s.study, seed=seed)
+                frame = checks_as_booleans(pd.read_csv(path, keep_default_na=True)).assign(study=s.study, seed=seed)
                 by_study.setdefault(s.study, []).append(frame)
                 if len(seeds) > 1:
                     one = summary_from_frame(frame)["all"]

@@ -84,6 +84,18 @@ class Agreement:
         return summary_from_frame(self.to_frame())
 
 
+CHECKS = ("same_direction", "within", "same_verdict", "agrees")  # the yes/no columns
+
+
+def checks_as_booleans(frame: pd.DataFrame) -> pd.DataFrame:
+    """An ``agreement.csv`` as read back (``pd.read_csv``): its yes/no columns as booleans again, None where a check
+    does not apply (blank), so :func:`summary_from_frame` counts them as the report did."""
+    out = frame.copy()
+    for col in CHECKS:
+        out[col] = out[col].map(lambda v: None if pd.isna(v) else str(v) == "True")
+    return out
+
+
 def _present(v: object) -> bool:
     return v is not None and not (isinstance(v, float) and math.isnan(v))
 

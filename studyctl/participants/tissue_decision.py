@@ -298,7 +298,6 @@ class SpotDecision:
             s = self.params["follow_up_spacing_mm"]
             sides = [(spot["x"] + ox, spot["y"] + oy) for ox, oy in ((0.0, -s), (0.0, s), (-s, 0.0), (s, 0.0))]
             spot["pin"] = [g for g in sides if g in spot["todo"]][: self.params["pinpoint_presses"]]
-            spot["todo"] = [g for g in spot["todo"] if g not in spot["pin"]]
         if not spot["pin"]:
             return None
         return spot["pin"].pop(0)
