@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from studyctl.controllers import bio_inspired
 from studyctl.controllers.bio_inspired import BioInspiredController
 from studyctl.controllers.palpation import LinearController, NoFeedback, PiecewiseController
 from studyctl.devices.palpation import SimulatedPalpationDevice
@@ -102,6 +103,7 @@ def test_baseline_controllers_build_no_afferent_model(monkeypatch):
 
     monkeypatch.setattr(capr.CaprModel, "__init__", forbidden)
     monkeypatch.setattr(capr, "build_population", forbidden)
+    monkeypatch.setattr(bio_inspired, "_MODELS", {})  # none built yet in this process: the bio-inspired one must build
     for cls in (NoFeedback, LinearController, PiecewiseController):
         ctrl = cls({})
         assert cls.needs({}) == frozenset()
