@@ -21,7 +21,7 @@ from studyctl.populations.model import DISTS, FORMAT, SOURCE_PREFIXES, Trait, Tr
 from studyctl.suggest import did_you_mean
 
 TOP_KEYS = ("format", "name", "version", "protocol", "participant", "description", "traits", "fixed", "calibration")
-TRAIT_KEYS = ("dist", "mean", "sd", "range", "unit", "source", "groups", "note")
+TRAIT_KEYS = ("dist", "mean", "sd", "range", "unit", "source", "groups", "note", "appended")
 GROUP_KEYS = ("mean", "sd")
 CALIBRATION_KEYS = (
     "targets", "free", "used_for_fit", "validation", "bounds", "seed", "participants", "replicates",
@@ -237,9 +237,13 @@ def _trait(c: _Checker, name: Any, spec: Any, declared: Mapping[str, Any], plugi
             raise c.fail(where, f"a lognormal median must be > 0, got {loc:g}")
         if dist == "logitnormal" and not 0 < loc < 1:
             raise c.fail(where, f"a logitnormal median must be a proportion in (0, 1), got {loc:g}")
+    appended = spec.get("appended", False)
+    if not isinstance(appended, bool):
+        raise c.fail((*path, "appended"), f"appended must be true or false, got {appended!r}; write appended: true "
+                     "to draw this trait after the others (a trait added to an existing population)")
     return Trait(name=str(name), dist=str(dist), mean=mean, sd=sd, low=low, high=high,
                  unit=str(spec.get("unit") or param.unit or ""), source=source, groups=groups,
-                 integer=kind is int)
+                 integer=kind is int, appended=appended)
 
 
 def check_population_for(pop: TraitPopulation, protocol: Any) -> None:

@@ -8,7 +8,10 @@ immutable form; :meth:`TraitPopulation.draw` turns one seeded Generator into one
 Draws use one standard normal per trait, in sorted trait order, whatever the distribution (a ``fixed`` trait
 still consumes its number). Two populations with the same trait names therefore give the same person the
 same standard normals: changing a location or spread moves every person smoothly (common random numbers,
-which calibration relies on).
+which calibration relies on). A trait marked ``appended`` takes its number after all the others (appended ones
+in sorted order among themselves): a population that adds a trait that way gives every person the numbers, and
+so the other traits, it had before, where a new name sorted in among the old ones would shift the later traits'
+numbers and swap the people a comparison of the two populations pairs.
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ class Trait:
     source: str = ""
     groups: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     integer: bool = False
+    appended: bool = False  # drawn after the other traits (see the module docs)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "groups", _frozen({g: _frozen(v) for g, v in self.groups.items()}))
@@ -94,6 +98,8 @@ class Trait:
         out["source"] = self.source
         if self.groups:
             out["groups"] = {g: dict(v) for g, v in self.groups.items()}
+        if self.appended:
+            out["appended"] = True
         return out
 
 
@@ -133,9 +139,12 @@ class TraitPopulation:
                      where=f" in population {self.name!r}")
 
     def draw(self, rng: np.random.Generator, stratum: str | None = None) -> dict[str, float]:
-        """One person's traits: one standard normal per trait in sorted name order (see module docs)."""
-        z = rng.standard_normal(len(self.traits))
-        return {t.name: t.value(float(zi), stratum) for t, zi in zip(self.traits, z, strict=True)}
+        """One person's traits: one standard normal per trait in sorted name order, ``appended`` traits last
+        (see module docs)."""
+        order = [t for t in self.traits if not t.appended] + [t for t in self.traits if t.appended]
+        z = rng.standard_normal(len(order))
+        drawn = {t.name: t.value(float(zi), stratum) for t, zi in zip(order, z, strict=True)}
+        return {t.name: drawn[t.name] for t in self.traits}
 
     def params(self, traits: Mapping[str, Any]) -> dict[str, Any]:
         """The participant's constructor params for a person with ``traits`` (fixed ones, then the traits)."""

@@ -57,6 +57,35 @@ def test_common_random_numbers_move_people_smoothly(population):
     assert f.low == 0.03 and f.high == 0.4
 
 
+
+def test_an_appended_trait_keeps_every_person_s_other_traits(tmp_path):
+    # A trait added to a shipped population must not swap the people a landing rule pairs by seed: without
+    # `appended`, follow_gain_mm_per_ns sorts in third and every later trait (force_threshold_n ...) would take
+    # another person's standard normal.
+    from studyctl.engine.seeding import person_traits
+    from studyctl.populations.loader import shipped_population_path
+
+    shipped = shipped_population_path("needle_insertion")
+    trait = ("  follow_gain_mm_per_ns:\n    dist: lognormal\n    mean: 3.0\n    sd: 0.4\n    range: [0.75, 12.0]\n"
+             "    appended: true\n    source: \"CHOSEN: test\"\nfixed:\n")
+    added = load_population_file(write_variant(tmp_path, "fixed:\n", trait, source=shipped))
+    base = load_population_file(shipped)
+    assert added.trait("follow_gain_mm_per_ns").appended and not base.trait("finish_mm").appended
+    gains = []
+    for seed in range(8):
+        old, new = person_traits(base, seed, None), person_traits(added, seed, None)
+        assert {k: new[k] for k in old} == old
+        gains.append(new["follow_gain_mm_per_ns"])
+    assert len(set(gains)) == 8 and min(gains) >= 0.75 and max(gains) <= 12.0
+    assert "appended: true" in added.to_yaml() and "appended" not in base.to_yaml()
+    # sorted in among the others instead, the people change
+    mixed = load_population_file(write_variant(tmp_path, "fixed:\n", trait.replace("    appended: true\n", ""),
+                                               source=shipped))
+    assert person_traits(mixed, 0, None)["force_threshold_n"] != person_traits(base, 0, None)["force_threshold_n"]
+    bad = write_variant(tmp_path, "fixed:\n", trait.replace("appended: true", "appended: 1"), source=shipped)
+    with pytest.raises(PopulationError, match=r"follow_gain_mm_per_ns\.appended: appended must be true or false"):
+        load_population_file(bad)
+
 def test_free_parameter_names(population):
     names = ["press_speed_mm_s", "press_speed_mm_s.sd", "press_speed_mm_s@expert", "hold_s"]
     fs = {f.name: f for f in free_params(population, names)}
