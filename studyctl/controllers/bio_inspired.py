@@ -117,30 +117,13 @@ class BioInspiredController(PalpationController):
         return tuple(t for t in ("SA1", "RA1", "PC") if t in used)
 
     def _build_model(self) -> capr.CaprModel:
-        p = self.params
         types = self.afferent_types()
-        key = (types, *(p[k] for k in _MODEL_KEYS))
+        spec = {k: self.params[k] for k in _MODEL_KEYS}
+        key = (types, *spec.values())
         built = _MODELS.get(key)
         if built is None:
-            built = _MODELS[key] = self._new_model(types)
+            built = _MODELS[key] = _new_model(types, spec)
         return built.clone()
-
-    def _new_model(self, types: tuple[str, ...]) -> capr.CaprModel:
-        p = self.params
-        contact = capr.SkinContact(radius_mm=p["contact_radius_mm"])
-        pops = [
-            capr.reduce_population(
-                _population(name, contact), p["population"], factor=p["density_factor"], clusters=p["clusters"]
-            )
-            for name in types
-        ]
-        return capr.CaprModel(
-            pops,
-            input_rate_hz=p["rate_hz"],
-            fs_model=p["fs_model"],
-            window_s=p["window_s"],
-            activation_hz=p["activation_hz"],
-        )
 
     def reset(self) -> None:
         super().reset()
@@ -177,6 +160,25 @@ _MODEL_KEYS = ("contact_radius_mm", "population", "density_factor", "clusters", 
                "activation_hz")
 _MODELS: dict[tuple, capr.CaprModel] = {}
 _POPULATIONS: dict[tuple[str, capr.SkinContact], capr.Population] = {}
+
+
+def _new_model(types: tuple[str, ...], spec: Mapping[str, Any]) -> capr.CaprModel:
+    """A CAPR model of these afferent types built from ``spec`` alone (the parameters named in ``_MODEL_KEYS``, so
+    the cache key holds everything the model depends on)."""
+    contact = capr.SkinContact(radius_mm=spec["contact_radius_mm"])
+    pops = [
+        capr.reduce_population(
+            _population(name, contact), spec["population"], factor=spec["density_factor"], clusters=spec["clusters"]
+        )
+        for name in types
+    ]
+    return capr.CaprModel(
+        pops,
+        input_rate_hz=spec["rate_hz"],
+        fs_model=spec["fs_model"],
+        window_s=spec["window_s"],
+        activation_hz=spec["activation_hz"],
+    )
 
 
 def _population(name: str, contact: capr.SkinContact) -> capr.Population:

@@ -230,21 +230,25 @@ class CaprModel:
         self._crit = np.array([p.force_crit_n for p in self.populations])
         self._crit_min = float(self._crit.min())
         self._ones_m = np.ones(m)
+        self._sum_thr = self.activation_hz * self.window_ticks  # window sum above which a unit is active
+        self._work_buffers()
+
+    def _work_buffers(self) -> None:
+        """The arrays a numpy-path step writes into (kept, not made per tick); every model, clones too, owns its own."""
+        n_units, m = self.n_units, self.m
         self._drive = np.empty((n_units, m))
         self._deep_drive = np.empty((n_units, m))
         self._tmp = np.empty((n_units, m))
         self._rate = np.empty(n_units)
         self._active = np.empty(n_units)
         self._masked = np.empty(n_units)
-        self._sum_thr = self.activation_hz * self.window_ticks  # window sum above which a unit is active
 
     def clone(self) -> CaprModel:
         """A model at rest with this one's built matrices (shared: stepping only reads them) and its own state and
         work buffers. Building one costs ~0.3 s (the lifted state space of ``_build``), which a controller made
         for every trial would otherwise pay every trial; a clone steps to the same floats as a new build."""
         other = copy.copy(self)
-        for name in ("_drive", "_deep_drive", "_tmp", "_rate", "_active", "_masked"):
-            setattr(other, name, np.empty_like(getattr(self, name)))
+        other._work_buffers()
         other._jit = _compiled_tick(other, self._compiled)  # its own scratch arrays and sums (STUDYCTL_JIT as now)
         other.reset()
         return other

@@ -113,11 +113,15 @@ class CellDecision:
         there is that unlikely (odds below ``dismiss_odds``), so a feedback whose practice showed a weak separation
         leaves more cells undecided, to be probed again, and one that told tumours apart clearly leaves fewer."""
         odds = self.params["dismiss_odds"]
-        cues = self.cues
-        if odds > 0 and self.params["report_rule"] == "odds" and cues is not None and cues.separation > 0 \
-                and 0 < cues.prior < 1:
+        if odds > 0 and self._odds_rule():
             return self._level(ev, odds)
         return self.params["screen_z"]
+
+    def _odds_rule(self) -> bool:
+        """Whether the likelihood-ratio criterion applies: ``report_rule: odds`` and a practice that showed a
+        separation and a tumour share (see :meth:`_level`)."""
+        cues = self.cues
+        return self.params["report_rule"] == "odds" and cues is not None and cues.separation > 0 and 0 < cues.prior < 1
 
     def _decide_and_finish(self) -> Action:
         if self._finished:
@@ -159,7 +163,7 @@ class CellDecision:
         most practised trials with nothing reported, so they ended in random guesses whatever the feedback
         (measured: scripts/palpation_practice_decision.py)."""
         cues = self.cues
-        if self.params["report_rule"] == "odds" and cues is not None and cues.separation > 0 and 0 < cues.prior < 1:
+        if self._odds_rule():
             d = cues.separation * math.sqrt(max(len(ev.combined), 1))
             return d / 2 + math.log(odds * (1 - cues.prior) / cues.prior) / d
         return self.params["report_z"] if odds == 1.0 else math.inf

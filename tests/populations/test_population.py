@@ -57,7 +57,6 @@ def test_common_random_numbers_move_people_smoothly(population):
     assert f.low == 0.03 and f.high == 0.4
 
 
-
 def test_an_appended_trait_keeps_every_person_s_other_traits(tmp_path):
     # A trait added to a shipped population must not swap the people a landing rule pairs by seed: without
     # `appended`, follow_gain_mm_per_ns sorts in third and every later trait (force_threshold_n ...) would take
@@ -85,6 +84,7 @@ def test_an_appended_trait_keeps_every_person_s_other_traits(tmp_path):
     bad = write_variant(tmp_path, "fixed:\n", trait.replace("appended: true", "appended: 1"), source=shipped)
     with pytest.raises(PopulationError, match=r"follow_gain_mm_per_ns\.appended: appended must be true or false"):
         load_population_file(bad)
+
 
 def test_free_parameter_names(population):
     names = ["press_speed_mm_s", "press_speed_mm_s.sd", "press_speed_mm_s@expert", "hold_s"]
