@@ -116,6 +116,7 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
         ) + (VISUAL, STOP, TRAVEL)
         self._stop = {"balloon_psi": p["stop_balloon_psi"], "vibration_ms2": p["stop_vibration_ms2"]}
         self._stop_ratio = float(p["stop_ratio"])
+        self._stop_by_depth = p["stop_match"] == "depth"
         self._stop_levels = any(v < NEVER for v in self._stop.values())  # an absolute "enough" level is in use
         if p["guess"] not in ("random", "best"):
             raise ModelParameterError(f"virtual_palpator participant: guess {p['guess']!r} must be random or best")
@@ -173,6 +174,8 @@ class VirtualPalpator(PressPlanning, PressNotes, CellDecision, Familiarisation, 
         self._spread: dict[tuple[str, str], float] = {}  # how much each note varies over plain tissue
         self._peaks: dict[str, list[float]] = {ch: [] for ch in CHANNELS}  # strongest feel of each press so far
         self._usual: dict[str, float] = {}  # their running median: what pressing normal tissue feels like
+        self._plain_at: dict[tuple[str, str], list[float]] = {}  # stop_match depth: each checkpoint's feel so far
+        self._usual_at: dict[tuple[str, str], float] = {}  # ... and its running median
         self._finished = False
         self._rounds = 0  # rounds of re-probing done
         self._press_logs: list[tuple[tuple[int, int], dict[tuple[str, str], float]]] = []  # practice: each press

@@ -37,6 +37,13 @@ PARAMS = (
     Param("stop_ratio", 0.0, 0.0, 10.0, source="FITTED: a press also stops when a cue exceeds this multiple of "
           "what normal tissue gave at its strongest (the running median of earlier presses; 0 = never): "
           "something under the probe already feels different, so pressing on only adds force"),
+    Param("stop_match", "peak", kind=str, choices=("peak", "depth"), source="CHOSEN: what stop_ratio compares a "
+          "cue with. peak: what plain tissue gave at its strongest (the running median of earlier presses' peaks), "
+          "so a cue can pass it only near the bottom of a press; depth: what plain tissue gave at the same "
+          "fraction of the intended depth (the running median of earlier unstopped presses' notes at that "
+          "checkpoint), judged as each checkpoint is passed: softness is judged as the force felt for a given "
+          "indentation (Srinivasan & LaMotte 1995, J Neurophysiol 73:88), so a spot that already pushes back "
+          "harder part-way down is felt as different before the press is done"),
     Param("after_stop", "release", kind=str, source="CHOSEN: what a person does with the rest of a press's "
           "planned time when a strong cue ended the descent early: release (go on), hold (stay at that depth) "
           "or tap (re-probe the same spot, each tap ending where the cue says enough: feedback felt during "

@@ -113,5 +113,18 @@ class PressNotes:
                 peaks.append(notes.get((ch, "peak"), 0.0))
                 if len(peaks) >= 5:
                     self._usual[ch] = float(np.median(peaks))
+            if self._stop_by_depth:
+                self._keep_plain_at_depth(notes)
         self._notes = {}
         self._pressing = None
+
+    def _keep_plain_at_depth(self, notes: Mapping[tuple[str, str], float]) -> None:
+        """``stop_match: depth``: add an unstopped press's feel at each checkpoint it passed to that checkpoint's
+        running median (what pressing plain tissue feels like that far down; from 5 presses on)."""
+        for _ch, _peak, cp_keys in self._note_keys:
+            for _c, ck in cp_keys:
+                if ck in notes:
+                    seen = self._plain_at.setdefault(ck, [])
+                    seen.append(notes[ck])
+                    if len(seen) >= 5:
+                        self._usual_at[ck] = float(np.median(seen))

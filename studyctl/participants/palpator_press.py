@@ -103,12 +103,27 @@ class PressPlanning:
         """A haptic cue strong enough to stop pressing: above an absolute level (as felt this press: ``gain``), or
         well above what normal tissue usually gives (felt as is: large differences, far above the Weber noise)."""
         ratio = self._stop_ratio
+        by_peak = ratio and not self._stop_by_depth
         usual = self._usual
         for ch, level in self._stop.items():
             v = percept.get(ch)
-            if isinstance(v, int | float) and (v * gain >= level or (ratio and usual.get(ch, 0.0) > 0
+            if isinstance(v, int | float) and (v * gain >= level or (by_peak and usual.get(ch, 0.0) > 0
                                                               and v >= ratio * usual[ch])):
                 return True
+        return bool(ratio and self._stop_by_depth and self._above_plain_at_depth(ratio))
+
+    def _above_plain_at_depth(self, ratio: float) -> bool:
+        """``stop_match: depth``: did this press feel a cue ``ratio`` times what plain tissue gave at the deepest
+        checkpoint the press has passed? (The note at a checkpoint is the feel as it was passed, so the comparison
+        is at the same fraction of the intended depth, not against a cue that has since grown.)"""
+        notes, usual = self._notes, self._usual_at
+        for _ch, _peak, cp_keys in self._note_keys:
+            for _c, ck in reversed(cp_keys):
+                if ck in notes:
+                    u = usual.get(ck, 0.0)
+                    if u > 0 and notes[ck] >= ratio * u:
+                        return True
+                    break
         return False
 
 

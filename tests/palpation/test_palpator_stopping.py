@@ -149,6 +149,33 @@ def test_a_practised_person_keeps_the_usual_feel_that_stop_ratio_compares_with()
     assert not person._strong({"balloon_psi": 1.6 * 12.0 - 0.1})
 
 
+def test_stop_match_depth_compares_a_checkpoint_with_plain_tissue_at_the_same_checkpoint():
+    """stop_match depth: the feel noted as a checkpoint was passed is compared with the running median of unstopped
+    presses at that checkpoint, not with their peaks; the deepest checkpoint passed is the one judged."""
+    from studyctl.participants.palpator_press import _Segment
+
+    person = VirtualPalpator({"stop_ratio": 1.6, "stop_match": "depth"})
+    grid = {"columns": 7, "rows": 1, "cell_mm": 20.0}
+    person.begin_trial(TrialInfo("linear", 600.0, 50.0, public={"grid": grid}), np.random.default_rng(0))
+    for i, shallow in enumerate((1.0, 1.1, 9.0, 1.2, 1.3, 1.4)):
+        person._notes = {("balloon_psi", "0.4"): shallow, ("balloon_psi", "1"): 10.0 * shallow,
+                         ("balloon_psi", "peak"): 10.0 * shallow, ("vibration_ms2", "peak"): 0.0}
+        person._end_segment(_Segment("press", 1.0, (0.0, 0.0, 0.0), (0.0, 0.0, 3.0), cell=(i + 1, 1), intended=3.0,
+                                     stopped=shallow == 9.0))  # a stopped press is not plain pressing
+    assert person._usual_at[("balloon_psi", "0.4")] == pytest.approx(1.2)
+    assert person._usual_at[("balloon_psi", "1")] == pytest.approx(12.0)
+    person._notes = {("balloon_psi", "0.4"): 1.6 * 1.2 + 0.01}  # part-way down, well above plain tissue there
+    assert person._strong({"balloon_psi": 2.0})  # (the peak rule would need 1.6 x 12 psi)
+    person._notes = {("balloon_psi", "0.4"): 1.6 * 1.2 - 0.01}
+    assert not person._strong({"balloon_psi": 50.0 / 3.0})  # the current feel is not what is compared
+    person._notes = {("balloon_psi", "0.4"): 5.0, ("balloon_psi", "1"): 12.0}
+    assert not person._strong({})  # the deepest checkpoint passed decides: plain at the bottom
+    peak = VirtualPalpator({"stop_ratio": 1.6})
+    peak.begin_trial(TrialInfo("linear", 600.0, 50.0, public={"grid": grid}), np.random.default_rng(0))
+    peak._notes = {("balloon_psi", "0.4"): 5.0}
+    assert not peak._strong({"balloon_psi": 2.0}) and peak._usual_at == {}
+
+
 def _practised_stops(stop_ratio: float) -> tuple[VirtualPalpator, int]:
     """A person who practised first (learning cue weights), then one bio-inspired trial pressing slowly (4 mm/s) to
     v5's depth: the person and how many of the trial's presses a strong cue ended."""
