@@ -7,6 +7,9 @@ Agreement criteria (issue 17):
 * **within** — a mean, median, proportion, IQR, count or % change lies in the published band (the printed 95 %
   interval, ±1.96 SE, or ±1 SD for a mean with a printed SD; see :meth:`Target.interval`); an SD or CV is
   "within" when simulated/published lies in [1/1.5, 1.5];
+* **replication** — for a verdict with a published p (a test_p target, or a verdict's ``p``), how often a
+  same-size replication of the paper would give its verdict (:mod:`studyctl.calibration.replication`): what a
+  perfect simulation could reproduce; the summary adds it up (``verdict_expected``);
 * **verdict** — a verdict or p-value target is significant at alpha exactly when the paper's is; for a pair
   target whose paper states a direction (``higher: A``), a significant simulated result also has to go that way
   (a significant difference the wrong way does not reproduce a significant finding), and **direction** is then
@@ -26,6 +29,7 @@ from dataclasses import asdict, dataclass
 
 import pandas as pd
 
+from studyctl.calibration.replication import verdict_replication
 from studyctl.calibration.simulated import SimulatedStats
 from studyctl.populations.targets import SPREADS, Target
 
@@ -44,7 +48,7 @@ P_DEVIATE_SD = math.sqrt(2.0)
 COLUMNS = (
     "target", "role", "metric", "where", "statistic", "published", "published_low", "published_high", "band",
     "simulated", "simulated_low", "simulated_high", "same_direction", "within", "sd_ratio", "same_verdict",
-    "agrees", "z", "note",
+    "replication", "agrees", "z", "note",
 )
 
 
@@ -66,6 +70,7 @@ class AgreementRow:
     within: bool | None
     sd_ratio: float
     same_verdict: bool | None
+    replication: float  # how often a same-size replication gives the published verdict (NaN: no published p)
     agrees: bool | None
     z: float
     note: str
@@ -102,7 +107,10 @@ def _present(v: object) -> bool:
 
 def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int | None]]:
     """Per role (fit, validation, all): fractions of directions right, verdicts reproduced, values within their
-    band (SDs apart), SD ratios within 1.5×, targets that agree on every check, and the counts behind them."""
+    band (SDs apart), SD ratios within 1.5×, targets that agree on every check, and the counts behind them; of the
+    verdicts with a published p, how many were reproduced (``verdict_p_reproduced`` of ``verdict_p_n``) and how
+    many a same-size replication of the paper would reproduce on average (``verdict_expected``). An
+    ``agreement.csv`` written before the replication column counts no verdict with a p."""
     out: dict[str, dict[str, float | int | None]] = {}
     records = frame.to_dict("records")
     for role in ("fit", "validation", "all"):
@@ -114,6 +122,12 @@ def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int |
                     if _present(r[col]) and (col != "within" or r["statistic"] not in SPREADS)]
             figures[f"{name}_n"] = len(vals)
             figures[f"{name}_fraction"] = (sum(vals) / len(vals)) if vals else None
+        # what chance alone allows: the verdicts with a published p, reproduced and expected of a replication
+        with_p = [r for r in rows if _present(r["same_verdict"]) and _present(r.get("replication"))]
+        figures["verdict_p_n"] = len(with_p)
+        figures["verdict_p_reproduced"] = sum(bool(r["same_verdict"]) for r in with_p)
+        figures["verdict_expected"] = float(sum(float(r["replication"]) for r in with_p)) if with_p else None
+        figures["verdict_expected_fraction"] = (figures["verdict_expected"] / len(with_p)) if with_p else None
         sds = [r for r in rows if r["statistic"] in SPREADS and _present(r["within"])]
         figures["sd_ratio_n"] = len(sds)
         figures["sd_ratio_within_fraction"] = (sum(bool(r["within"]) for r in sds) / len(sds)) if sds else None
@@ -238,6 +252,9 @@ def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> A
         published_sig = bool(t.value) if t.statistic == "verdict" else t.is_test and float(t.value) < alpha
         if verdict and published_sig and t.higher and wrong_way(t, v.higher):
             verdict = False  # significant, but the other way round: not the paper's finding
+        pp = t.published_p()
+        replication = math.nan if pp is None else verdict_replication(
+            pp, alpha, significant=published_sig, directed=published_sig and bool(t.higher))
         checks = [c for c in (direction, within, verdict) if c is not None]
         agrees = all(checks) if checks else None
         z = z_score(t, s, v.se, alpha, v.higher)
@@ -245,6 +262,6 @@ def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> A
             target=t.id, role=t.role, metric=t.metric, where=_where(t),
             statistic=t.statistic, published=t.value, published_low=lo, published_high=hi, band=t.band(),
             simulated=s, simulated_low=v.low, simulated_high=v.high, same_direction=direction, within=within,
-            sd_ratio=ratio, same_verdict=verdict, agrees=agrees, z=z, note=v.note,
+            sd_ratio=ratio, same_verdict=verdict, replication=replication, agrees=agrees, z=z, note=v.note,
         ))
     return Agreement(tuple(rows), alpha)

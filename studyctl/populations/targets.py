@@ -3,7 +3,9 @@
 Each target names a metric of the protocol's analysis plan, optional filters (``where``: condition, group,
 level — aliases nodule, tumour, class, item), a statistic, the published value, its uncertainty as printed
 (``sd`` and ``n``, ``se``, or a 95 % ``interval``) and a role: ``fit`` targets may be used by
-``studyctl calibrate``; ``validation`` targets never are. Every mistake is one error with file:line:column,
+``studyctl calibrate``; ``validation`` targets never are. A ``verdict`` target may carry the published ``p`` of
+its test, from which the report says how often a same-size replication would give the paper's verdict at all
+(:func:`studyctl.calibration.replication.verdict_replication`). Every mistake is one error with file:line:column,
 the field, what is allowed and the nearest valid name.
 """
 
@@ -26,7 +28,7 @@ STATISTICS = (
 SPREADS = ("sd", "cv")  # between-person spread: judged by the ratio simulated / published (within 1.5×)
 ROLES = ("fit", "validation")
 TOP_KEYS = ("format", "protocol", "source", "plan", "alpha", "targets", "note")
-TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "uncertainty", "role", "note", "test", "pair",
+TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "p", "uncertainty", "role", "note", "test", "pair",
                "higher", "baseline", "direction_vs", "unit", "headline")
 WHERE_KEYS = ("condition", "group", "level")
 LEVEL_ALIASES = ("nodule", "tumour", "class", "item")
@@ -61,6 +63,13 @@ class Target:
     unit: str = "participant"
     headline: bool = True
     location: str = ""  # file:line where it is written
+    p: float | None = None  # a verdict's published p-value, when the paper prints one (or it is recomputed)
+
+    def published_p(self) -> float | None:
+        """The p-value behind a published verdict: a test_p target's value, a verdict target's ``p``."""
+        if self.statistic == "test_p":
+            return float(self.value)
+        return self.p if self.statistic == "verdict" else None
 
     def filters(self) -> dict[str, str]:
         """``where`` as metric-table columns (nodule/tumour/class/item → level)."""
@@ -316,6 +325,7 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
             if stat in ("proportion", "test_p") and not 0 <= value <= 1:
                 raise _fail(m, label, (*p, "value"), f"a {'p-value' if stat == 'test_p' else 'proportion'} lies in "
                             f"[0, 1], got {value:g} (write 83 % as 0.83)")
+        published_p = _check_published_p(m, label, p, t, stat, value, float(alpha))
         unc = t.get("uncertainty") or {}
         if not isinstance(unc, Mapping):
             raise _fail(m, label, (*p, "uncertainty"), "uncertainty is {sd: …, n: …}, {se: …} or {interval: [lo, hi]}")
@@ -377,7 +387,7 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
             uncertainty=dict(unc), note=str(t.get("note") or ""), test=test, pair=pair, higher=higher,
             baseline=baseline,
             direction_vs=str(t.get("direction_vs") or ""), unit=unit, headline=bool(t.get("headline", True)),
-            location=f"{label}:{mark.line}",
+            location=f"{label}:{mark.line}", p=published_p,
         ))
     for i, t in enumerate(out):
         if t.direction_vs and t.direction_vs not in ids:
@@ -385,6 +395,26 @@ def parse_targets(text: str, label: str, *, plan: Any | None = None, protocol: A
                         f"{did_you_mean(t.direction_vs, ids)} to compare the direction with")
     return TargetSet(protocol=pid, source=str(data.get("source") or ""), targets=tuple(out), alpha=float(alpha),
                      plan=str(data.get("plan") or pid), path=label, sha256=sha256)
+
+
+def _check_published_p(m: Any, label: str, p: tuple[Any, ...], t: Mapping[str, Any], stat: str, value: Any,
+                       alpha: float) -> float | None:
+    """A verdict's ``p``: a number in (0, 1] on the verdict's side of alpha (a p that contradicts the verdict is
+    a typing slip in one of the two)."""
+    if "p" not in t:
+        return None
+    given = t["p"]
+    if stat != "verdict":
+        raise _fail(m, label, (*p, "p"), f"p is the published p-value behind a verdict; a {stat} target has none "
+                    "(a p-value target is statistic: test_p with the p as its value)", value=False)
+    if isinstance(given, bool) or not isinstance(given, int | float) or not 0 < given <= 1:
+        raise _fail(m, label, (*p, "p"), f"p {given!r} must be a p-value in (0, 1] (write 4.3e-5, not 4.3e-5 %)")
+    if (given < alpha) != value:
+        side = "below" if value else "at or above"
+        raise _fail(m, label, (*p, "p"), f"p {given:g} contradicts value {str(value).lower()}: a "
+                    f"{'significant' if value else 'non-significant'} verdict has p {side} alpha {alpha:g}; "
+                    "fix the p or the value")
+    return float(given)
 
 
 def recomputed_interval(basis: str, value: float, n: float | None) -> tuple[float, float] | None:

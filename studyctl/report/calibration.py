@@ -35,6 +35,14 @@ def _band(lo: Any, hi: Any) -> str:
     return "" if math.isnan(lo) or math.isnan(hi) else f"[{fmt_num(lo)}, {fmt_num(hi)}]"
 
 
+def _chance(v: Any) -> str:
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return ""
+    return "" if math.isnan(v) else f"{v:.0%}"
+
+
 def _frac(x: Any, n: Any) -> str:
     return "–" if x is None or not n else f"{x:.0%} ({round(x * n)}/{n})"
 
@@ -53,6 +61,20 @@ def summary_rows(summary: dict[str, dict[str, Any]]) -> tuple[list[str], list[li
     return head, body
 
 
+def chance_line(summary: dict[str, dict[str, Any]]) -> str | None:
+    """What chance alone allows of the verdicts: of those with a published p, how many the simulation reproduced
+    and how many a same-size replication of the paper itself would reproduce on average."""
+    s = summary.get("all") or {}
+    n = s.get("verdict_p_n") or 0
+    if not n:
+        return None
+    return (f"Of the {n} verdict{'s' if n != 1 else ''} whose p the paper prints, the simulated study reproduced "
+            f"{s['verdict_p_reproduced']}; a replication of the paper with as many people would reproduce "
+            f"{s['verdict_expected']:.1f} of {n} on average (column \"replication\": a verdict's own chance, from "
+            "its published p with a replication's deviate SD √2, Cumming 2008), so a verdict near the 0.05 "
+            "level is missed about half the time even by a population that is exactly the paper's.")
+
+
 # Statistics reported in the metric's own unit (a proportion, a % change, a p-value or a verdict has none).
 _IN_UNIT = ("mean", "sd", "median", "iqr")
 
@@ -60,7 +82,7 @@ _IN_UNIT = ("mean", "sd", "median", "iqr")
 def agreement_table(frame: pd.DataFrame, units: Mapping[str, str] | None = None) -> tuple[list[str], list[list[str]]]:
     """One row per target; ``units`` (plan metric id -> unit) labels the metric of values in that unit."""
     head = ["target", "role", "metric", "where", "statistic", "published", "published band", "simulated",
-            "simulated 95% interval", "same direction", "within band", "same verdict", "agrees"]
+            "simulated 95% interval", "same direction", "within band", "same verdict", "replication", "agrees"]
     body = []
     for r in frame.to_dict("records"):
         within = _yn(r["within"])
@@ -78,7 +100,7 @@ def agreement_table(frame: pd.DataFrame, units: Mapping[str, str] | None = None)
         body.append([r["target"], r["role"], metric, r["where"] or "all", r["statistic"], _val(r["published"]),
                      f"{band} {r['band']}".strip(), simulated,
                      _band(r["simulated_low"], r["simulated_high"]), _yn(r["same_direction"]), within,
-                     _yn(r["same_verdict"]), _yn(r["agrees"])])
+                     _yn(r["same_verdict"]), _chance(r.get("replication")), _yn(r["agrees"])])
     return head, body
 
 
@@ -96,7 +118,11 @@ def agreement_blocks(frame: pd.DataFrame | None, info: pd.DataFrame | None, leve
         return out
     from studyctl.calibration.agreement import summary_from_frame
 
-    out.append(("table", *summary_rows(summary_from_frame(frame))))
+    summary = summary_from_frame(frame)
+    out.append(("table", *summary_rows(summary)))
+    chance = chance_line(summary)
+    if chance:
+        out.append(("p", chance))
     out.append(("p", "Each band says what it is: the paper's 95 % CI as printed; a Wilson or exact Poisson 95 % "
                 "interval recomputed from the paper's counts; ±1.96 SE or ±1 SD as published, recomputed from the "
                 "paper, or CHOSEN; a CHOSEN band is a tolerance picked by hand (the targets file's note says why), "

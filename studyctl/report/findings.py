@@ -97,8 +97,13 @@ def agreement_headline(result: AnalysisResult) -> str | None:
         f, n = s.get(f"{key}_fraction"), s.get(f"{key}_n")
         return "–" if f is None or not n else f"{round(f * n)}/{n} ({f:.0%})"
 
+    chance = ""
+    if s.get("verdict_p_n"):
+        # beside the verdicts, what a same-size replication of the paper itself would reproduce of those with a p
+        chance = f" (of {s['verdict_p_n']} with a published p: {s['verdict_p_reproduced']}, a replication " \
+                 f"of the paper {s['verdict_expected']:.1f})"
     return (f"{frac('agree')} published targets agree on every check; directions right {frac('direction')}; "
-            f"verdicts reproduced {frac('verdict')}; within the published band {frac('within')}")
+            f"verdicts reproduced {frac('verdict')}{chance}; within the published band {frac('within')}")
 
 
 # --------------------------------------------------------------------------------------------- methods

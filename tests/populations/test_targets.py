@@ -58,6 +58,11 @@ def test_loads_targets_with_roles_and_bands():
         ("interval: [0.4, 0.8], basis: chosen", "interval: [0.4, 0.8], basis: wilson, n: 10",
          r"a wilson 95 % interval for 0.6 of n = 10 is \[0.313, 0.832\]"),
         ("format: studyctl-targets/1", "format: targets/2", r"format 'targets/2' is not supported"),
+        ("value: false\n    role: validation", "value: false\n    p: 0.01\n    role: validation",
+         r"p 0.01 contradicts value false: a non-significant verdict has p at or above alpha 0.05"),
+        ("value: false\n    role: validation", "value: false\n    p: 7.1\n    role: validation",
+         r"p 7.1 must be a p-value in \(0, 1\]"),
+        ("value: 0.6", "value: 0.6\n    p: 0.2", r"p is the published p-value behind a verdict; a proportion"),
     ],
 )
 def test_bad_targets_name_file_line_and_fix(tmp_path, old, new, message):
@@ -126,6 +131,33 @@ def test_agreement_and_distance():
     assert total == pytest.approx(sum(v * v for v in z.values()))
     assert set(agr.to_frame().columns) >= {"published", "simulated", "same_direction", "within", "same_verdict",
                                           "role", "agrees"}
+
+
+def test_a_verdicts_published_p_gives_how_often_a_replication_reproduces_it(tmp_path):
+    """A verdict's ``p`` (and a test_p target's value) gives the agreement row's replication column: how often a
+    same-size replication of the paper gives its verdict; the summary counts the verdicts with a p, those
+    reproduced and the expected number."""
+    from studyctl.calibration.replication import verdict_replication
+
+    path = write_variant(tmp_path, "value: false\n    role: validation", "value: false\n    p: 0.071\n    role: "
+                         "validation", source=TARGETS)
+    ts = _load(path)
+    assert ts.get("kw_time_verdict").published_p() == 0.071 and ts.get("time_nofb_mean").published_p() is None
+    frame, tests = _table()
+    sim = simulated_values(ts.targets, frame, tests, alpha=0.05, rng=np.random.default_rng(0))
+    agr = agreement(ts.targets, sim, 0.05)
+    rows = {r.target: r for r in agr.rows}
+    assert rows["kw_time_verdict"].replication == pytest.approx(verdict_replication(0.071, 0.05, significant=False))
+    assert math.isnan(rows["time_nofb_mean"].replication)
+    s = agr.summary()["all"]
+    assert (s["verdict_p_n"], s["verdict_p_reproduced"]) == (1, 1)
+    assert s["verdict_expected"] == pytest.approx(rows["kw_time_verdict"].replication)
+    # read back from agreement.csv as the bench and the seeds script do: the same counts
+    back = pd.read_csv(pd.io.common.StringIO(agr.to_frame().to_csv(index=False)))
+    from studyctl.calibration.agreement import checks_as_booleans, summary_from_frame
+
+    assert summary_from_frame(checks_as_booleans(back))["all"]["verdict_expected"] == pytest.approx(
+        s["verdict_expected"])
 
 
 def test_a_p_value_is_compared_as_the_deviate_it_stands_for():
