@@ -5,7 +5,9 @@ population, through the real engine) and reads every study's ``agreement.csv`` (
 section). Figures per study and overall, separately for fit and validation targets: the fraction of directions
 right, of significance verdicts reproduced (and, of the verdicts whose p the paper prints, how many were reproduced,
 ``verdict_p_reproduced`` of ``verdict_p_n``, against the fraction a same-size replication of the paper itself would
-reproduce, ``verdict_expected``), of means/medians/proportions inside the published band, of SDs within
+reproduce, ``verdict_expected``), of means/medians/proportions inside the published band (and the same against
+chance for the bands that are the paper's sampling intervals: ``within_p_reproduced`` of ``within_p_n``,
+``within_expected``), of SDs within
 a factor of 1.5 (and the median SD ratio), and of targets agreeing on every check, each with its count
 (``…_n``: the targets the check applies to), for ``fit``, ``validation`` and ``all``; and issue 17's goals per
 study and role (``….goal_direction_met`` etc., 1 or 0; the ``goals`` table gives value and bar). A study with no shipped
@@ -31,10 +33,12 @@ from studyctl.errors import ConfigError
 
 FIGURES = (("direction", "direction_fraction"), ("verdict", "verdict_fraction"), ("within", "within_fraction"),
            ("sd_within", "sd_ratio_within_fraction"), ("sd_ratio_median", "sd_ratio_median"),
-           ("agree", "agree_fraction"), ("verdict_expected", "verdict_expected_fraction"))
+           ("agree", "agree_fraction"), ("verdict_expected", "verdict_expected_fraction"),
+           ("within_expected", "within_expected_fraction"))
 COUNTS = (("direction_n", "direction_n"), ("verdict_n", "verdict_n"), ("within_n", "within_n"),
           ("sd_n", "sd_ratio_n"), ("agree_n", "agree_n"), ("targets", "targets"),
-          ("verdict_p_n", "verdict_p_n"), ("verdict_p_reproduced", "verdict_p_reproduced"))
+          ("verdict_p_n", "verdict_p_n"), ("verdict_p_reproduced", "verdict_p_reproduced"),
+          ("within_p_n", "within_p_n"), ("within_p_reproduced", "within_p_reproduced"))
 ROLES = ("fit", "validation", "all")
 # issue 17's bars: (goal, summary key, bar, how the fraction is compared); every direction right, ≥ 80 % of the
 # verdicts reproduced, ≥ 80 % of the values inside their published band, every SD within a factor of 1.5

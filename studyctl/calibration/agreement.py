@@ -7,9 +7,11 @@ Agreement criteria (issue 17):
 * **within** — a mean, median, proportion, IQR, count or % change lies in the published band (the printed 95 %
   interval, ±1.96 SE, or ±1 SD for a mean with a printed SD; see :meth:`Target.interval`); an SD or CV is
   "within" when simulated/published lies in [1/1.5, 1.5];
-* **replication** — for a verdict with a published p (a test_p target, or a verdict's ``p``), how often a
-  same-size replication of the paper would give its verdict (:mod:`studyctl.calibration.replication`): what a
-  perfect simulation could reproduce; the summary adds it up (``verdict_expected``);
+* **replication** — how often a same-size replication of the paper would pass the target's check
+  (:mod:`studyctl.calibration.replication`): for a verdict with a published p (a test_p target, or a verdict's
+  ``p``), give its verdict; for a value whose band is the paper's sampling interval, land in it; for a spread
+  with its n, lie within 1.5× (blank for a CHOSEN band): what a perfect simulation could reproduce; the summary
+  adds it up (``verdict_expected``, ``within_expected``);
 * **verdict** — a verdict or p-value target is significant at alpha exactly when the paper's is; for a pair
   target whose paper states a direction (``higher: A``), a significant simulated result also has to go that way
   (a significant difference the wrong way does not reproduce a significant finding), and **direction** is then
@@ -29,7 +31,7 @@ from dataclasses import asdict, dataclass
 
 import pandas as pd
 
-from studyctl.calibration.replication import verdict_replication
+from studyctl.calibration.replication import band_replication, spread_replication, verdict_replication
 from studyctl.calibration.simulated import SimulatedStats
 from studyctl.populations.targets import SPREADS, Target
 
@@ -109,7 +111,9 @@ def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int |
     """Per role (fit, validation, all): fractions of directions right, verdicts reproduced, values within their
     band (SDs apart), SD ratios within 1.5×, targets that agree on every check, and the counts behind them; of the
     verdicts with a published p, how many were reproduced (``verdict_p_reproduced`` of ``verdict_p_n``) and how
-    many a same-size replication of the paper would reproduce on average (``verdict_expected``). An
+    many a same-size replication of the paper would reproduce on average (``verdict_expected``), and the same for
+    the values whose band is the paper's sampling interval (``within_p_reproduced`` of ``within_p_n``,
+    ``within_expected``). An
     ``agreement.csv`` written before the replication column counts no verdict with a p."""
     out: dict[str, dict[str, float | int | None]] = {}
     records = frame.to_dict("records")
@@ -128,6 +132,13 @@ def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int |
         figures["verdict_p_reproduced"] = sum(bool(r["same_verdict"]) for r in with_p)
         figures["verdict_expected"] = float(sum(float(r["replication"]) for r in with_p)) if with_p else None
         figures["verdict_expected_fraction"] = (figures["verdict_expected"] / len(with_p)) if with_p else None
+        # ... and of the values whose band is the paper's own sampling interval (spreads apart, as within_n)
+        sampled = [r for r in rows if r["statistic"] not in SPREADS and _present(r["within"])
+                   and _present(r.get("replication"))]
+        figures["within_p_n"] = len(sampled)
+        figures["within_p_reproduced"] = sum(bool(r["within"]) for r in sampled)
+        figures["within_expected"] = float(sum(float(r["replication"]) for r in sampled)) if sampled else None
+        figures["within_expected_fraction"] = (figures["within_expected"] / len(sampled)) if sampled else None
         sds = [r for r in rows if r["statistic"] in SPREADS and _present(r["within"])]
         figures["sd_ratio_n"] = len(sds)
         figures["sd_ratio_within_fraction"] = (sum(bool(r["within"]) for r in sds) / len(sds)) if sds else None
@@ -215,6 +226,30 @@ def _where(t: Target) -> str:
     return ", ".join(parts)
 
 
+def _replication(t: Target, alpha: float, published_sig: bool, band: tuple[float, float] | None) -> float:
+    """How often a same-size replication of the paper passes this target's check (NaN where that is unknown: a
+    verdict without a published p, a CHOSEN band, a spread without n; :mod:`studyctl.calibration.replication`)."""
+    if t.is_test:
+        pp = t.published_p()
+        return math.nan if pp is None else verdict_replication(
+            pp, alpha, significant=published_sig, directed=published_sig and bool(t.higher))
+    if t.uncertainty.get("basis") == "chosen":
+        return math.nan
+    if t.statistic in SPREADS:
+        n = t.uncertainty.get("n")
+        return spread_replication(float(n), SD_FACTOR) if n and float(n) > 1 else math.nan
+    se = t.published_se()
+    if band is None or se is None or not se > 0:
+        return math.nan
+    lo, hi = band
+    # a band edge at the statistic's own limit cannot be crossed (a proportion above 1, a count below 0)
+    if lo <= 0 and t.statistic in ("proportion", "count_total", "iqr"):
+        lo = -math.inf
+    if hi >= 1 and t.statistic == "proportion":
+        hi = math.inf
+    return band_replication(float(t.value), se, lo, hi)
+
+
 def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> Agreement:
     """Each target against its simulated value (see the module docs for the criteria)."""
     pub = {t.id: t for t in targets}
@@ -252,9 +287,7 @@ def agreement(targets: Sequence[Target], sim: SimulatedStats, alpha: float) -> A
         published_sig = bool(t.value) if t.statistic == "verdict" else t.is_test and float(t.value) < alpha
         if verdict and published_sig and t.higher and wrong_way(t, v.higher):
             verdict = False  # significant, but the other way round: not the paper's finding
-        pp = t.published_p()
-        replication = math.nan if pp is None else verdict_replication(
-            pp, alpha, significant=published_sig, directed=published_sig and bool(t.higher))
+        replication = _replication(t, alpha, published_sig, band)
         checks = [c for c in (direction, within, verdict) if c is not None]
         agrees = all(checks) if checks else None
         z = z_score(t, s, v.se, alpha, v.higher)

@@ -1,4 +1,4 @@
-"""How often a same-size replication of a published test gives the published verdict (pure computation).
+"""How often a same-size replication of a paper passes each agreement check (pure computation).
 
 A simulated study that reproduces a paper's people exactly still draws its own sample, so a verdict near the
 significance level flips from one replication to the next: a published p of 0.07 is reproduced as "not
@@ -13,6 +13,13 @@ replication is significant at alpha with probability Φ((z − z_α)/√2) + Φ(
 the paper states a direction, only the first term (significant the paper's way) reproduces it. Tests whose
 statistic is not normal (F, H, U, W) are read through their p, an approximation that keeps the replication's
 evidence on the same scale.
+
+A value checked against a band drawn from the paper's own sampling error (its CI or SE, or one recomputed from
+its counts or n) is missed the same way: with the true value unknown, a replication's estimate lies around the
+published one with variance 2·SE², so it lands in a ±1.96 SE band only P(|Z| < 1.96/√2) = 83 % of the time
+(:func:`band_replication`; normal, so approximate for a count or a proportion near 0 or 1). A spread judged by
+its ratio within a factor (an SD of n people) has a log-ratio of variance 2/(2(n − 1)) (:func:`spread_replication`).
+A CHOSEN band is a tolerance, not a sampling interval: it has no such chance.
 """
 
 from __future__ import annotations
@@ -38,3 +45,25 @@ def verdict_replication(p: float, alpha: float, *, significant: bool, directed: 
     if significant:
         return same_way if directed else same_way + other_way
     return 1.0 - same_way - other_way
+
+
+def band_replication(value: float, se: float, low: float, high: float) -> float:
+    """Probability that a same-size replication's estimate of a published ``value`` (standard error ``se``) lands
+    in [``low``, ``high``]: the estimate ~ N(value, 2·se²)."""
+    if not se > 0 or not low <= high:
+        raise StatsInputError(f"se {se!r} must be positive and the band [{low!r}, {high!r}] ordered")
+    from scipy.stats import norm
+
+    sd = REPLICATION_SD * se
+    return float(norm.cdf((high - value) / sd) - norm.cdf((low - value) / sd))
+
+
+def spread_replication(n: float, factor: float) -> float:
+    """Probability that a same-size replication's SD (of ``n`` people) lies within ``factor`` of the published
+    one either way: log(SD ratio) ~ N(0, 2 · 1/(2(n − 1))), the large-sample variance of a log SD twice over."""
+    if not n > 1 or not factor > 1:
+        raise StatsInputError(f"n {n!r} must exceed 1 and factor {factor!r} exceed 1")
+    from scipy.stats import norm
+
+    sd = math.sqrt(1.0 / (n - 1.0))
+    return float(2.0 * norm.cdf(math.log(factor) / sd) - 1.0)

@@ -62,17 +62,27 @@ def summary_rows(summary: dict[str, dict[str, Any]]) -> tuple[list[str], list[li
 
 
 def chance_line(summary: dict[str, dict[str, Any]]) -> str | None:
-    """What chance alone allows of the verdicts: of those with a published p, how many the simulation reproduced
-    and how many a same-size replication of the paper itself would reproduce on average."""
+    """What chance alone allows: of the verdicts with a published p and of the values whose band is the paper's
+    sampling interval, how many the simulation reproduced and how many a same-size replication of the paper itself
+    would reproduce on average."""
     s = summary.get("all") or {}
+    parts = []
     n = s.get("verdict_p_n") or 0
-    if not n:
+    if n:
+        parts.append(f"of the {n} verdict{'s' if n != 1 else ''} whose p the paper prints, the simulated study "
+                     f"reproduced {s['verdict_p_reproduced']} where a replication of the paper with as many people "
+                     f"would reproduce {s['verdict_expected']:.1f} on average")
+    m = s.get("within_p_n") or 0
+    if m:
+        parts.append(f"of the {m} value{'s' if m != 1 else ''} whose band is the paper's own sampling interval, "
+                     f"{s['within_p_reproduced']} lie in it where such a replication would place "
+                     f"{s['within_expected']:.1f}")
+    if not parts:
         return None
-    return (f"Of the {n} verdict{'s' if n != 1 else ''} whose p the paper prints, the simulated study reproduced "
-            f"{s['verdict_p_reproduced']}; a replication of the paper with as many people would reproduce "
-            f"{s['verdict_expected']:.1f} of {n} on average (column \"replication\": a verdict's own chance, from "
-            "its published p with a replication's deviate SD √2, Cumming 2008), so a verdict near the 0.05 "
-            "level is missed about half the time even by a population that is exactly the paper's.")
+    return ("What chance alone allows (column \"replication\": how often a same-size replication of the paper "
+            "passes that check, the published value taken as uncertain as the paper says, Cumming 2008): "
+            + "; ".join(parts) + ". A verdict near the 0.05 level is missed about half the time, and a value "
+            "leaves a ±1.96 SE band about one time in six, even by a population that is exactly the paper's.")
 
 
 # Statistics reported in the metric's own unit (a proportion, a % change, a p-value or a verdict has none).
