@@ -8,7 +8,9 @@ simulated people a verdict or a band check flips with the seed while nothing cha
 at 2024, 0.09-0.22 at 7, 11, 12 and 99 with the same population). Counting each check over several seeds' targets
 says which misses are the population's and which are one seed's draw. Each line gives, over every role's targets,
 those agreeing on every check, the directions right, the verdicts reproduced and the values within their band, each
-as count/applicable, with the same rules as the report's index (``summary_from_frame``).
+as count/applicable, with the same rules as the report's index (``summary_from_frame``); and, where the reports have
+the replication column, of the verdicts with a published p and the values in a sampling band, how many passed
+against how many a same-size replication of the paper itself would pass on average.
 """
 
 from __future__ import annotations
@@ -39,6 +41,11 @@ def index_line(label: str, frame: pd.DataFrame) -> str:
     for name, frac, n in CHECKS:
         count = "-" if s[frac] is None else f"{round(s[frac] * s[n])}"
         parts.append(f"{name} {count}/{s[n]}")
+    # what a same-size replication of the paper itself would pass, where the report could say (replication column)
+    for name, key in (("verdicts", "verdict"), ("in band", "within")):
+        if s.get(f"{key}_p_n"):
+            parts.append(f"[{name} with a chance {s[f'{key}_p_reproduced']}/{s[f'{key}_p_n']}, "
+                         f"replication {s[f'{key}_expected']:.1f}]")
     return f"{label:32s} " + "  ".join(parts)
 
 
