@@ -72,7 +72,7 @@ class AgreementRow:
     within: bool | None
     sd_ratio: float
     same_verdict: bool | None
-    replication: float  # how often a same-size replication gives the published verdict (NaN: no published p)
+    replication: float  # how often a same-size replication of the paper passes this check (NaN: not known)
     agrees: bool | None
     z: float
     note: str
@@ -113,8 +113,7 @@ def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int |
     verdicts with a published p, how many were reproduced (``verdict_p_reproduced`` of ``verdict_p_n``) and how
     many a same-size replication of the paper would reproduce on average (``verdict_expected``), and the same for
     the values whose band is the paper's sampling interval (``within_p_reproduced`` of ``within_p_n``,
-    ``within_expected``). An
-    ``agreement.csv`` written before the replication column counts no verdict with a p."""
+    ``within_expected``). An ``agreement.csv`` written before the replication column has none of either."""
     out: dict[str, dict[str, float | int | None]] = {}
     records = frame.to_dict("records")
     for role in ("fit", "validation", "all"):
