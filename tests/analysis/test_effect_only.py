@@ -1,0 +1,49 @@
+"""The bootstrap's effect-size-only functions give the tests' effect sizes bit for bit (NaN where theirs is)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from studyctl.analysis import catalog
+from studyctl.analysis.effect_ci import _EFFECT_ONLY, _effect_of
+from studyctl.analysis.procedures import Cell
+
+
+def _samples(rng: np.random.Generator, k: int, case: int) -> tuple[np.ndarray, ...]:
+    sizes = rng.integers(2, 14, k)
+    if case % 3 == 0:  # ties, as in rounded or count metrics
+        return tuple(rng.integers(0, 4, n).astype(float) for n in sizes)
+    if case % 3 == 1:  # every value the same: Kruskal-Wallis has no H (NaN)
+        return tuple(np.full(n, 2.5) for n in sizes)
+    return tuple(rng.normal(10.0, 3.0, n) for n in sizes)
+
+
+@pytest.mark.parametrize("test", sorted(_EFFECT_ONLY))
+def test_effect_only_equals_the_tests_effect_size_bit_for_bit(test):
+    spec = catalog.TESTS[test]
+    rng = np.random.default_rng(7)
+    for case in range(300):
+        k = 2 if spec.max_levels == 2 else int(rng.integers(2, 5))
+        levels = tuple(f"L{i}" for i in range(k))
+        template = Cell(levels=levels, alpha=0.05, options={}, effect_size=None, compare="condition")
+        samples = _samples(rng, k, case)
+        (finding,) = spec.run(Cell(levels=levels, alpha=0.05, options={}, effect_size=None, compare="condition",
+                                   samples=samples))
+        want = float(finding.summary.effect_size)
+        got = _effect_of(spec, template)(samples)
+        assert (math.isnan(want) and math.isnan(got)) or np.float64(got).tobytes() == np.float64(want).tobytes()
+
+
+def test_a_plan_option_runs_the_whole_test(monkeypatch):
+    # the effect-only functions know no options: with one set, the bootstrap runs the test itself
+    monkeypatch.setitem(_EFFECT_ONLY, "rank_sum", lambda *samples: 99.0)
+    spec = catalog.TESTS["rank_sum"]
+    samples = (np.array([1.0, 2.0, 5.0]), np.array([3.0, 4.0]))
+    plain = Cell(levels=("a", "b"), alpha=0.05, options={}, effect_size=None, compare="condition")
+    assert _effect_of(spec, plain)(samples) == 99.0
+    greater = Cell(levels=("a", "b"), alpha=0.05, options={"alternative": "greater"}, effect_size=None,
+                   compare="condition")
+    assert _effect_of(spec, greater)(samples) == (2.0 * 2.0 - 6.0) / 6.0  # U = 2 of 6, the test run whole
