@@ -12,11 +12,13 @@ from studyctl.analysis.effect_ci import _EFFECT_ONLY, _effect_of
 from studyctl.analysis.procedures import Cell
 
 
-def _samples(rng: np.random.Generator, k: int, case: int) -> tuple[np.ndarray, ...]:
-    sizes = rng.integers(2, 14, k)
+def _samples(rng: np.random.Generator, k: int, case: int, paired: bool) -> tuple[np.ndarray, ...]:
+    sizes = np.full(k, rng.integers(2, 14)) if paired else rng.integers(2, 14, k)
+    if case % 3 == 1 and paired and case % 2:  # every subject the same profile: no residual, RM-ANOVA's eta 1
+        return tuple(np.full(n, float(i)) for i, n in enumerate(sizes))
     if case % 3 == 0:  # ties, as in rounded or count metrics
         return tuple(rng.integers(0, 4, n).astype(float) for n in sizes)
-    if case % 3 == 1:  # every value the same: Kruskal-Wallis has no H (NaN)
+    if case % 3 == 1:  # every value the same: Kruskal-Wallis has no H, RM-ANOVA no F (NaN)
         return tuple(np.full(n, 2.5) for n in sizes)
     return tuple(rng.normal(10.0, 3.0, n) for n in sizes)
 
@@ -29,7 +31,7 @@ def test_effect_only_equals_the_tests_effect_size_bit_for_bit(test):
         k = 2 if spec.max_levels == 2 else int(rng.integers(2, 5))
         levels = tuple(f"L{i}" for i in range(k))
         template = Cell(levels=levels, alpha=0.05, options={}, effect_size=None, compare="condition")
-        samples = _samples(rng, k, case)
+        samples = _samples(rng, k, case, spec.design == catalog.WITHIN)
         (finding,) = spec.run(Cell(levels=levels, alpha=0.05, options={}, effect_size=None, compare="condition",
                                    samples=samples))
         want = float(finding.summary.effect_size)
