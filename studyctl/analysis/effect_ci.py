@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Callable, Mapping
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -25,10 +27,53 @@ from studyctl.analysis.procedures import Cell
 from studyctl.analysis.results import AnalysisResult
 from studyctl.analysis.shape import factor_column, row_units
 from studyctl.errors import StudyctlError
+from studyctl.stats.kruskal import epsilon_squared
+from studyctl.stats.ranksum import rank_biserial
+from studyctl.stats.repeated import rm_partial_eta_squared
 
 COLUMNS = ("test_id", "metric", "split", "groups", "effect_size_name", "effect_size", "ci_low", "ci_high",
            "ci_level", "replicates", "seed", "method")
 _SKIP = {"art_anova", "mixed_model", "ordinal"}
+
+
+# Tests whose effect size has a function of its own, giving the test's floats bit for bit without its p-value and
+# result objects (per resample: rank-sum 85 -> 30 us, RM-ANOVA 233 -> ~145 us; rank-sum and Kruskal-Wallis are
+# 24,000 of seed 000's 28,000 resampled tests, RM-ANOVA 4,000 of seed 001's 12,000). Used when the plan sets none of
+# the test's options but those in _HARMLESS; any other test runs whole.
+_EFFECT_ONLY: dict[str, Callable[..., float]] = {
+    "rank_sum": rank_biserial,
+    "kruskal_wallis": epsilon_squared,
+    "rm_anova": rm_partial_eta_squared,
+}
+# Option values that leave a test's effect size as it is and cannot make the test fail on a resample (an exact
+# rank-sum p can: too large a sample). Seed 000's plan spells out rank-sum's defaults, alternative and method.
+_HARMLESS: dict[str, dict[str, tuple[Any, ...]]] = {
+    "rank_sum": {"alternative": ("two-sided", "less", "greater"), "continuity": (True, False),
+                 "method": ("auto", "asymptotic")},
+}
+
+
+def _effect_only(test: str, options: Mapping[str, Any]) -> Callable[..., float] | None:
+    harmless = _HARMLESS.get(test, {})
+    if any(key not in harmless or value not in harmless[key] for key, value in options.items()):
+        return None
+    return _EFFECT_ONLY.get(test)
+
+
+def _effect_of(spec: catalog.TestSpec, template: Cell) -> Callable[[tuple[np.ndarray, ...]], float]:
+    """The effect size of ``spec`` run on resampled ``samples`` (NaN where the test fails)."""
+    only = _effect_only(spec.name, template.options)
+
+    def run(samples: tuple[np.ndarray, ...]) -> float:
+        try:
+            if only is not None:
+                return float(only(*samples))
+            (finding,) = spec.run(replace(template, samples=samples))
+        except (StudyctlError, ValueError):
+            return math.nan
+        return float(finding.summary.effect_size)
+
+    return run
 
 
 def effect_size_intervals(result: AnalysisResult, *, replicates: int = 1000, seed: int = 20,
@@ -59,14 +104,7 @@ def effect_size_intervals(result: AnalysisResult, *, replicates: int = 1000, see
         rng = np.random.default_rng([seed, zlib.crc32(key.encode())])
         template = Cell(levels=tuple(levels), alpha=float(r.alpha), options=dict(entry.options),
                         effect_size=entry.effect_size[0] if entry.effect_size else None, compare=entry.compare)
-
-        def run(samples: tuple[np.ndarray, ...], spec=spec, template=template) -> float:  # noqa: ANN001
-            try:
-                (finding,) = spec.run(replace(template, samples=samples))
-            except (StudyctlError, ValueError):
-                return math.nan
-            return float(finding.summary.effect_size)
-
+        run = _effect_of(spec, template)
         boot = np.full(replicates, math.nan)
         if spec.design == catalog.WITHIN:
             wide = sel.pivot_table(index="participant", columns=col, values="value", aggfunc="mean")

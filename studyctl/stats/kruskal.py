@@ -24,6 +24,30 @@ def rank_groups(arrays: list[np.ndarray]) -> tuple[list[float], np.ndarray, int]
     return means, sizes, int(pooled.size)
 
 
+def _h_parts(arrays: list[np.ndarray]) -> tuple[float, float, int]:
+    """H before the tie correction, the tie correction C, and N."""
+    means, sizes, n = rank_groups(arrays)
+    c = 1.0 - tie_term(sizes) / (float(n) ** 3 - n)
+    centre = (n + 1) / 2.0
+    h_raw = 12.0 / (n * (n + 1)) * math.fsum(a.size * (m - centre) ** 2 for a, m in zip(arrays, means, strict=True))
+    return h_raw, c, n
+
+
+def _epsilon_squared(h: float, n: int) -> float:
+    return h / (n - 1)
+
+
+def epsilon_squared(*arrays: np.ndarray) -> float:
+    """The effect size of :func:`kruskal_wallis` alone, bit for bit the same (NaN where the test's is: all values
+    tied), for two or more non-empty float arrays without NaN.
+
+    Why: a bootstrap of the effect size (``studyctl.analysis.effect_ci``) needs only this; the test computes its
+    effect size with the same functions.
+    """
+    h_raw, c, n = _h_parts(list(arrays))
+    return math.nan if c <= 0 else _epsilon_squared(h_raw / c, n)
+
+
 def kruskal_wallis(*groups: Any, names: Sequence[str] | None = None) -> KruskalResult:
     r"""Kruskal-Wallis rank test that k independent samples come from the same distribution.
 
@@ -75,15 +99,12 @@ def kruskal_wallis(*groups: Any, names: Sequence[str] | None = None) -> KruskalR
         warnings.append("fewer than 2 non-empty groups: nothing to compare")
         n = sum(a.size for a in arrays)
         return KruskalResult(nan, max(k - 1, 0), nan, nan, nan, n, k, nan, nan_dropped, True, tuple(warnings))
-    means, sizes, n = rank_groups(arrays)
-    c = 1.0 - tie_term(sizes) / (float(n) ** 3 - n)
-    centre = (n + 1) / 2.0
-    h_raw = 12.0 / (n * (n + 1)) * math.fsum(a.size * (m - centre) ** 2 for a, m in zip(arrays, means, strict=True))
+    h_raw, c, n = _h_parts(arrays)
     if c <= 0:
         warnings.append("all values are identical: H is 0/0 (NaN)")
         return KruskalResult(nan, k - 1, nan, nan, nan, n, k, c, nan_dropped, True, tuple(warnings))
     h = h_raw / c
     p = float(special.chdtrc(k - 1, h))
-    eps2 = h / (n - 1)
+    eps2 = _epsilon_squared(h, n)
     eta2 = max(0.0, (h - k + 1) / (n - k)) if n > k else nan
     return KruskalResult(h, k - 1, p, eps2, eta2, n, k, c, nan_dropped, False, tuple(warnings))

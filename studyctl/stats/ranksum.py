@@ -36,6 +36,27 @@ def correction(diff: float, alternative: str, continuity: bool) -> float:
     return 0.5 if alternative == "greater" else -0.5
 
 
+def _u_statistic(xs: np.ndarray, ys: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """U of x, the pooled doubled mid-ranks and the tie sizes."""
+    r2, _, sizes = midranks(np.concatenate((xs, ys)))
+    nx = xs.size
+    return float(r2[:nx].sum()) / 2.0 - nx * (nx + 1) / 2.0, r2, sizes
+
+
+def _rank_biserial(u: float, nx: int, ny: int) -> float:
+    return (2.0 * u - nx * ny) / (nx * ny)
+
+
+def rank_biserial(xs: np.ndarray, ys: np.ndarray) -> float:
+    """The effect size of :func:`rank_sum` alone, bit for bit the same, for non-empty float arrays without NaN.
+
+    Why: a bootstrap of the effect size (``studyctl.analysis.effect_ci``) needs only this, a third of the test's
+    time without its p-value and result; the test computes its effect size with the same two functions.
+    """
+    u, _, _ = _u_statistic(xs, ys)
+    return _rank_biserial(u, xs.size, ys.size)
+
+
 def rank_sum(
     x: Any,
     y: Any,
@@ -110,13 +131,11 @@ def rank_sum(
         raise StatsInputError(
             f"{'x' if nx == 0 else 'y'} has no non-missing values; rank_sum needs at least 1 value in each sample"
         )
-    pooled = np.concatenate((xs, ys))
-    r2, _, sizes = midranks(pooled)
+    u, r2, sizes = _u_statistic(xs, ys)
     ties = bool(np.any(sizes > 1))
     n_total = nx + ny
-    u = float(r2[:nx].sum()) / 2.0 - nx * (nx + 1) / 2.0
     mu = nx * ny / 2.0
-    effect = (2.0 * u - nx * ny) / (nx * ny)
+    effect = _rank_biserial(u, nx, ny)
     base = dict(
         statistic=u, alternative=alternative, effect_size=effect, n_x=nx, n_y=ny, ties=ties, nan_dropped=dropped
     )

@@ -164,19 +164,11 @@ def rm_anova(*conditions: Any, names: Sequence[str] | None = None) -> RepeatedAn
     if n < 2:
         return RepeatedAnovaResult(nan, df_e, df_r, nan, nan, nan, nan, n, k, dropped, True,
                                    (*warnings, "need at least 2 complete subjects"))
-    y = y - np.median(y)
-    grand = y.mean()
-    cm = y.mean(axis=0)
-    sm = y.mean(axis=1)
-    ss_cond = n * float(np.sum((cm - grand) ** 2))
-    resid = y - sm[:, None] - cm[None, :] + grand
-    ss_err = float(np.sum(resid**2))
-    # Identical subjects leave a residual of rounding error only (3.666… repeated gives ~1e-31, not 0):
-    # an F of 1e30 and a Greenhouse-Geisser 0/0. Below a few ulps of the total sum of squares it is zero.
-    if ss_err <= 64 * np.finfo(float).eps * float(np.sum((y - grand) ** 2)):
+    y, ss_cond, ss_err, no_residual = _sums_of_squares(y)
+    if no_residual:
         f = math.inf if ss_cond > 0 else nan
         return RepeatedAnovaResult(f, df_e, df_r, 0.0 if ss_cond > 0 else nan, nan, 0.0 if ss_cond > 0 else nan,
-                                   1.0 if ss_cond > 0 else nan, n, k, dropped, True,
+                                   _partial_eta_squared(ss_cond, ss_err, no_residual), n, k, dropped, True,
                                    (*warnings, "zero residual variance"))
     f = (ss_cond / df_e) / (ss_err / df_r)
     p = float(special.fdtrc(df_e, df_r, f))
@@ -186,5 +178,40 @@ def rm_anova(*conditions: Any, names: Sequence[str] | None = None) -> RepeatedAn
     eps = float(np.trace(sc) ** 2 / ((k - 1) * np.sum(sc * sc)))
     eps = min(1.0, max(1.0 / (k - 1), eps))
     p_gg = float(special.fdtrc(eps * df_e, eps * df_r, f))
-    return RepeatedAnovaResult(f, df_e, df_r, p, eps, p_gg, ss_cond / (ss_cond + ss_err), n, k, dropped, False,
-                               tuple(warnings))
+    return RepeatedAnovaResult(f, df_e, df_r, p, eps, p_gg, _partial_eta_squared(ss_cond, ss_err, no_residual), n,
+                               k, dropped, False, tuple(warnings))
+
+
+def _sums_of_squares(y: np.ndarray) -> tuple[np.ndarray, float, float, bool]:
+    """``y`` (subjects × conditions) centred on its median, SS of conditions, SS of error, and whether the residual
+    is zero."""
+    y = y - np.median(y)
+    grand = y.mean()
+    cm = y.mean(axis=0)
+    sm = y.mean(axis=1)
+    ss_cond = y.shape[0] * float(np.sum((cm - grand) ** 2))
+    resid = y - sm[:, None] - cm[None, :] + grand
+    ss_err = float(np.sum(resid**2))
+    # Identical subjects leave a residual of rounding error only (3.666… repeated gives ~1e-31, not 0):
+    # an F of 1e30 and a Greenhouse-Geisser 0/0. Below a few ulps of the total sum of squares it is zero.
+    return y, ss_cond, ss_err, ss_err <= 64 * np.finfo(float).eps * float(np.sum((y - grand) ** 2))
+
+
+def _partial_eta_squared(ss_cond: float, ss_err: float, no_residual: bool) -> float:
+    if no_residual:
+        return 1.0 if ss_cond > 0 else math.nan
+    return ss_cond / (ss_cond + ss_err)
+
+
+def rm_partial_eta_squared(*conditions: np.ndarray) -> float:
+    """The effect size of :func:`rm_anova` alone, bit for bit the same, for two or more equally long float arrays
+    (one per condition, a subject per position) without NaN.
+
+    Why: a bootstrap of the effect size (``studyctl.analysis.effect_ci``) needs only this, without the
+    Greenhouse-Geisser correction and p-values; the test computes its effect size with the same functions.
+    """
+    y = np.column_stack(conditions)
+    if y.shape[0] < 2:
+        return math.nan
+    _, ss_cond, ss_err, no_residual = _sums_of_squares(y)
+    return _partial_eta_squared(ss_cond, ss_err, no_residual)

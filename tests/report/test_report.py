@@ -439,3 +439,47 @@ def test_the_same_figure_saves_to_the_same_bytes_in_every_format(fmt):
         assert figure_bytes(fig, fmt) == figure_bytes(fig, fmt)
     finally:
         plt.close(fig)
+
+
+def _laid_out_figure():
+    """A constrained-layout figure whose layout moves things: two panels, long labels, a legend below."""
+    from studyctl.report.figures import _figure, _legend_below
+
+    fig, axes = _figure(2)
+    for i, ax in enumerate(axes):
+        (h,) = ax.plot([0, 1, 2], [i, 3, 1], label="series")
+        ax.set_ylabel("a long label that pushes the panel right")
+        ax.set_title(f"panel {i}")
+    _legend_below(fig, [h], ["series"])
+    fig.suptitle("short", fontsize=11)
+    return fig
+
+
+@pytest.mark.parametrize("fmt", ["png", "svg", "pdf"])
+def test_a_save_lays_the_figure_out_once_and_draws_it_once(fmt, monkeypatch):
+    # savefig with a layout engine draws the figure twice (a draw with rendering off only to run the layout, then the
+    # real one); figure_bytes runs the engine itself and saves with it held off: one draw, the same bytes
+    import io
+
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    from studyctl.report.figures import DPI, _panel_letters, figure_bytes
+
+    meta = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}[fmt]
+    plain = _laid_out_figure()
+    _panel_letters(plain)  # what figure_bytes adds before saving
+    buf = io.BytesIO()
+    for _ in range(2):  # as the report does (one save per format), positions carry over from save to save
+        buf = io.BytesIO()
+        with matplotlib.rc_context({"svg.hashsalt": "studyctl"}):
+            plain.savefig(buf, format=fmt, dpi=DPI, metadata=meta)
+    fig = _laid_out_figure()
+    figure_bytes(fig, fmt)
+    draws = []
+    draw = Figure.draw
+    monkeypatch.setattr(Figure, "draw", lambda self, renderer: (draws.append(1), draw(self, renderer))[1])
+    assert figure_bytes(fig, fmt) == buf.getvalue()
+    assert len(draws) == 1
+    assert fig.get_layout_engine() is not None and type(fig.get_layout_engine()).__name__ == "ConstrainedLayoutEngine"
+    assert [ax.get_position().bounds for ax in fig.axes] == [ax.get_position().bounds for ax in plain.axes]
