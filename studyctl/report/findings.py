@@ -100,12 +100,12 @@ def agreement_headline(result: AnalysisResult) -> str | None:
     chance = ""
     if s.get("verdict_p_n"):
         # beside the verdicts, what a same-size replication of the paper itself would reproduce of those with a p
-        chance = f" (of {s['verdict_p_n']} with a published p: {s['verdict_p_reproduced']}, a replication " \
-                 f"of the paper {s['verdict_expected']:.1f})"
+        chance = f" ({s['verdict_p_reproduced']} of the {s['verdict_p_n']} with a published p, where a same-size " \
+                 f"replication of the paper would reproduce {s['verdict_expected']:.1f})"
     band_chance = ""
     if s.get("within_p_n"):
-        band_chance = f" (of {s['within_p_n']} with a sampling band: {s['within_p_reproduced']}, a replication " \
-                      f"of the paper {s['within_expected']:.1f})"
+        band_chance = f" ({s['within_p_reproduced']} of the {s['within_p_n']} whose band is the paper's sampling " \
+                      f"interval, where a same-size replication of the paper would place {s['within_expected']:.1f})"
     return (f"{frac('agree')} published targets agree on every check; directions right {frac('direction')}; "
             f"verdicts reproduced {frac('verdict')}{chance}; within the published band {frac('within')}{band_chance}")
 
