@@ -125,19 +125,10 @@ def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int |
                     if _present(r[col]) and (col != "within" or r["statistic"] not in SPREADS)]
             figures[f"{name}_n"] = len(vals)
             figures[f"{name}_fraction"] = (sum(vals) / len(vals)) if vals else None
-        # what chance alone allows: the verdicts with a published p, reproduced and expected of a replication
-        with_p = [r for r in rows if _present(r["same_verdict"]) and _present(r.get("replication"))]
-        figures["verdict_p_n"] = len(with_p)
-        figures["verdict_p_reproduced"] = sum(bool(r["same_verdict"]) for r in with_p)
-        figures["verdict_expected"] = float(sum(float(r["replication"]) for r in with_p)) if with_p else None
-        figures["verdict_expected_fraction"] = (figures["verdict_expected"] / len(with_p)) if with_p else None
-        # ... and of the values whose band is the paper's own sampling interval (spreads apart, as within_n)
-        sampled = [r for r in rows if r["statistic"] not in SPREADS and _present(r["within"])
-                   and _present(r.get("replication"))]
-        figures["within_p_n"] = len(sampled)
-        figures["within_p_reproduced"] = sum(bool(r["within"]) for r in sampled)
-        figures["within_expected"] = float(sum(float(r["replication"]) for r in sampled)) if sampled else None
-        figures["within_expected_fraction"] = (figures["within_expected"] / len(sampled)) if sampled else None
+        # what chance alone allows: the verdicts with a published p, and the values whose band is the paper's own
+        # sampling interval (spreads apart, as within_n), reproduced and expected of a replication
+        _against_chance(figures, "verdict", [r for r in rows if _present(r["same_verdict"])])
+        _against_chance(figures, "within", [r for r in rows if r["statistic"] not in SPREADS and _present(r["within"])])
         sds = [r for r in rows if r["statistic"] in SPREADS and _present(r["within"])]
         figures["sd_ratio_n"] = len(sds)
         figures["sd_ratio_within_fraction"] = (sum(bool(r["within"]) for r in sds) / len(sds)) if sds else None
@@ -145,6 +136,18 @@ def summary_from_frame(frame: pd.DataFrame) -> dict[str, dict[str, float | int |
         figures["sd_ratio_median"] = float(pd.Series(ratios).median()) if ratios else None
         out[role] = figures
     return out
+
+
+def _against_chance(figures: dict[str, float | int | None], name: str, rows: list[dict]) -> None:
+    """``{name}_p_n``, ``{name}_p_reproduced``, ``{name}_expected`` and ``{name}_expected_fraction`` over the
+    ``rows`` (checked by ``name``'s column) that have a replication figure."""
+    col = "same_verdict" if name == "verdict" else name
+    kept = [r for r in rows if _present(r.get("replication"))]
+    expected = float(sum(float(r["replication"]) for r in kept)) if kept else None
+    figures[f"{name}_p_n"] = len(kept)
+    figures[f"{name}_p_reproduced"] = sum(bool(r[col]) for r in kept)
+    figures[f"{name}_expected"] = expected
+    figures[f"{name}_expected_fraction"] = (expected / len(kept)) if expected is not None else None
 
 
 def _num(v: object) -> float:

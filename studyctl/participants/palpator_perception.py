@@ -109,10 +109,7 @@ class PressNotes:
         # branches above, so from then on only an unpractised person kept it, and counted stopped presses too).
         if self._stop_ratio and not seg.stopped:
             for ch in CHANNELS:  # only unstopped presses show what pressing all the way usually feels like
-                peaks = self._peaks[ch]
-                peaks.append(notes.get((ch, "peak"), 0.0))
-                if len(peaks) >= 5:
-                    self._usual[ch] = float(np.median(peaks))
+                _keep_median(self._peaks, self._usual, ch, notes.get((ch, "peak"), 0.0))
             if self._stop_by_depth:
                 self._keep_plain_at_depth(notes)
         self._notes = {}
@@ -124,7 +121,13 @@ class PressNotes:
         for _ch, _peak, cp_keys in self._note_keys:
             for _c, ck in cp_keys:
                 if ck in notes:
-                    seen = self._plain_at.setdefault(ck, [])
-                    seen.append(notes[ck])
-                    if len(seen) >= 5:
-                        self._usual_at[ck] = float(np.median(seen))
+                    _keep_median(self._plain_at, self._usual_at, ck, notes[ck])
+
+
+def _keep_median(history: dict, usual: dict, key: object, value: float) -> None:
+    """Add ``value`` to ``key``'s history and, from 5 values on, keep their median as ``usual[key]`` (what pressing
+    plain tissue usually feels like, as a stop rule compares it)."""
+    seen = history.setdefault(key, [])
+    seen.append(value)
+    if len(seen) >= 5:
+        usual[key] = float(np.median(seen))
