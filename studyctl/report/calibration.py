@@ -90,16 +90,19 @@ _IN_UNIT = ("mean", "sd", "median", "iqr")
 
 
 def agreement_table(frame: pd.DataFrame, units: Mapping[str, str] | None = None) -> tuple[list[str], list[list[str]]]:
-    """One row per target; ``units`` (plan metric id -> unit) labels the metric of values in that unit."""
-    head = ["target", "role", "metric", "where", "statistic", "published", "published band", "simulated",
-            "simulated 95% interval", "same direction", "within band", "same verdict", "replication", "agrees"]
+    """One row per target; ``units`` (plan metric id -> unit) labels the metric of values in that unit.
+
+    Ten columns, the checks last: a value and its interval share a cell, and metric, place and statistic share one,
+    so that the whole row fits a report's width (with fourteen, the checks were scrolled out of sight).
+    ``agreement.csv`` keeps every field in its own column."""
+    head = ["target", "role", "compared", "published (band)", "simulated (95% interval)", "same direction",
+            "within band", "same verdict", "replication", "agrees"]
     body = []
     for r in frame.to_dict("records"):
         within = _yn(r["within"])
         if r["statistic"] in ("sd", "cv") and r["within"] is not None and not (isinstance(r["sd_ratio"], float)
                                                                       and math.isnan(r["sd_ratio"])):
             within = f"{within} (ratio {r['sd_ratio']:.2f})"
-        band = _band(r["published_low"], r["published_high"])
         simulated = _val(r["simulated"])
         note = r.get("note")
         if r["statistic"] == "verdict" and isinstance(note, str) and note and not note.startswith(
@@ -107,10 +110,13 @@ def agreement_table(frame: pd.DataFrame, units: Mapping[str, str] | None = None)
             simulated = f"{simulated} ({note})"
         unit = (units or {}).get(r["metric"], "") if r["statistic"] in _IN_UNIT else ""
         metric = f"{r['metric']} ({unit})" if unit else r["metric"]
-        body.append([r["target"], r["role"], metric, r["where"] or "all", r["statistic"], _val(r["published"]),
-                     f"{band} {r['band']}".strip(), simulated,
-                     _band(r["simulated_low"], r["simulated_high"]), _yn(r["same_direction"]), within,
-                     _yn(r["same_verdict"]), _chance(r.get("replication")), _yn(r["agrees"])])
+        published = " ".join(x for x in (_val(r["published"]), _band(r["published_low"], r["published_high"])) if x)
+        if r["band"]:  # what the band is; a verdict's says what is checked ("verdict and direction (a > b)")
+            published += f"{';' if r['statistic'] == 'verdict' else ''} {r['band']}"
+        simulated = " ".join(x for x in (simulated, _band(r["simulated_low"], r["simulated_high"])) if x)
+        body.append([r["target"], r["role"], f"{metric}, {r['where'] or 'all'}: {r['statistic']}", published,
+                     simulated, _yn(r["same_direction"]), within, _yn(r["same_verdict"]),
+                     _chance(r.get("replication")), _yn(r["agrees"])])
     return head, body
 
 

@@ -406,8 +406,31 @@ def test_agreement_table_names_the_unit_of_values_in_it():
                           {**base, "target": "t_pct", "metric": "time", "statistic": "pct_change_vs_baseline"},
                           {**base, "target": "f_prop", "metric": "found", "statistic": "proportion"}])
     head, body = agreement_table(frame, {"time": "s", "found": ""})
-    metric = {row[0]: row[head.index("metric")] for row in body}
-    assert metric == {"t_mean": "time (s)", "t_pct": "time", "f_prop": "found"}  # a % change is not in seconds
+    compared = {row[0]: row[head.index("compared")] for row in body}
+    assert compared == {"t_mean": "time (s), all: mean", "t_pct": "time, all: pct_change_vs_baseline",
+                        "f_prop": "found, all: proportion"}  # a % change is not in seconds
+    published = body[0][head.index("published (band)")]
+    assert published == "29.1 [24.2, 34.1]"  # the value and its band share a cell
+
+
+def test_agreement_table_fits_a_report_page_with_the_checks_in_view():
+    """With fourteen columns the checks (within band, same verdict, agrees) were scrolled out of a report's width;
+    every column but the checks now holds several fields, and a long verdict note stays in one cell."""
+    from studyctl.report.calibration import agreement_table
+
+    row = {"target": "newcombe_se_manual_PHF_verdict", "role": "validation", "metric": "sensitivity",
+           "where": "pair=manual vs PHF", "statistic": "verdict", "published": True, "published_low": None,
+           "published_high": None, "band": "verdict and direction (manual > PHF)", "simulated": True,
+           "simulated_low": None, "simulated_high": None, "same_direction": True, "within": None,
+           "same_verdict": True, "agrees": True, "sd_ratio": float("nan"), "replication": 0.92,
+           "note": "margin (CI towards 0) = 0.164; manual higher"}
+    head, body = agreement_table(pd.DataFrame([row]))
+    assert len(head) == len(body[0]) == 10
+    assert head[-5:] == ["same direction", "within band", "same verdict", "replication", "agrees"]
+    cells = dict(zip(head, body[0], strict=True))
+    assert cells["published (band)"] == "significant; verdict and direction (manual > PHF)"
+    assert cells["simulated (95% interval)"] == "significant (margin (CI towards 0) = 0.164; manual higher)"
+    assert (cells["same verdict"], cells["replication"], cells["within band"]) == ("yes", "92%", "")
 
 
 def test_a_cell_with_no_condition_shows_an_empty_condition_not_nan(result):
