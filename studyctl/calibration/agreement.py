@@ -33,7 +33,7 @@ import pandas as pd
 
 from studyctl.calibration.replication import band_replication, spread_replication, verdict_replication
 from studyctl.calibration.simulated import SimulatedStats
-from studyctl.populations.targets import SPREADS, Target
+from studyctl.populations.targets import SPREADS, Target, statistic_limits
 
 SD_FACTOR = 1.5
 MISSING_PENALTY = 25.0
@@ -245,9 +245,10 @@ def _replication(t: Target, alpha: float, published_sig: bool, band: tuple[float
         return math.nan
     lo, hi = band
     # a band edge at the statistic's own limit cannot be crossed (a proportion above 1, a count below 0)
-    if lo <= 0 and t.statistic in ("proportion", "count_total", "iqr"):
+    low, high = statistic_limits(t.statistic)
+    if lo <= low:
         lo = -math.inf
-    if hi >= 1 and t.statistic == "proportion":
+    if hi >= high:
         hi = math.inf
     return band_replication(float(t.value), se, lo, hi)
 

@@ -26,6 +26,16 @@ STATISTICS = (
     "mean", "sd", "cv", "median", "iqr", "proportion", "count_total", "pct_change_vs_baseline", "test_p", "verdict",
 )
 SPREADS = ("sd", "cv")  # between-person spread: judged by the ratio simulated / published (within 1.5×)
+#: What a bounded statistic can take (the others are unbounded): a published band is clipped to it, and a
+#: replication cannot cross a band edge that lies at it.
+_LIMITS = {"proportion": (0.0, 1.0), "sd": (0.0, math.inf), "cv": (0.0, math.inf), "iqr": (0.0, math.inf),
+           "count_total": (0.0, math.inf)}
+
+
+def statistic_limits(statistic: str) -> tuple[float, float]:
+    """The lowest and highest value ``statistic`` can take."""
+    return _LIMITS.get(statistic, (-math.inf, math.inf))
+
 ROLES = ("fit", "validation")
 TOP_KEYS = ("format", "protocol", "source", "plan", "alpha", "targets", "note")
 TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "p", "uncertainty", "role", "note", "test", "pair",
@@ -86,12 +96,8 @@ class Target:
         band = self._raw_interval()
         if band is None:
             return None
-        lo, hi = band
-        if self.statistic in ("proportion", "sd", "cv", "iqr", "count_total"):
-            lo = max(lo, 0.0)
-        if self.statistic == "proportion":
-            hi = min(hi, 1.0)
-        return lo, hi
+        low, high = statistic_limits(self.statistic)
+        return max(band[0], low), min(band[1], high)
 
     def _raw_interval(self) -> tuple[float, float] | None:
         u, v = self.uncertainty, self.value
