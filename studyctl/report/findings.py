@@ -150,6 +150,8 @@ def methods_text(result: AnalysisResult) -> list[str]:
         if spec.design == catalog.DESCRIPTIVE:
             continue
         text = f"{entry.title or entry.id}: {spec.summary}, comparing the levels of {entry.compare.replace('_', ' ')}"
+        if "factor" in spec.options and "factor" in entry.options:  # a model's second factor (group × condition)
+            text += f" crossed with {str(entry.options['factor']).replace('_', ' ')}"
         if entry.by:
             text += f" separately for each {' × '.join(b.replace('_', ' ') for b in entry.by)}"
         if entry.posthoc:

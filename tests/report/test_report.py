@@ -506,3 +506,18 @@ def test_a_save_lays_the_figure_out_once_and_draws_it_once(fmt, monkeypatch):
     assert len(draws) == 1
     assert fig.get_layout_engine() is not None and type(fig.get_layout_engine()).__name__ == "ConstrainedLayoutEngine"
     assert [ax.get_position().bounds for ax in fig.axes] == [ax.get_position().bounds for ax in plain.axes]
+
+
+def test_methods_name_a_models_second_factor_not_the_plan_key():
+    """The aligned-rank-transform paragraph of seed 000's report read 'of the compared factor × options.factor':
+    a plan key, not the study's factor."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from studyctl.report.findings import methods_text
+
+    plan = load_plan(Path(__file__).parents[2] / "analysis" / "bio_inspired_palpation.yaml")
+    paras = methods_text(SimpleNamespace(plan=plan, tables={}))
+    art = next(p for p in paras if "aligned rank transform" in p)
+    assert "options.factor" not in " ".join(paras)
+    assert "comparing the levels of condition crossed with group" in art

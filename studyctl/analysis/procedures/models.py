@@ -89,7 +89,7 @@ SPECS = (
         None,
         frozenset({"factor"}),
         ("partial_eta_squared",),
-        "aligned rank transform ANOVA (Wobbrock et al. 2011) of the compared factor × options.factor: type III "
+        "aligned rank transform ANOVA (Wobbrock et al. 2011) of two crossed factors: type III "
         "F on aligned ranks, or with repeated participants the likelihood-ratio χ² of a random-intercept model",
     ),
     TestSpec(
