@@ -65,7 +65,18 @@ def _env():  # noqa: ANN202 - a jinja2 Environment, imported lazily (CLI start-u
         keep_trailing_newline=True,
     )
     env.filters["md"] = _md_cell
+    env.filters["cell"] = _html_cell
     return env
+
+
+# In a narrow column a bound such as "< .001" wrapped between its sign and its number, and a df pair "4, 44"
+# between its two numbers: each is one value and keeps one line (a no-break space).
+_BOUND = re.compile(r"^([<>≤≥]) (?=[.\d−-])")
+_DF_PAIR = re.compile(r"^(\d+(?:\.\d+)?), (?=\d+(?:\.\d+)?$)")
+
+
+def _html_cell(c: Any) -> str:
+    return _DF_PAIR.sub("\\1,\u00a0", _BOUND.sub("\\1\u00a0", str(c)))
 
 
 def _md_cell(c: Any) -> str:

@@ -234,7 +234,15 @@ def test_tables_are_tidy(written):
 
     cells = re.findall(r"<td>(.*?)</td>", html)
     assert not [c for c in cells if re.fullmatch(r"-?[0-9.]+e-?[0-9]+", c)]
-    assert "&lt; .001" in html
+    # and a bound keeps its sign on the number's line in a narrow column (a no-break space)
+    assert "<td>&lt;\u00a0.001</td>" in html and "<td>&lt; .001</td>" not in html
+
+
+def test_a_bound_or_a_df_pair_keeps_one_line_in_a_table_cell():
+    from studyctl.report.render import _html_cell
+
+    assert [_html_cell(c) for c in ("< .001", "> .999", "4, 44", "3, 41.5", "BL, RT, ES", "a < b", "4, 44 (GG)")] \
+        == ["<\u00a0.001", ">\u00a0.999", "4,\u00a044", "3,\u00a041.5", "BL, RT, ES", "a < b", "4, 44 (GG)"]
 
 
 def test_methods_paragraph_names_the_tests_and_software(written):
