@@ -86,6 +86,7 @@ class SimulatedForceDevice(ParamDevice):
         self._res = float(p["resolution_mm"])
         self._inv_res = 1.0 / self._res
         self._win = max(1, round(float(p["velocity_window_s"]) * self.rate_hz))
+        self._vel_scale = self.rate_hz / self._win  # 1 / the window's length in s (the ring holds _win samples)
         self._max_jump = float(p["max_jump_mm"])
         self._opened = False
         self._reset_state()
@@ -95,7 +96,7 @@ class SimulatedForceDevice(ParamDevice):
         self._pos = [0.0, 0.0, 0.0]  # true handle position (mm)
         self._vel = [0.0, 0.0, 0.0]  # true handle velocity (mm/s)
         self._meas = (0.0, 0.0, 0.0)
-        self._ring: list[tuple[float, float, float]] = []
+        self._ring: list[tuple[float, float, float] | list[float]] = []  # readings, and positions (see _substeps)
         self._ring_i = 0
         self._force = [0.0, 0.0, 0.0]
         self._dir = (0.0, 0.0, -1.0)
@@ -158,14 +159,16 @@ class SimulatedForceDevice(ParamDevice):
 
     def _substeps(self, n: int) -> None:
         """``n`` device ticks under the held force, the encoder sampled after each but the last (``read`` takes
-        that one): :meth:`_integrate` unrolled, because a reduced-rate loop spends most of a read here."""
+        that one): :meth:`_integrate` unrolled, because a reduced-rate loop spends most of a read here.
+
+        The ring keeps these samples' true positions (lists; readings are tuples) and ``read`` rounds one only if it
+        takes it: at a steady reduced rate (4 device ticks a loop tick at 250 Hz, a 20-tick window) the window's
+        oldest sample is always a reading, so rounding the others as they were taken was work never used."""
         if self._target is None or self._kinematic or not self._ring:
-            r, ir = self._res, self._inv_res
             for step in range(n):
                 self._integrate(self._dt)
                 if step < n - 1 and self._ring:
-                    q = tuple(((v * ir + _ROUND) - _ROUND) * r for v in self._pos)
-                    self._ring[self._ring_i] = q
+                    self._ring[self._ring_i] = list(self._pos)
                     self._ring_i = (self._ring_i + 1) % len(self._ring)
             return
         dt = self._dt
@@ -178,7 +181,6 @@ class SimulatedForceDevice(ParamDevice):
         f0, f1, f2 = self._force
         t0, t1, t2 = self._target
         ring, i, size = self._ring, self._ring_i, len(self._ring)
-        r, ir = self._res, self._inv_res
         for step in range(n):
             v0 = (v0 + g * (k * (t0 - p0) + f0)) / den
             v1 = (v1 + g * (k * (t1 - p1) + f1)) / den
@@ -186,9 +188,8 @@ class SimulatedForceDevice(ParamDevice):
             p0 += dt * v0
             p1 += dt * v1
             p2 += dt * v2
-            if step < n - 1:  # the same rounding as read's
-                ring[i] = (((p0 * ir + _ROUND) - _ROUND) * r, ((p1 * ir + _ROUND) - _ROUND) * r,
-                           ((p2 * ir + _ROUND) - _ROUND) * r)
+            if step < n - 1:  # the position itself, a list: read rounds it if and when it is read
+                ring[i] = [p0, p1, p2]
                 i = 0 if i + 1 == size else i + 1
         pos[0], pos[1], pos[2] = p0, p1, p2
         vel[0], vel[1], vel[2] = v0, v1, v2
@@ -257,11 +258,16 @@ class SimulatedForceDevice(ParamDevice):
         ring = self._ring
         if ring:
             i = self._ring_i
-            ox, oy, oz = ring[i]  # written len(ring) ticks ago
+            old = ring[i]  # written len(ring) ticks ago
+            ox, oy, oz = old
+            if type(old) is list:  # a position _substeps kept: the encoder's rounding, as it would have been then
+                ox = ((ox * ir + _ROUND) - _ROUND) * r
+                oy = ((oy * ir + _ROUND) - _ROUND) * r
+                oz = ((oz * ir + _ROUND) - _ROUND) * r
             ring[i] = q
             i += 1
             self._ring_i = 0 if i == len(ring) else i
-            inv = self.rate_hz / len(ring)
+            inv = self._vel_scale
             vx, vy, vz = (qx - ox) * inv, (qy - oy) * inv, (qz - oz) * inv
         else:
             vx = vy = vz = 0.0

@@ -317,7 +317,8 @@ class SafetyLayer:
                     self._quiet(t, "rate_limited", name)
 
         self._last_out = values
-        return dict(values)
+        # only the rate limit reads _last_out: without one the caller may have the dict itself (no copy a tick)
+        return dict(values) if self._rate_limited else values
 
     def _time_fault(self, t: Any, last_t: float | None) -> dict[str, float]:
         finite = _finite_number(t)
