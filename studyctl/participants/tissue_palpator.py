@@ -92,7 +92,7 @@ from studyctl.participants.tissue_cue_learning import CueReliability
 from studyctl.participants.tissue_decision import SpotDecision
 from studyctl.participants.tissue_hand import HandMotor
 from studyctl.participants.tissue_params import PARAMS
-from studyctl.participants.tissue_perception import PressPerception
+from studyctl.participants.tissue_perception import AirRatios, PressPerception
 from studyctl.participants.tissue_practice import practice_points
 from studyctl.participants.tissue_questionnaire import Questionnaire
 from studyctl.participants.tissue_slide import SlideSurvey
@@ -212,6 +212,7 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         # per participant.
         self._air_dc = array("d")
         self._air_dh = array("d")
+        self._air_ratios = AirRatios()  # their ratios, sorted as far as looked at (R₀, _r0)
         self._last_cursor: tuple[float, float, float] | None = None
         self._last_handle: tuple[float, float, float] | None = None
         self._reports: list[tuple[float, float]] = []
