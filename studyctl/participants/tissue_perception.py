@@ -4,16 +4,20 @@
 (a criterion over time), how long the press is held (until the fused judgement is precise enough), and what
 the press is recorded as (the strongest push with the depth at that moment, the cursor's slowing over the end of
 its descent, each with the person's sensory noise). :func:`_depth_matched` compares a cue with what the tissue
-around gives at the same depth. No decisions about spots: those are in :mod:`.tissue_decision`.
+around gives at the same depth. :class:`AirRatios` keeps the air ticks' cursor-over-hand travel ratios sorted, for
+:meth:`PressPerception._r0`'s median. No decisions about spots: those are in :mod:`.tissue_decision`.
 """
 
 from __future__ import annotations
 
 import math
+from array import array
 from bisect import bisect_right
 from typing import Any
 
 import numpy as np
+
+from studyctl.participants.exact_mean import median_of_sorted
 
 
 class PressPerception:
@@ -70,7 +74,7 @@ class PressPerception:
         """How far the cursor moves per hand millimetre in the air (1 before any move was seen)."""
         if not self._air_dc:
             return 1.0
-        return float(np.median(np.frombuffer(self._air_dc) / np.frombuffer(self._air_dh)))
+        return self._air_ratios.median(self._air_dc, self._air_dh)
 
     def _hold_time(self, press: dict[str, Any], force: float) -> float:
         """How long the person holds this press: until its stiffness judgement, fused over the cues this press
@@ -151,6 +155,32 @@ class PressPerception:
                 # how deep the cursor was over the window (its descent into the tissue, as seen on screen)
                 row["ratio_seen"] = 0.5 * (bc + oc) * (1.0 + p["depth_weber"] * float(rng.normal()))
         self._presses.append(row)
+
+
+class AirRatios:
+    """The cursor-over-hand travel ratios of the air ticks, kept sorted for their median (``R₀``).
+
+    The palpator appends each air tick's cursor and hand travel to two float buffers and looks at ``R₀`` at every
+    press bottom and every look at the evidence. ``np.median`` of all the ratios divided and partitioned up to ~10,000
+    of them at each look (5 % of the person's CPU at seed 003); here each look only merges in the ratios appended since
+    the last one (the same divisions), so the sorted array holds the same values and its middle is ``np.median``'s
+    (:func:`~studyctl.participants.exact_mean.median_of_sorted`)."""
+
+    def __init__(self) -> None:
+        self._sorted = np.empty(0)
+        self._buffers: tuple[array, array] | None = None  # the buffers merged from (a test may swap them)
+
+    def median(self, dc: array, dh: array) -> float:
+        """``float(np.median(np.frombuffer(dc) / np.frombuffer(dh)))`` of the two equally long, non-empty buffers."""
+        done = self._sorted.size
+        if self._buffers is None or self._buffers[0] is not dc or self._buffers[1] is not dh or len(dc) < done:
+            self._sorted, self._buffers, done = np.empty(0), (dc, dh), 0
+        if len(dc) > done:
+            # views of the buffers live only in this line: a buffer with a view cannot grow
+            new = np.frombuffer(dc)[done:] / np.frombuffer(dh)[done:len(dc)]
+            new.sort()
+            self._sorted = np.insert(self._sorted, np.searchsorted(self._sorted, new), new)
+        return median_of_sorted(self._sorted)
 
 
 def _depth_matched(felt: np.ndarray, seen: np.ndarray, survey: np.ndarray) -> np.ndarray:

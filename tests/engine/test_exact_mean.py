@@ -1,13 +1,16 @@
-"""``numpy_mean``: the seed-000 palpator's cell means without numpy arrays, the same bits as ``np.mean``."""
+"""``numpy_mean``: the seed-000 palpator's cell means without numpy arrays, the same bits as ``np.mean``;
+``numpy_median`` and ``numpy_nanmedian``: the seed-003 palpator's cue medians, the same bits as ``np.median`` and
+``np.nanmedian``."""
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
 
-from studyctl.participants.exact_mean import numpy_mean
+from studyctl.participants.exact_mean import numpy_mean, numpy_median, numpy_nanmedian
 
 SIZES = [*range(1, 140), 200, 255, 256, 257, 1000, 8193, 9000]
 
@@ -43,3 +46,35 @@ def test_the_palpator_scores_without_numpy_means(monkeypatch):
     import studyctl.participants.palpator_decision as decision
 
     assert decision.numpy_mean is numpy_mean
+
+
+def _same(got: float, want: float) -> bool:
+    return (math.isnan(got) and math.isnan(want)) or (got == want and math.copysign(1, got) == math.copysign(1, want))
+
+
+@pytest.mark.parametrize("n", [*range(1, 40), 199, 200, 1000, 4097])
+def test_numpy_median_same_bits_as_numpy(n):
+    rng = np.random.default_rng(n)
+    for k in range(20):
+        v = rng.standard_normal(n) * 10.0 ** rng.integers(-3, 4, n)
+        if k % 4 == 1:
+            v = np.round(v, 1)  # ties
+        if k % 4 == 2:
+            v[rng.random(n) < 0.3] = rng.choice([0.0, -0.0, math.inf, -math.inf])
+        assert _same(numpy_median(v), float(np.median(v)))
+        if k % 4 == 3:
+            v[rng.random(n) < 0.3] = math.nan
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            assert _same(numpy_nanmedian(v), float(np.nanmedian(v)))
+            assert _same(numpy_median(v), float(np.median(v)))
+
+
+@pytest.mark.parametrize("v", [[-0.0], [-0.0, -0.0], [0.0, -0.0, -0.0], [math.nan], [math.nan, math.nan],
+                               [1.0, math.nan], [math.inf, -math.inf], [math.inf, math.inf, 1.0]])
+def test_numpy_median_edge_values_as_numpy(v):
+    a = np.array(v)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        assert _same(numpy_median(a), float(np.median(a)))
+        assert _same(numpy_nanmedian(a), float(np.nanmedian(a)))

@@ -17,11 +17,12 @@ def _palpator() -> tuple[VirtualTissuePalpator, list[tuple[float, float]]]:
                   np.random.default_rng(0))
     asked: list[tuple[float, float]] = []
 
-    def height(x: float, y: float) -> float:
+    def in_air(x: float, y: float, z: float) -> bool:
         asked.append((x, y))
-        return 0.0  # a flat surface at z = 0: everything above 0.5 mm is in the air
+        return z > 0.5  # a flat surface at z = 0: everything above 0.5 mm is in the air
 
-    p._height = height
+    p._height = lambda x, y: 0.0
+    p._in_air = in_air
     return p, asked
 
 
@@ -60,3 +61,27 @@ def test_view_parts_reads_a_controllers_avatar_without_the_merge_helper(monkeypa
     # in the first two (before: cursor x, y, z and depth picked each time); the third takes the general path
     assert picks[:2] == ["contact_x_mm", "contact_y_mm"] and "cursor_x_mm" not in picks[:2]
     assert picks.count("cursor_x_mm") == 1
+
+
+def test_in_air_is_the_height_test_it_shortcuts():
+    """``in_air`` settles most points from the surface's bounds without the height; it must answer as the height
+    test does everywhere: on flat and uneven surfaces, with NaN off the tissue, at the bounds and off the grid."""
+    from studyctl.participants.tissue_palpator import _surface_sampler
+
+    rng = np.random.default_rng(6)
+    xs, ys = np.arange(0.0, 62.0, 2.0), np.arange(-10.0, 50.0, 2.0)
+    flat = np.full((xs.size, ys.size), 25.0)
+    uneven = 20.0 + 5.0 * rng.random((xs.size, ys.size))
+    for heights in (flat, uneven):
+        heights = heights.copy()
+        heights[:3], heights[:, -2:] = np.nan, np.nan  # off the tissue
+        height, in_air, *_ = _surface_sampler({"xs_mm": xs, "ys_mm": ys, "heights_mm": heights})
+        lo, hi = np.nanmin(heights), np.nanmax(heights)
+        x = rng.uniform(-5.0, 67.0, 20_000)
+        y = rng.uniform(-15.0, 55.0, 20_000)
+        x[:4000], y[:2000] = rng.choice(xs, 4000), rng.choice(ys, 2000)  # on grid lines and nodes
+        z = np.concatenate([rng.uniform(lo - 2.0, hi + 2.0, 10_000),
+                            rng.choice([lo + 0.5, hi + 0.5, lo + 0.5 - 1e-3, hi + 0.5 + 1e-3], 10_000)])
+        for a, b, c in zip(x.tolist(), y.tolist(), z.tolist(), strict=True):
+            h = height(a, b)
+            assert in_air(a, b, c) == (not np.isfinite(h) or c > h + 0.5)
