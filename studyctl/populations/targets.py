@@ -30,12 +30,6 @@ SPREADS = ("sd", "cv")  # between-person spread: judged by the ratio simulated /
 #: replication cannot cross a band edge that lies at it.
 _LIMITS = {"proportion": (0.0, 1.0), "sd": (0.0, math.inf), "cv": (0.0, math.inf), "iqr": (0.0, math.inf),
            "count_total": (0.0, math.inf)}
-
-
-def statistic_limits(statistic: str) -> tuple[float, float]:
-    """The lowest and highest value ``statistic`` can take."""
-    return _LIMITS.get(statistic, (-math.inf, math.inf))
-
 ROLES = ("fit", "validation")
 TOP_KEYS = ("format", "protocol", "source", "plan", "alpha", "targets", "note")
 TARGET_KEYS = ("id", "metric", "where", "statistic", "value", "p", "uncertainty", "role", "note", "test", "pair",
@@ -51,6 +45,11 @@ BASES = ("paper", "recomputed", "wilson", "exact_poisson", "chosen")
 SPREAD_BASES = ("paper", "recomputed", "chosen")  # for an se or sd
 RECOMPUTE_TOLERANCE = 0.006  # a typed recomputed interval may differ from ours by the paper's 2-3 digit rounding
 TEST_STATISTICS = ("test_p", "verdict")
+
+
+def statistic_limits(statistic: str) -> tuple[float, float]:
+    """The lowest and highest value ``statistic`` can take."""
+    return _LIMITS.get(statistic, (-math.inf, math.inf))
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ from typing import Any
 
 import pandas as pd
 
+from studyctl.populations.targets import SPREADS
 from studyctl.report.style import fmt_num
 
 Block = tuple
@@ -100,7 +101,7 @@ def agreement_table(frame: pd.DataFrame, units: Mapping[str, str] | None = None)
     body = []
     for r in frame.to_dict("records"):
         within = _yn(r["within"])
-        if r["statistic"] in ("sd", "cv") and r["within"] is not None and not (isinstance(r["sd_ratio"], float)
+        if r["statistic"] in SPREADS and r["within"] is not None and not (isinstance(r["sd_ratio"], float)
                                                                       and math.isnan(r["sd_ratio"])):
             within = f"{within} (ratio {r['sd_ratio']:.2f})"
         simulated = _val(r["simulated"])
