@@ -20,8 +20,9 @@ import os
 import shutil
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -174,6 +175,81 @@ def _report_task(cohort: Cohort, folder: str) -> dict[str, Any]:
     }
 
 
+def _run_pool(
+    n_workers: int,
+    by_cost: Sequence[tuple[str, int]],
+    *,
+    enrol: Callable[[str, int], bool],
+    cohorts: dict[str, Cohort],
+    out: Path,
+    sessions_done: dict[str, int],
+    session_done: Callable[[str, str, str | None, float, str | None], None],
+    report_done: Callable[[str, dict[str, Any] | None, str | None], None],
+    reportable: Callable[[str], bool],
+    emit: Callable[[Event], None],
+) -> None:
+    """Sessions and reports on a pool of ``n_workers`` processes, every core busy from the first second to the last.
+
+    Two things the pool's own first-in-first-out queue would waste, measured on the demo (2 workers, session 43):
+    the workers waited ~4 s for all four studies to be enrolled before the first session was handed out, and a
+    study's report, submitted when its last session ended, queued behind every other study's sessions, so the four
+    reports (~28 CPU s) ran after the last session on two cores with one of them often idle. Here each study's
+    sessions are handed out as soon as it is enrolled (the workers start while the main process enrols the next),
+    at most ``n_workers + 1`` tasks are in the pool at a time (one waiting, so a worker never idles between tasks),
+    and a report goes ahead of every session still waiting.
+    """
+    waiting: deque[tuple[str, str | None]] = deque()  # (study, participant code); code None = the study's report
+    in_pool: dict[Future[Any], tuple[str, str | None]] = {}
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx) as pool:
+
+        def top_up() -> None:
+            while waiting and len(in_pool) <= n_workers:
+                name, code = waiting.popleft()
+                try:
+                    if code is None:
+                        future = pool.submit(_report_task, cohorts[name], str(out / name))
+                    else:
+                        future = pool.submit(_session_task, cohorts[name], code)
+                except Exception as exc:  # noqa: BLE001 - a broken pool: say so for this task's study
+                    finished(name, code, None, exc)
+                    continue
+                in_pool[future] = (name, code)
+
+        def finished(name: str, code: str | None, value: Any, exc: BaseException | None) -> None:
+            if code is None:
+                report_done(name, value, None if exc is None else _error_text(exc))
+                return
+            if exc is None:
+                session_done(name, code, value[0], value[1], None)
+            else:
+                session_done(name, code, None, 0.0, _error_text(exc))
+            all_ended(name)
+
+        def all_ended(name: str) -> None:
+            if sessions_done[name] == len(cohorts[name].codes):
+                # As soon as a study's last session ends: its analysis goes ahead of the sessions still waiting.
+                if reportable(name):
+                    emit((name, "analyse", 0, 1, "metrics, tests, figures"))
+                    waiting.appendleft((name, None))
+                else:
+                    report_done(name, None, None)
+
+        for name, n in by_cost:
+            if enrol(name, n):
+                waiting.extend((name, code) for code in cohorts[name].codes)
+                if not cohorts[name].codes:
+                    all_ended(name)
+                top_up()
+        while in_pool:
+            ready, _ = wait(in_pool, return_when=FIRST_COMPLETED)
+            for future in ready:
+                name, code = in_pool.pop(future)
+                exc = future.exception()
+                finished(name, code, None if exc is not None else future.result(), exc)
+            top_up()
+
+
 def _error_text(exc: BaseException) -> str:
     if isinstance(exc, StudyctlError):
         return str(exc)
@@ -192,11 +268,11 @@ def run_demo(
 ) -> DemoResult:
     """Run the whole demo; see the module docstring.
 
-    Three phases: (1) in this process, every study gets a fresh workspace and its enrolled cohort;
-    (2) a pool of worker processes runs the participants' sessions, longest studies first, so that both
-    cores stay busy until the last session ends (participants of one study write to its SQLite database
-    concurrently, one short transaction at a time); (3) the pool analyses each study and writes its report,
-    starting as soon as the study's last session has ended (alongside other studies' sessions).
+    In this process, every study gets a fresh workspace and its enrolled cohort, costliest study first; a pool of
+    worker processes runs the participants' sessions, each study's as soon as it is enrolled and the longest
+    studies first, so that both cores stay busy until the last session ends (participants of one study write to
+    its SQLite database concurrently, one short transaction at a time); the pool analyses each study and writes
+    its report as soon as the study's last session has ended, ahead of the sessions still waiting.
 
     Parameters
     ----------
@@ -224,18 +300,20 @@ def run_demo(
     runs: dict[str, dict[str, Any]] = {name: {"study": name, "participants": n} for name, n in studies}
     started = {name: time.perf_counter() for name, _ in studies}
     cohorts: dict[str, Cohort] = {}
-    for name, n in studies:
+    done: dict[str, int] = {}
+    sim_s: dict[str, float] = {}
+    completed: dict[str, int] = {}
+
+    def enrol(name: str, n: int) -> bool:
         emit((name, "simulate", 0, n, "enrolling"))
         try:
             cohorts[name] = _prepare_study(name, n, seed, out, sim_rate_hz)
         except Exception as exc:  # noqa: BLE001 - recorded per study; the others go on
             runs[name]["error"] = _error_text(exc)
             emit((name, "failed", 1, 1, runs[name]["error"].splitlines()[0]))
-    # Longest first: sessions of the costliest studies start at once, short ones fill the gaps.
-    tasks = [(name, code) for name in sorted(cohorts, key=lambda k: -_COST.get(k, 1.0)) for code in cohorts[name].codes]
-    done = {name: 0 for name in cohorts}
-    sim_s = {name: 0.0 for name in cohorts}
-    completed = {name: 0 for name in cohorts}
+            return False
+        done[name], sim_s[name], completed[name] = 0, 0.0, 0
+        return True
 
     def session_done(name: str, code: str, status: str | None, seconds: float, error: str | None) -> None:
         done[name] += 1
@@ -267,8 +345,12 @@ def run_demo(
         )
 
     reportable = lambda name: "error" not in runs[name]  # noqa: E731
+    # Longest first: sessions of the costliest studies start at once, short ones fill the gaps.
+    by_cost = sorted(studies, key=lambda s: -_COST.get(s[0], 1.0))
     if n_workers == 1:
-        for name, code in tasks:
+        for name, n in by_cost:
+            enrol(name, n)
+        for name, code in [(study, code) for study, _ in by_cost if study in cohorts for code in cohorts[study].codes]:
             try:
                 status, seconds = _session_task(cohorts[name], code)
                 session_done(name, code, status, seconds, None)
@@ -284,37 +366,8 @@ def run_demo(
             else:
                 report_done(name, None, None)
     else:
-        ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx) as pool:
-            reports = {}
-
-            def submit_report(name: str) -> None:
-                # As soon as a study's last session ends: its analysis overlaps the other studies' sessions.
-                if not reportable(name):
-                    report_done(name, None, None)
-                    return
-                emit((name, "analyse", 0, 1, "metrics, tests, figures"))
-                try:
-                    reports[pool.submit(_report_task, cohorts[name], str(out / name))] = name
-                except Exception as exc:  # noqa: BLE001 - a broken pool: say so for this study
-                    report_done(name, None, _error_text(exc))
-
-            futures = {pool.submit(_session_task, cohorts[name], code): (name, code) for name, code in tasks}
-            for future in as_completed(futures):
-                name, code = futures[future]
-                try:
-                    status, seconds = future.result()
-                    session_done(name, code, status, seconds, None)
-                except Exception as exc:  # noqa: BLE001
-                    session_done(name, code, None, 0.0, _error_text(exc))
-                if done[name] == len(cohorts[name].codes):
-                    submit_report(name)
-            for future in as_completed(reports):
-                name = reports[future]
-                try:
-                    report_done(name, future.result(), None)
-                except Exception as exc:  # noqa: BLE001
-                    report_done(name, None, _error_text(exc))
+        _run_pool(n_workers, by_cost, enrol=enrol, cohorts=cohorts, out=out, sessions_done=done,
+                  session_done=session_done, report_done=report_done, reportable=reportable, emit=emit)
     ordered = []
     for name, _n in studies:
         info = runs[name]

@@ -107,3 +107,18 @@ def test_the_index_shows_each_studys_own_time_and_its_agreement_with_the_paper(d
     assert run.agreement.startswith(tuple(f"{k}/" for k in range(40))) and run.agreement in page.replace("&#39;", "'")
     assert run.population and run.population.split(" (")[0] in page
     assert json.loads((result.out_dir / "demo.json").read_text())[0]["agreement"] == run.agreement
+
+
+@pytest.mark.slow
+def test_a_studys_report_goes_ahead_of_other_studies_waiting_sessions(tmp_path):
+    # bio-inspired (costlier per person) is handed out first: its one session ends while most of the data-driven
+    # sessions still wait, and its report must then run before them, not after the last of them (the pool's own
+    # first-in-first-out queue put every report behind every session)
+    events = []
+    studies = [("data_driven_palpation", 16), ("bio_inspired_palpation", 1)]
+    result = run_demo(tmp_path / "reports", seed=3, studies=studies, workers=2, on_event=events.append)
+    assert result.ok, [s.error for s in result.studies]
+    bio_done = events.index(("bio_inspired_palpation", "done", 1, 1, "report written"))
+    last_session = max(i for i, e in enumerate(events) if e[0] == "data_driven_palpation" and e[1] == "simulate")
+    assert bio_done < last_session, events
+    assert [s.study for s in result.studies] == ["data_driven_palpation", "bio_inspired_palpation"]
