@@ -154,3 +154,32 @@ def test_interfaces_keep_working_for_minimal_plugins():
     assert MinimalParticipant().params == {}
     assert MinimalScene.build({}, {}, frozenset(), None).public() == {}
     assert Controller.outputs == ()
+
+
+def test_the_installed_plugins_are_scanned_once_until_a_package_is_installed(tmp_path, monkeypatch):
+    import time
+
+    monkeypatch.syspath_prepend(str(tmp_path))
+    scans = []
+    real = registry.entry_points
+
+    def counting(**kw):
+        scans.append(kw["group"])
+        return real(**kw)
+
+    monkeypatch.setattr(registry, "entry_points", counting)
+    assert "late_scene" not in registry.known_names("scene")
+    registry.load_plugin("scene", "sponge_phantom")
+    registry.known_names("scene")
+    assert scans == ["studyctl.scenes"]  # one scan for the three lookups
+
+    time.sleep(0.05)  # past the file system's time stamp granularity, as any real install is
+    (tmp_path / "late_scene_plugin.py").write_text(
+        "from studyctl.plugins.interfaces import Scene\n\nclass LateScene(Scene):\n    '''Installed late.'''\n")
+    dist = tmp_path / "late_scene_plugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: late-scene-plugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[studyctl.scenes]\nlate_scene = late_scene_plugin:LateScene\n")
+    assert "late_scene" in registry.known_names("scene")  # the new distribution is seen
+    assert registry.load_plugin("scene", "late_scene").__name__ == "LateScene"
+    assert scans == ["studyctl.scenes", "studyctl.scenes"]
