@@ -253,8 +253,10 @@ def _run_pool(
 def _error_text(exc: BaseException) -> str:
     if isinstance(exc, StudyctlError):
         return str(exc)
-    # A bug in a plugin or here: keep the traceback in the result (demo.json), not on screen.
-    return f"{type(exc).__name__}: {exc}\n" + "".join(traceback.format_exception(exc, limit=6))
+    # A bug in a plugin or here: keep the traceback in the result (demo.json), not on screen. The screen shows the
+    # first line, so the message is put on one: multiprocessing's own errors (e.g. a script that runs the demo without
+    # an ``if __name__ == "__main__":`` guard) start with a line break and would show as a bare "RuntimeError:".
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}\n" + "".join(traceback.format_exception(exc, limit=6))
 
 
 def run_demo(
