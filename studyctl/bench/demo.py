@@ -1,6 +1,8 @@
 """``studyctl bench demo``: the whole demo (simulate, analyse, report the four studies) and its stages.
 
-Figures: ``demo_s`` (wall time of the whole demo), and per study ``analyze_s_<study>`` (metrics from the
+Figures: ``demo_s`` (wall time of the whole demo), ``cpu_s`` (user + system CPU seconds of the demo's process and its
+workers) and ``parallel_efficiency`` (``cpu_s`` over workers × ``demo_s``: the share of the pool's time spent
+working), and per study ``analyze_s_<study>`` (metrics from the
 database plus every test of the plan), ``simulate_s_<study>``, ``figures_s_<study>``, ``report_s_<study>``
 and ``total_s_<study>`` (each study runs in a worker process; its stages are timed inside it).
 ``--quick`` simulates 2 participants per study instead of the paper's cohorts (a smoke run).
@@ -9,10 +11,18 @@ and ``total_s_<study>`` (each study runs in a worker process; its stages are tim
 from __future__ import annotations
 
 import os
+import resource
 import tempfile
 import time
 
 from studyctl.bench import BenchResult
+
+
+def _cpu_s() -> float:
+    """User + system CPU seconds of this process and of its children that have ended (the demo's pool workers are
+    joined before run_demo returns)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def run(quick: bool = False) -> BenchResult:
@@ -20,10 +30,16 @@ def run(quick: bool = False) -> BenchResult:
 
     studies = [(name, 2) for name, _ in REFERENCE_STUDIES] if quick else list(REFERENCE_STUDIES)
     with tempfile.TemporaryDirectory(prefix="studyctl-bench-demo-") as tmp:
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), _cpu_s()
         result = run_demo(os.path.join(tmp, "reports"), studies=studies)
-        demo_s = time.perf_counter() - t0
-    figures: dict[str, float] = {"demo_s": demo_s}
+        demo_s, cpu_s = time.perf_counter() - t0, _cpu_s() - cpu0
+    figures: dict[str, float] = {
+        "demo_s": demo_s,
+        "cpu_s": cpu_s,
+        # how much of the workers' wall time was work: this VM's speed drifts by ~10 % between runs (CPU seconds move
+        # with it), so a change to how the work is scheduled shows here rather than in demo_s alone
+        "parallel_efficiency": cpu_s / (result.workers * demo_s) if demo_s > 0 else 0.0,
+    }
     rows = []
     for s in result.studies:
         for stage in ("analyze_s", "simulate_s", "figures_s", "report_s", "total_s"):

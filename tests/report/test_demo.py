@@ -122,3 +122,22 @@ def test_a_studys_report_goes_ahead_of_other_studies_waiting_sessions(tmp_path):
     last_session = max(i for i, e in enumerate(events) if e[0] == "data_driven_palpation" and e[1] == "simulate")
     assert bio_done < last_session, events
     assert [s.study for s in result.studies] == ["data_driven_palpation", "bio_inspired_palpation"]
+
+
+@pytest.mark.slow
+def test_bench_demo_counts_the_workers_cpu_beside_the_wall_time(monkeypatch):
+    import os
+    import time
+
+    import studyctl.workflows.demo as demo_module
+    from studyctl.bench import demo as bench_demo
+
+    monkeypatch.setattr(demo_module, "REFERENCE_STUDIES", (("data_driven_palpation", 2),))
+    own0 = time.process_time()
+    result = bench_demo.run()
+    own = time.process_time() - own0
+    f = result.figures
+    assert f["cpu_s"] > own  # the sessions and the report ran in the pool's worker processes, and are counted
+    workers = os.cpu_count() or 1  # the demo's default pool
+    assert 0.0 < f["parallel_efficiency"] <= 1.0 + own / f["demo_s"]  # the main process may add its own CPU
+    assert f["parallel_efficiency"] == pytest.approx(f["cpu_s"] / (workers * f["demo_s"]))
