@@ -23,6 +23,7 @@ import traceback
 from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,7 @@ import pandas as pd
 
 from studyctl.analysis.plan import load_plan
 from studyctl.engine.loop_rates import SIM_RATE_HZ, check_sim_rate
-from studyctl.errors import ConfigError, StudyctlError
+from studyctl.errors import ConfigError, StudyctlError, UsageError
 from studyctl.report.build import ensure_writable
 from studyctl.report.demo_index import agreement_line, demo_index_html, headline_tests
 from studyctl.workflows.report import build_report
@@ -253,6 +254,11 @@ def _run_pool(
 def _error_text(exc: BaseException) -> str:
     if isinstance(exc, StudyctlError):
         return str(exc)
+    if isinstance(exc, BrokenProcessPool):
+        # the worker's own error, if it had one, went to its stderr: say where to look and the usual causes
+        return (f"a worker process ended abruptly ({' '.join(str(exc).split())}): it was killed or ran out of memory, "
+                "or a script runs the demo without an `if __name__ == \"__main__\":` guard; the worker's own error, "
+                "if any, is on stderr above")
     # A bug in a plugin or here: keep the traceback in the result (demo.json), not on screen. The screen shows the
     # first line, so the message is put on one: multiprocessing's own errors (e.g. a script that runs the demo without
     # an ``if __name__ == "__main__":`` guard) start with a line break and would show as a bare "RuntimeError:".
@@ -292,6 +298,15 @@ def run_demo(
     on_event
         Receives progress events ``(study, stage, done, total, message)`` in the calling process.
     """
+    if getattr(mp.current_process(), "_inheriting", False):
+        # A spawned worker is importing the script that runs the demo (multiprocessing's own flag for that phase, the
+        # one its "bootstrapping phase" error reads). Going on would clear and refill the demo folder the parent is
+        # writing: refuse before anything is touched.
+        raise UsageError(
+            "run_demo was called while one of its worker processes was starting: a worker imports the script that "
+            'runs the demo, so put the call under `if __name__ == "__main__":` (Python\'s multiprocessing requires '
+            "it; the studyctl command already does)"
+        )
     t0 = time.perf_counter()
     if sim_rate_hz is not None:
 

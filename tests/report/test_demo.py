@@ -141,3 +141,22 @@ def test_bench_demo_counts_the_workers_cpu_beside_the_wall_time(monkeypatch):
     workers = os.cpu_count() or 1  # the demo's default pool
     assert 0.0 < f["parallel_efficiency"] <= 1.0 + own / f["demo_s"]  # the main process may add its own CPU
     assert f["parallel_efficiency"] == pytest.approx(f["cpu_s"] / (workers * f["demo_s"]))
+
+
+@pytest.mark.slow
+def test_a_script_without_a_main_guard_is_told_and_its_workers_touch_nothing(tmp_path):
+    # spawned workers import the script; without the guard each would run the demo again into the same folder (and
+    # clear the parent's): they refuse at once, and the parent's studies name the likely cause
+    import subprocess
+    import sys
+
+    script = tmp_path / "noguard.py"
+    script.write_text(
+        "from studyctl.workflows.demo import run_demo\n"
+        "r = run_demo('reports', studies=[('data_driven_palpation', 2)], workers=2)\n"
+        "print('ERROR', r.studies[0].error.splitlines()[0])\n"
+    )
+    out = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert "run_demo was called while one of its worker processes was starting" in out.stderr
+    (line,) = [x for x in out.stdout.splitlines() if x.startswith("ERROR")]
+    assert "a worker process ended abruptly" in line and '`if __name__ == "__main__":` guard' in line
