@@ -119,15 +119,13 @@ class SpotDecision:
             return None
         return self.learnt.get(self.info.condition)
 
-    def _cue_contrasts(self, survey: np.ndarray, pts: np.ndarray | None = None,
+    def _cue_contrasts(self, survey: np.ndarray, pts: np.ndarray,
                        ) -> list[tuple[np.ndarray, float, np.ndarray, str]] | None:
         """Per cue perceived: each press's contrast against the ``survey`` presses around it at like depths, its
         noise SD (robust, over the survey presses), which contrasts are finite, and the cue's name; None when no
-        cue was perceived. ``pts``: the presses' positions (:func:`_points`), when the caller has them."""
+        cue was perceived. ``pts``: the presses' positions (:func:`_points`), which every caller has built."""
         p = self.params
         rows = self._presses
-        if pts is None:
-            pts = _points(rows)
         cues = self._cue_values(survey)
         self.perceived = {"cues": [name for _, name in cues], "presses": len(rows), "survey": int(survey.sum()),
                           "survey_stopped_early": self._stopped_early}
@@ -311,7 +309,7 @@ class SpotDecision:
             pts = _points(self._presses)
             mark = near_marks(pts, self._marks, 0.5 * p["press_spacing_mm"] + p["tolerance_mm"])
             plain = mark < 0
-            scaled = self._cue_contrasts(plain) if len(pts) >= 5 and plain.sum() >= 5 else None
+            scaled = self._cue_contrasts(plain, pts) if len(pts) >= 5 and plain.sum() >= 5 else None
             if self.params["practice"] != "none":
                 self.learnt[self.info.condition] = learn(scaled, mark) if scaled else {}
             if self.params["thickness_prior"] == "learn":
