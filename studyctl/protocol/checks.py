@@ -9,12 +9,11 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Iterator
-from importlib import metadata
 from typing import Any
 
 from studyctl.errors import StudyctlError
 from studyctl.plugins.params import declared_problems
-from studyctl.plugins.registry import GROUPS, load_plugin
+from studyctl.plugins.registry import known_names, load_plugin
 from studyctl.problems import KeyPath, Problem, one_of, show
 from studyctl.protocol.schema import MAX_BLOCKS, MAX_REPETITIONS, MAX_TRIALS
 from studyctl.suggest import nearest
@@ -42,11 +41,6 @@ def _items(data: Any, *path: str | int) -> Iterator[tuple[int, Any]]:
 
 
 @functools.cache
-def _registered(group: str) -> tuple[str, ...]:
-    return tuple(sorted({ep.name for ep in metadata.entry_points(group=group)}))
-
-
-@functools.cache
 def _plugin_class(kind: str, name: str) -> type | None:
     try:
         return load_plugin(kind, name)
@@ -57,9 +51,9 @@ def _plugin_class(kind: str, name: str) -> type | None:
 def plugin_names(kind: str) -> list[str]:
     """Names registered under the entry-point group of a plugin kind (controller, device, scene, participant).
 
-    Read once per process: installing a plugin package takes effect in the next studyctl run.
+    The registry's scan (:func:`studyctl.plugins.registry.known_names`), kept until a package is installed.
     """
-    return list(_registered(GROUPS[kind]))
+    return known_names(kind)
 
 
 class _Checker:
